@@ -1,0 +1,21 @@
+"""Exceptions that gspc reports to users as one line (the CLI prints ``str(err)``)."""
+
+
+class GspcError(Exception):
+    """Base class: anything a user can cause with bad input or options."""
+
+
+class InputError(GspcError):
+    """An input file (scene, cameras, images) is missing, malformed or inconsistent."""
+
+
+class FormatError(GspcError):
+    """A .gspc file violates the container spec (see spec/gspc-format.md)."""
+
+
+class CodecError(GspcError):
+    """A codec payload inside a valid container cannot be decoded."""
+
+
+class DeviceError(GspcError):
+    """A requested compute device or backend is unavailable."""

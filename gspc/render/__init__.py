@@ -1,0 +1,12 @@
+"""Differentiable rendering of a GaussianScene from a Camera.
+
+``render(scene, camera)`` is the only entry point the rest of gspc uses. Backends share one
+convention (OpenCV camera, INRIA 3DGS projection and compositing):
+- ``"torch"``: tile-based pure PyTorch, runs anywhere (the CPU path);
+- ``"gsplat"``: gsplat's CUDA rasteriser, only for CUDA tensors when gsplat is installed;
+- ``"auto"``: gsplat for CUDA tensors when importable, else torch.
+"""
+
+from gspc.render.api import RenderResult, render
+
+__all__ = ["RenderResult", "render"]
