@@ -9,7 +9,7 @@ the PLY module converts.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import torch
@@ -125,4 +125,4 @@ def scene_equal(a: GaussianScene, b: GaussianScene) -> bool:
     """Bit-exact equality of every attribute (used by codec and I/O tests)."""
     if a.sh_degree != b.sh_degree:
         return False
-    return all(torch.equal(getattr(a, f.name), getattr(b, f.name)) for f in fields(a) if f.name in ATTRIBUTE_NAMES)
+    return all(torch.equal(getattr(a, name), getattr(b, name)) for name in ATTRIBUTE_NAMES)

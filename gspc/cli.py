@@ -1,0 +1,306 @@
+"""The `gspc` command line: encode, decode, info, render, eval, convert.
+
+Every user-caused failure ends as one line on stderr and exit status 1; set GSPC_DEBUG=1 for tracebacks.
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+import sys
+from contextlib import contextmanager
+from pathlib import Path
+
+import typer
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.table import Table
+
+from gspc.errors import GspcError
+
+app = typer.Typer(
+    add_completion=False, no_args_is_help=True, help="gspc: a codec for 3D Gaussian Splatting scenes."
+)
+out = Console()
+err = Console(stderr=True)
+
+
+def _one_line_errors(fn):
+    """Turn every failure into one line on stderr (tracebacks only with GSPC_DEBUG=1)."""
+
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        try:
+            import torch
+
+            torch.set_num_threads(int(os.environ.get("GSPC_THREADS", "1")))
+            return fn(*args, **kwargs)
+        except GspcError as e:
+            msg = str(e)
+        except (OSError, MemoryError) as e:
+            msg = f"{type(e).__name__}: {e}"
+        except KeyboardInterrupt:
+            msg = "interrupted"
+        except Exception as e:  # an internal bug: still one line, with a way to see more
+            if os.environ.get("GSPC_DEBUG"):
+                raise
+            msg = f"internal error ({type(e).__name__}: {e}); rerun with GSPC_DEBUG=1 for a traceback"
+        err.print(f"[red]error:[/red] {msg}", highlight=False, soft_wrap=True)
+        raise typer.Exit(1)
+
+    return wrapper
+
+
+@contextmanager
+def _progress_bars():
+    """A callback(stage, done, total) that draws one rich bar per stage."""
+    with Progress(
+        TextColumn("{task.description:<16}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        console=err,
+        transient=False,
+        disable=not err.is_terminal,
+    ) as bars:
+        tasks: dict[str, int] = {}
+
+        def update(stage: str, done: int, total: int) -> None:
+            if stage not in tasks:
+                tasks[stage] = bars.add_task(stage, total=total)
+            bars.update(tasks[stage], completed=done)
+
+        yield update
+
+
+def _summary(title: str, rep) -> None:
+    t = Table(title=title, show_header=True)
+    t.add_column("part")
+    t.add_column("bytes", justify="right")
+    t.add_column("B/Gaussian", justify="right")
+    n = max(rep.num_gaussians_out, 1)
+    for k, v in rep.bytes.items():
+        t.add_row(k, f"{v:,}", f"{v / n:.2f}")
+    out.print(t)
+    s = Table(show_header=True)
+    s.add_column("stage")
+    s.add_column("seconds", justify="right")
+    for k, v in rep.seconds.items():
+        s.add_row(k, f"{v:.2f}")
+    s.add_row("total", f"{sum(rep.seconds.values()):.2f}")
+    out.print(s)
+    facts = {"Gaussians in": rep.num_gaussians_in, "Gaussians out": rep.num_gaussians_out, **rep.info}
+    out.print("  ".join(f"{k}: {v}" for k, v in facts.items()))
+
+
+@app.command()
+@_one_line_errors
+def encode(
+    scene: Path = typer.Argument(..., help="input scene: INRIA PLY, PlayCanvas SOG or compressed PLY"),
+    output: Path = typer.Option(..., "-o", "--output", help="output .gspc file"),
+    cameras: Path | None = typer.Option(None, help="cameras.json, transforms.json or COLMAP sparse folder"),
+    quality: str = typer.Option("low", help="rate preset: low or high"),
+    lam: float | None = typer.Option(None, "--lambda", help="continuous rate knob (overrides the preset's)"),
+    target_size: int | None = typer.Option(None, help="attribute bitstream size in bytes to aim for"),
+    views_fraction: float = typer.Option(0.4, help="fraction of views that carry side information"),
+    views: int = typer.Option(60, help="views to synthesise when no cameras are given"),
+    max_side: int = typer.Option(400, help="longest side of the side-information views, in pixels"),
+    side_info: bool = typer.Option(True, help="store residual side information"),
+    keep_invisible: bool = typer.Option(False, help="keep Gaussians no view sees"),
+) -> None:
+    """Compress a 3DGS scene into a .gspc file."""
+    from gspc.pipeline import EncodeOptions
+    from gspc.pipeline import encode as run
+
+    opts = EncodeOptions(
+        quality=quality,
+        lam=lam,
+        target_size=target_size,
+        views_fraction=views_fraction,
+        synth_views=views,
+        max_side=max_side,
+        side_info=side_info,
+        keep_invisible=keep_invisible,
+    )
+    with _progress_bars() as cb:
+        rep = run(scene, output, cameras, opts, progress=cb)
+    _summary(f"gspc encode -> {output}", rep)
+
+
+@app.command()
+@_one_line_errors
+def decode(
+    source: Path = typer.Argument(..., help="input .gspc file"),
+    output: Path = typer.Option(..., "-o", "--output", help="output PLY (INRIA layout)"),
+    iterations: int = typer.Option(300, help="refinement iterations"),
+    restore: bool = typer.Option(True, help="restore the rendered views with the side information"),
+    refine: bool = typer.Option(True, help="refine the Gaussians against the restored views"),
+    restorer: str | None = typer.Option(
+        None, help="restorer to use (default: the one the file names; 'none')"
+    ),
+    device: str = typer.Option("cpu", help="cpu or cuda"),
+) -> None:
+    """Decode a .gspc file into a standard 3DGS PLY."""
+    from gspc.pipeline import DecodeOptions
+    from gspc.pipeline import decode as run
+
+    if iterations < 0:
+        raise GspcError(f"--iterations must be >= 0, got {iterations}")
+    opts = DecodeOptions(
+        iterations=iterations, restore=restore, refine=refine, restorer=restorer, device=device
+    )
+    with _progress_bars() as cb:
+        rep = run(source, output, opts, progress=cb)
+    _summary(f"gspc decode -> {output}", rep)
+
+
+def _is_gspc(path: Path) -> bool:
+    from gspc.codec.container import MAGIC
+
+    try:
+        with open(path, "rb") as f:
+            return f.read(len(MAGIC)) == MAGIC
+    except OSError:
+        return False
+
+
+@app.command()
+@_one_line_errors
+def info(path: Path = typer.Argument(..., help="a scene (PLY/SOG/compressed PLY) or a .gspc file")) -> None:
+    """Print what a file holds: counts, bounds, statistics, or a .gspc file's byte budget."""
+    if not path.exists():
+        raise GspcError(f"{path}: no such file")
+    if _is_gspc(path):
+        from gspc.codec.container import describe, read
+
+        d = describe(path)
+        header = read(path).header
+        n = max(int(header.get("scene", {}).get("num_gaussians", 0)), 1)
+        out.print(
+            f"{path}: gspc format {d['version'][0]}.{d['version'][1]}, {d['file_size']:,} bytes, "
+            f"{n:,} Gaussians, SH degree {header.get('scene', {}).get('sh_degree', '?')}, "
+            f"{len(header.get('side_info', {}).get('views', []))} side-information views"
+        )
+        t = Table(show_header=True)
+        for col in ("part", "chunks", "bytes", "B/Gaussian", "share"):
+            t.add_column(col, justify="left" if col == "part" else "right")
+        t.add_row(
+            "header",
+            "",
+            f"{d['header_size']:,}",
+            f"{d['header_size'] / n:.2f}",
+            f"{d['header_size'] / d['file_size']:.1%}",
+        )
+        for typ, size in d["bytes_per_type"].items():
+            cnt = sum(1 for c in d["chunks"] if c["type"] == typ)
+            t.add_row(typ, str(cnt), f"{size:,}", f"{size / n:.2f}", f"{size / d['file_size']:.1%}")
+        out.print(t)
+        return
+    from gspc.io import read_scene
+    from gspc.stats import scene_stats
+
+    st = scene_stats(read_scene(path))
+    t = Table(title=str(path), show_header=True)
+    t.add_column("statistic")
+    t.add_column("value", justify="right")
+    for k, v in _flatten(st):
+        t.add_row(k, _fmt(v))
+    out.print(t)
+
+
+def _flatten(d, prefix=""):
+    for k, v in d.items():
+        if isinstance(v, dict):
+            yield from _flatten(v, f"{prefix}{k}.")
+        else:
+            yield f"{prefix}{k}", v
+
+
+def _fmt(v) -> str:
+    if isinstance(v, float):
+        return f"{v:.6g}"
+    if isinstance(v, list | tuple):
+        return "[" + ", ".join(_fmt(x) for x in v) + "]"
+    return f"{v:,}" if isinstance(v, int) else str(v)
+
+
+def _cameras_for(scene, cameras: Path | None, views: int, max_side: int):
+    from gspc.cameras import load_cameras, synthesize_views
+    from gspc.pipeline import _fit_side
+
+    cams = load_cameras(cameras) if cameras else synthesize_views(scene, views)
+    return _fit_side(cams, max_side)
+
+
+@app.command()
+@_one_line_errors
+def render(
+    scene: Path = typer.Argument(..., help="scene file (PLY/SOG/compressed PLY)"),
+    output: Path = typer.Option(..., "-o", "--output", help="folder for the PNGs"),
+    cameras: Path | None = typer.Option(None, help="camera file; default: synthesised views"),
+    views: int = typer.Option(8, help="views to synthesise when no cameras are given"),
+    max_side: int = typer.Option(800, help="longest image side in pixels"),
+) -> None:
+    """Render a scene to PNGs."""
+    import imagecodecs
+
+    from gspc.io import read_scene
+    from gspc.pipeline import render_images
+
+    sc = read_scene(scene)
+    cams = _cameras_for(sc, cameras, views, max_side)
+    output.mkdir(parents=True, exist_ok=True)
+    with _progress_bars() as cb:
+        imgs = render_images(sc, cams, (0.0, 0.0, 0.0), cb)
+    for i, (cam, img) in enumerate(zip(cams, imgs)):
+        name = (cam.name or f"view_{i:03d}").replace("/", "_")
+        tmp = output / f".{name}.png.tmp"
+        tmp.write_bytes(imagecodecs.png_encode((img.numpy() * 255 + 0.5).astype("uint8")))
+        os.replace(tmp, output / f"{name}.png")
+    out.print(f"wrote {len(imgs)} images to {output}")
+
+
+@app.command(name="eval")
+@_one_line_errors
+def evaluate(
+    reference: Path = typer.Argument(..., help="reference scene"),
+    test: Path = typer.Argument(..., help="scene to score against the reference's renders"),
+    cameras: Path | None = typer.Option(None, help="camera file; default: synthesised views"),
+    views: int = typer.Option(16, help="views to synthesise when no cameras are given"),
+    max_side: int = typer.Option(400, help="longest image side in pixels"),
+) -> None:
+    """PSNR and SSIM of one scene's renders against another's (8-bit, 3DGS convention)."""
+    from gspc.io import read_scene
+    from gspc.metrics import psnr, quantize8, ssim
+    from gspc.pipeline import render_images
+
+    ref, tst = read_scene(reference), read_scene(test)
+    cams = _cameras_for(ref, cameras, views, max_side)
+    with _progress_bars() as cb:
+        a = render_images(ref, cams, (0.0, 0.0, 0.0), cb, "render reference")
+        b = render_images(tst, cams, (0.0, 0.0, 0.0), cb, "render test")
+    p = sum(float(psnr(quantize8(x), quantize8(y))) for x, y in zip(a, b)) / len(cams)
+    s = sum(float(ssim(quantize8(x), quantize8(y))) for x, y in zip(a, b)) / len(cams)
+    out.print(f"views: {len(cams)}  PSNR: {p:.3f} dB  SSIM: {s:.4f}")
+
+
+@app.command()
+@_one_line_errors
+def convert(
+    scene: Path = typer.Argument(..., help="scene file (PLY/SOG/compressed PLY)"),
+    output: Path = typer.Option(..., "-o", "--output", help="output PLY (INRIA layout)"),
+) -> None:
+    """Convert any readable scene to a standard INRIA 3DGS PLY."""
+    from gspc.io import read_scene, write_ply
+
+    sc = read_scene(scene)
+    write_ply(sc, output)
+    out.print(f"wrote {sc.num_gaussians:,} Gaussians (SH degree {sc.sh_degree}) to {output}")
+
+
+def main() -> None:  # pragma: no cover - console script entry
+    app()
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

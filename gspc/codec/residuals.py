@@ -1,0 +1,191 @@
+"""Side information: signed render residuals R = I - I~ coded as small lossy images.
+
+A residual (H, W, 3) float32 is mapped to unsigned integers ``q = round(R * gain + offset)``
+(offset at mid-range, gain from a robust percentile of |R| so clipping is rare), then coded by a
+still-image codec. ``meta`` (msgpack-able) holds everything :func:`decode_residual` needs.
+
+Image codecs sit behind one table, ``IMAGE_CODECS``: name -> (encode(img, level), decode(bytes)).
+``level`` is each codec's own knob: JPEG XL butteraugli distance (lower is finer), WebP/AVIF
+quality 0-100 (higher is finer). Decoding is deterministic: the codecs return integers and the
+float mapping is plain numpy arithmetic.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import imagecodecs
+import numpy as np
+
+from gspc.errors import CodecError, InputError
+
+# Effort 3 codes residuals as small as effort 7 at ~15x the speed (FINDINGS.md).
+JXL_EFFORT = 3
+DEFAULT_PARAMS = {
+    "codec": "jxl",
+    "level": 2.0,  # JPEG XL distance
+    "bits": 8,
+    "percentile": 99.9,  # |R| at this percentile maps to the edge of the integer range
+    "max_gain": 2048.0,  # caps amplification of near-zero residuals (in units of 1/range)
+    "tile": 32,  # tiles whose RMS is below zero_rms are zeroed before coding; 0 disables
+    "zero_rms": 0.0,
+}
+
+
+def _jxl_encode(img: np.ndarray, level: float) -> bytes:
+    return imagecodecs.jpegxl_encode(img, distance=float(level), effort=JXL_EFFORT)
+
+
+def _jxl_decode(data: bytes) -> np.ndarray:
+    return imagecodecs.jpegxl_decode(data)
+
+
+def _webp_encode(img: np.ndarray, level: float) -> bytes:
+    # imagecodecs codes WebP losslessly unless told otherwise.
+    return imagecodecs.webp_encode(img, level=float(level), lossless=False, method=4)
+
+
+def _avif_encode(img: np.ndarray, level: float) -> bytes:
+    # 4:4:4 keeps chroma resolution: residual colour errors are not smooth like photos.
+    return imagecodecs.avif_encode(img, level=int(round(level)), speed=8, pixelformat="444")
+
+
+ImageCodec = tuple[Callable[[np.ndarray, float], bytes], Callable[[bytes], np.ndarray]]
+
+
+def _available_codecs() -> dict[str, ImageCodec]:
+    table = {}
+    if imagecodecs.JPEGXL.available:
+        table["jxl"] = (_jxl_encode, _jxl_decode)
+    if imagecodecs.WEBP.available:
+        table["webp"] = (_webp_encode, imagecodecs.webp_decode)
+    if imagecodecs.AVIF.available:
+        table["avif"] = (_avif_encode, imagecodecs.avif_decode)
+    return table
+
+
+IMAGE_CODECS = _available_codecs()
+# Which codecs accept 16-bit samples through imagecodecs (WebP is 8-bit only).
+_SUPPORTS_16BIT = {"jxl", "avif"}
+
+
+def _image_codec(name: str):
+    if name not in IMAGE_CODECS:
+        raise CodecError(f"residual image codec {name!r} is not available (have: {', '.join(IMAGE_CODECS)})")
+    return IMAGE_CODECS[name]
+
+
+def choose_gain(
+    residual: np.ndarray, bits: int = 8, percentile: float = 99.9, max_gain: float = 2048.0
+) -> float:
+    """Gain mapping |R| at ``percentile`` to the edge of the ``bits`` integer range.
+
+    ``max_gain`` is per 8-bit level and scaled for 16 bits. The result is rounded to a float32 so
+    encoder and decoder use the identical value after msgpack.
+    """
+    half = (1 << (bits - 1)) - 1
+    p = float(np.percentile(np.abs(residual), percentile)) if residual.size else 0.0
+    cap = max_gain * (1 << (bits - 8))
+    gain = cap if p <= half / cap else half / p
+    return float(np.float32(gain))
+
+
+def _zero_quiet_tiles(residual: np.ndarray, tile: int, zero_rms: float) -> tuple[np.ndarray, int]:
+    """Residual with every tile whose RMS is below ``zero_rms`` set to 0; returns (array, tiles zeroed)."""
+    if tile <= 0 or zero_rms <= 0:
+        return residual, 0
+    h, w, _ = residual.shape
+    out = residual.copy()
+    zeroed = 0
+    for y in range(0, h, tile):
+        for x in range(0, w, tile):
+            block = out[y : y + tile, x : x + tile]
+            if float(np.sqrt(np.mean(block.astype(np.float64) ** 2))) < zero_rms:
+                block[...] = 0
+                zeroed += 1
+    return out, zeroed
+
+
+def encode_residual(residual: np.ndarray, params: dict | None = None) -> tuple[bytes, dict]:
+    """Code a signed residual (H, W, 3) float. Returns (payload, meta); see DEFAULT_PARAMS for params."""
+    p = {**DEFAULT_PARAMS, **(params or {})}
+    r = np.asarray(residual, dtype=np.float32)
+    if r.ndim != 3 or r.shape[2] != 3:
+        raise InputError(f"residual must be HxWx3, got shape {r.shape}")
+    if not np.isfinite(r).all():
+        raise InputError("residual has NaN or Inf values")
+    bits = int(p["bits"])
+    if bits not in (8, 16) or (bits == 16 and p["codec"] not in _SUPPORTS_16BIT):
+        raise InputError(f"residual codec {p['codec']!r} does not take {bits}-bit samples")
+    encode, _ = _image_codec(p["codec"])
+    r, zeroed = _zero_quiet_tiles(r, int(p["tile"]), float(p["zero_rms"]))
+    gain = choose_gain(r, bits, float(p["percentile"]), float(p["max_gain"]))
+    offset = 1 << (bits - 1)
+    top = (1 << bits) - 1
+    dtype = np.uint8 if bits == 8 else np.uint16
+    q = np.clip(np.rint(r * np.float32(gain) + offset), 0, top).astype(dtype)
+    payload = encode(np.ascontiguousarray(q), float(p["level"]))
+    meta = {
+        "codec": p["codec"],
+        "shape": [int(r.shape[0]), int(r.shape[1])],
+        "bits": bits,
+        "gain": gain,
+        "offset": offset,
+        "level": float(p["level"]),
+        "zeroed_tiles": zeroed,
+    }
+    return payload, meta
+
+
+def decode_residual(payload: bytes, meta: dict) -> np.ndarray:
+    """Inverse of :func:`encode_residual`: (H, W, 3) float32. Raises CodecError on bad data."""
+    try:
+        codec, (h, w) = meta["codec"], meta["shape"]
+        gain, offset = np.float32(meta["gain"]), np.float32(meta["offset"])
+    except (KeyError, TypeError, ValueError) as e:
+        raise CodecError(f"residual metadata is incomplete: {e}") from None
+    _, decode = _image_codec(codec)
+    try:
+        q = decode(payload)
+    except Exception as e:  # imagecodecs raises its own per-codec error classes
+        raise CodecError(f"residual {codec} payload does not decode: {e}") from None
+    if q.ndim == 2:
+        q = np.repeat(q[:, :, None], 3, axis=2)
+    if q.shape[:2] != (h, w) or q.shape[2] < 3:
+        raise CodecError(f"residual decodes to shape {q.shape}, expected {h}x{w}x3")
+    if not gain > 0:
+        raise CodecError(f"residual gain {float(gain)} is not positive")
+    return ((q[:, :, :3].astype(np.float32) - offset) / gain).astype(np.float32)
+
+
+def plan_residual_rates(
+    residuals: list[np.ndarray],
+    base_distance: float,
+    skip_rms: float = 1.0 / 255,
+    strength: float = 0.5,
+    clamp: tuple[float, float] = (0.5, 2.0),
+) -> list[float | None]:
+    """JPEG XL distance per view, or None for views not worth a chunk.
+
+    Views whose residual RMS is below ``skip_rms`` (default: a third-of-a-level in 8-bit images,
+    i.e. nothing a viewer sees) are skipped. The others get
+    ``base_distance * clip((median_rms / rms) ** strength, *clamp)``: finer coding where the
+    compressed scene went most wrong. Because the gain normalises each residual to the integer
+    range, a fixed distance gives an error roughly proportional to the view's RMS; the exponent
+    moves part of the budget from quiet views to loud ones (measured in bench/residual_codecs.md).
+    """
+    rms = [
+        float(np.sqrt(np.mean(np.asarray(r, dtype=np.float64) ** 2))) if r.size else 0.0 for r in residuals
+    ]
+    kept = [v for v in rms if v >= skip_rms]
+    if not kept:
+        return [None] * len(residuals)
+    median = float(np.median(kept))
+    lo, hi = clamp
+    out: list[float | None] = []
+    for v in rms:
+        if v < skip_rms:
+            out.append(None)
+        else:
+            out.append(float(base_distance * np.clip((median / v) ** strength, lo, hi)))
+    return out

@@ -1,0 +1,180 @@
+"""INRIA 3DGS PLY: the layout written by the reference training code and read by every viewer.
+
+One ``vertex`` element with float properties ``x y z``, optional normals ``nx ny nz``, ``f_dc_0..2``,
+``f_rest_0..3K-1`` (channel-major: the K red coefficients, then green, then blue), ``opacity`` (logit),
+``scale_0..2`` (log) and ``rot_0..3`` (w, x, y, z, unnormalised). Any other vertex property is kept in
+``scene.extra`` and written back unchanged.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import torch
+from plyfile import PlyData, PlyElement
+
+from gspc.errors import InputError
+from gspc.scene import GaussianScene, num_sh_rest, sh_degree_from_rest
+
+POSITION = ("x", "y", "z")
+NORMALS = ("nx", "ny", "nz")
+DC = ("f_dc_0", "f_dc_1", "f_dc_2")
+SCALES = ("scale_0", "scale_1", "scale_2")
+ROTATION = ("rot_0", "rot_1", "rot_2", "rot_3")
+OPACITY = "opacity"
+
+
+def rest_names(k: int) -> list[str]:
+    """Names of the 3K channel-major f_rest properties for K coefficients per channel."""
+    return [f"f_rest_{i}" for i in range(3 * k)]
+
+
+def inria_bytes_per_gaussian(sh_degree: int) -> int:
+    """Size of one vertex in the INRIA layout (float32, normals included): 248 at degree 3."""
+    return 4 * (3 + 3 + 3 + 3 * num_sh_rest(sh_degree) + 1 + 3 + 4)
+
+
+def _one_line(err: BaseException) -> str:
+    return " ".join(str(err).split()) or type(err).__name__
+
+
+def load_plydata(path: str | os.PathLike) -> PlyData:
+    """Parse a PLY file fully (no memory map, so truncation is caught here); InputError otherwise."""
+    path = Path(path)
+    if not path.exists():
+        raise InputError(f"{path}: no such file")
+    if path.is_dir():
+        raise InputError(f"{path}: is a directory, expected a PLY file")
+    with open(path, "rb") as f:
+        if f.read(4) not in (b"ply\n", b"ply\r"):
+            raise InputError(f"{path}: not a PLY file (no 'ply' magic line)")
+        f.seek(0)
+        try:
+            return PlyData.read(f)
+        except Exception as err:  # plyfile raises several types (parse errors, ValueError, struct errors)
+            raise InputError(f"{path}: unreadable or truncated PLY ({_one_line(err)})") from err
+
+
+def _column(data: np.ndarray, name: str) -> np.ndarray:
+    return np.asarray(data[name], dtype=np.float32)
+
+
+def scene_from_plydata(ply: PlyData, source: str = "PLY") -> GaussianScene:
+    """Build a validated scene from a parsed INRIA-layout PLY."""
+    names = [e.name for e in ply.elements]
+    if "vertex" not in names:
+        raise InputError(f"{source}: no 'vertex' element (elements: {', '.join(names) or 'none'})")
+    vertex = ply["vertex"]
+    data = vertex.data
+    props = list(data.dtype.names or ())
+    n = len(data)
+    if n == 0:
+        raise InputError(f"{source}: scene has zero Gaussians")
+
+    rest_present = [p for p in props if p.startswith("f_rest_")]
+    if len(rest_present) % 3:
+        raise InputError(f"{source}: {len(rest_present)} f_rest properties is not a multiple of 3")
+    k = len(rest_present) // 3
+    try:
+        deg = sh_degree_from_rest(k)
+    except InputError as err:
+        raise InputError(f"{source}: {len(rest_present)} f_rest properties match no SH degree 0-3") from err
+
+    required = [*POSITION, *DC, *rest_names(k), OPACITY, *SCALES, *ROTATION]
+    missing = [p for p in required if p not in props]
+    if missing:
+        raise InputError(f"{source}: missing vertex properties: {', '.join(missing)}")
+
+    def stack(cols) -> torch.Tensor:
+        return torch.from_numpy(np.stack([_column(data, c) for c in cols], axis=1))
+
+    if k:
+        rest = np.stack([_column(data, c) for c in rest_names(k)], axis=1)  # (N, 3K) channel-major
+        sh_rest = torch.from_numpy(np.ascontiguousarray(rest.reshape(n, 3, k).transpose(0, 2, 1)))
+    else:
+        sh_rest = torch.zeros(n, 0, 3)
+    known = set(required)
+    extra = {p: np.array(data[p]) for p in props if p not in known}
+    scene = GaussianScene(
+        means=stack(POSITION),
+        quats=stack(ROTATION),
+        log_scales=stack(SCALES),
+        opacities=torch.from_numpy(_column(data, OPACITY).copy()),
+        sh_dc=stack(DC),
+        sh_rest=sh_rest,
+        sh_degree=deg,
+        extra=extra,
+    )
+    try:
+        return scene.validate()
+    except InputError as err:
+        raise InputError(f"{source}: {err}") from err
+
+
+def read_ply(path: str | os.PathLike) -> GaussianScene:
+    """Read an INRIA-layout 3DGS PLY (binary either endianness, or ASCII)."""
+    return scene_from_plydata(load_plydata(path), source=str(path))
+
+
+def _f32(t: torch.Tensor) -> np.ndarray:
+    return t.detach().to("cpu", torch.float32).numpy()
+
+
+def scene_to_vertex_array(scene: GaussianScene) -> np.ndarray:
+    """The scene as one structured array in INRIA property order, extras appended."""
+    scene.validate()
+    n, k = scene.num_gaussians, num_sh_rest(scene.sh_degree)
+    columns: list[tuple[str, np.ndarray]] = []
+    means = _f32(scene.means)
+    columns += [(name, means[:, i]) for i, name in enumerate(POSITION)]
+    for name in NORMALS:  # INRIA writes zero normals; keep real ones when a source had them
+        columns.append((name, scene.extra[name] if name in scene.extra else np.zeros(n, np.float32)))
+    dc = _f32(scene.sh_dc)
+    columns += [(name, dc[:, i]) for i, name in enumerate(DC)]
+    rest = _f32(scene.sh_rest).transpose(0, 2, 1).reshape(n, 3 * k)  # coefficient-major -> channel-major
+    columns += [(name, rest[:, i]) for i, name in enumerate(rest_names(k))]
+    columns.append((OPACITY, _f32(scene.opacities).reshape(n)))
+    scales = _f32(scene.log_scales)
+    columns += [(name, scales[:, i]) for i, name in enumerate(SCALES)]
+    quats = _f32(scene.quats)
+    columns += [(name, quats[:, i]) for i, name in enumerate(ROTATION)]
+    taken = {name for name, _ in columns}
+    for name, values in scene.extra.items():
+        if name in taken:
+            continue
+        values = np.asarray(values)
+        if values.shape != (n,):
+            raise InputError(f"extra property {name} has shape {values.shape}, expected ({n},)")
+        columns.append((name, values))
+
+    def le(dtype: np.dtype) -> str:
+        return np.dtype(dtype).newbyteorder("<").str
+
+    dtype = [(name, le(np.float32) if name in taken else le(values.dtype)) for name, values in columns]
+    out = np.empty(n, dtype=dtype)
+    for name, values in columns:
+        out[name] = values
+    return out
+
+
+def write_ply(scene: GaussianScene, path: str | os.PathLike) -> None:
+    """Write ``scene`` as a binary little-endian INRIA PLY, atomically (temp file + rename)."""
+    path = Path(path)
+    vertices = scene_to_vertex_array(scene)
+    element = PlyElement.describe(vertices, "vertex")
+    ply = PlyData([element], text=False, byte_order="<")
+    directory = path.parent
+    if not directory.is_dir():
+        raise InputError(f"{path}: output directory {directory} does not exist")
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=directory)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            ply.write(f)
+        os.chmod(tmp, 0o644)  # mkstemp makes 0600; give the file the usual permissions
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise

@@ -1,0 +1,270 @@
+"""encode() and decode(): orchestration of the gspc stages; the maths lives in the modules called here.
+
+encode:  scene -> attribute codec -> G~ (through the decoder's own path)
+         cameras -> sampled views -> render G and G~ -> residuals -> JPEG XL -> container
+decode:  container -> G~ -> render at stored views -> restore (I~ (+) R~) -> refine -> PLY
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from gspc import __version__
+from gspc.cameras import Camera, load_cameras, sample_views, synthesize_views
+from gspc.codec import container, residuals
+from gspc.codec.attributes import decode_attributes, encode_attributes, search_lambda
+from gspc.errors import CodecError, DeviceError, InputError
+from gspc.io import read_scene, write_ply
+from gspc.presets import quality_preset
+from gspc.refine import refine
+from gspc.render import render
+from gspc.restore.restorer import load_restorer
+from gspc.scene import GaussianScene
+from gspc.visibility import visible_mask
+
+ATTRIBUTE_CHUNKS = ("POSN", "OPAC", "SCAL", "ROTN", "SHDC", "SHRS")
+RESIDUAL_CHUNK = "RESI"
+DEFAULT_RESTORER = "none"  # replaced by the shipped restorer's name once trained weights exist
+
+Progress = Callable[[str, int, int], None]  # (stage, done, total)
+
+
+@dataclass
+class EncodeOptions:
+    quality: str = "low"
+    lam: float | None = None  # continuous rate knob; overrides the preset's
+    target_size: int | None = None  # bytes for the attribute bitstream; searches lam
+    views_fraction: float = 0.4
+    synth_views: int = 60  # cameras synthesised when the input has none
+    max_side: int = 400  # side-information views are rendered at most this large
+    residual_codec: str | None = None  # overrides the preset's
+    residual_distance: float | None = None  # overrides the preset's
+    side_info: bool = True
+    restorer: str = DEFAULT_RESTORER
+    keep_invisible: bool = False
+    background: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+
+@dataclass
+class DecodeOptions:
+    iterations: int = 300
+    restore: bool = True
+    refine: bool = True
+    restorer: str | None = None  # None: the one the bitstream names
+    device: str = "cpu"
+    seed: int = 0
+
+
+@dataclass
+class Report:
+    """What a run did: bytes per part and seconds per stage, for the CLI's summary table."""
+
+    num_gaussians_in: int = 0
+    num_gaussians_out: int = 0
+    bytes: dict[str, int] = field(default_factory=dict)
+    seconds: dict[str, float] = field(default_factory=dict)
+    info: dict[str, object] = field(default_factory=dict)
+
+    def timed(self, stage: str):
+        return _Timer(self.seconds, stage)
+
+
+class _Timer:
+    def __init__(self, sink: dict[str, float], stage: str):
+        self.sink, self.stage = sink, stage
+
+    def __enter__(self):
+        self.t0 = time.perf_counter()
+
+    def __exit__(self, *exc):
+        self.sink[self.stage] = self.sink.get(self.stage, 0.0) + time.perf_counter() - self.t0
+
+
+def _fit_side(cameras: list[Camera], max_side: int) -> list[Camera]:
+    return [
+        c.scaled(max_side / max(c.width, c.height)) if max(c.width, c.height) > max_side else c
+        for c in cameras
+    ]
+
+
+@torch.no_grad()
+def render_images(
+    scene: GaussianScene,
+    cameras: list[Camera],
+    background,
+    progress: Progress | None = None,
+    stage: str = "render",
+) -> list[torch.Tensor]:
+    """Clamped renders, one per camera (what a viewer displays)."""
+    bg = torch.tensor(background, dtype=scene.means.dtype, device=scene.means.device)
+    out = []
+    for i, cam in enumerate(cameras):
+        out.append(render(scene, cam, background=bg).image.clamp(0, 1))
+        if progress:
+            progress(stage, i + 1, len(cameras))
+    return out
+
+
+def _codec_params(opts: EncodeOptions):
+    params = quality_preset(opts.quality).attributes
+    if opts.lam is not None:
+        if not opts.lam > 0:
+            raise InputError(f"--lambda must be positive, got {opts.lam}")
+        params = replace(params, lam=opts.lam)
+    if opts.keep_invisible:
+        params = replace(params, keep_invisible=True)
+    return params
+
+
+def encode(
+    scene_path: str | Path,
+    out_path: str | Path,
+    cameras_path: str | Path | None = None,
+    opts: EncodeOptions | None = None,
+    progress: Progress | None = None,
+) -> Report:
+    opts = opts or EncodeOptions()
+    rep = Report()
+    if not 0 < opts.views_fraction <= 1:
+        raise InputError(f"--views-fraction must be in (0, 1], got {opts.views_fraction}")
+    with rep.timed("read"):
+        scene = read_scene(scene_path)
+        cameras = load_cameras(cameras_path) if cameras_path else synthesize_views(scene, opts.synth_views)
+        cameras = _fit_side(cameras, opts.max_side)
+    rep.num_gaussians_in = scene.num_gaussians
+    params = _codec_params(opts)
+
+    with rep.timed("attributes"):
+        visible = visible_mask(scene.means.numpy(), scene.log_scales.numpy(), cameras)
+        if opts.target_size is not None:
+            enc = search_lambda(scene, opts.target_size, params, visible=visible)
+        else:
+            enc = encode_attributes(scene, params, visible=visible)
+    rep.num_gaussians_out = enc.decoded.num_gaussians
+
+    chunks = [container.Chunk(name, enc.chunks[name]) for name in ATTRIBUTE_CHUNKS if name in enc.chunks]
+    views = sample_views(cameras, opts.views_fraction) if opts.side_info else []
+    view_records = []
+    if views:
+        view_cams = [cameras[i] for i in views]
+        with rep.timed("render"):
+            original = render_images(scene, view_cams, opts.background, progress, "render original")
+            coded = render_images(enc.decoded, view_cams, opts.background, progress, "render coded")
+        with rep.timed("side info"):
+            res = [(a - b).numpy().astype(np.float32) for a, b in zip(original, coded)]
+            q = quality_preset(opts.quality)
+            level = opts.residual_distance if opts.residual_distance is not None else q.residual_level
+            codec = opts.residual_codec or q.residual_codec
+            plan = residuals.plan_residual_rates(res, level)
+            for k, (cam, r, d) in enumerate(zip(view_cams, res, plan)):
+                record = {"camera": cam.to_dict()}
+                if d is not None:
+                    payload, meta = residuals.encode_residual(r, {"codec": codec, "level": d})
+                    chunks.append(container.Chunk(RESIDUAL_CHUNK, payload, required=True, index=k))
+                    record["residual"] = meta
+                view_records.append(record)
+
+    header = {
+        "encoder": f"gspc {__version__}",
+        "scene": {
+            "num_gaussians": enc.decoded.num_gaussians,
+            "sh_degree": enc.decoded.sh_degree,
+            "source_gaussians": scene.num_gaussians,
+        },
+        "attributes": enc.meta,
+        "side_info": {"views": view_records, "background": list(opts.background), "restorer": opts.restorer},
+    }
+    with rep.timed("write"):
+        container.write(out_path, header, chunks)
+    rep.bytes = _byte_budget(Path(out_path))
+    rep.info["views"] = len(view_records)
+    rep.info["views with residual"] = sum("residual" in v for v in view_records)
+    return rep
+
+
+def _byte_budget(path: Path) -> dict[str, int]:
+    d = container.describe(path)
+    budget = {"file": int(d["file_size"])}
+    budget.update({k: int(v) for k, v in d["bytes_per_type"].items()})
+    budget["header+framing"] = budget["file"] - sum(v for k, v in budget.items() if k != "file")
+    return budget
+
+
+def _check_device(device: str) -> torch.device:
+    if device not in ("cpu", "cuda"):
+        raise DeviceError(f"unknown device {device!r}; use cpu or cuda")
+    if device == "cuda" and not torch.cuda.is_available():
+        raise DeviceError("--device cuda was requested but no CUDA GPU is available")
+    return torch.device(device)
+
+
+def decode(
+    in_path: str | Path,
+    out_path: str | Path,
+    opts: DecodeOptions | None = None,
+    progress: Progress | None = None,
+) -> Report:
+    opts = opts or DecodeOptions()
+    rep = Report()
+    device = _check_device(opts.device)
+    with rep.timed("read"):
+        c = container.read(in_path)
+        header = c.header
+        try:
+            attr_meta, side = header["attributes"], header["side_info"]
+            views = side["views"]
+            background = tuple(float(v) for v in side["background"])
+        except (KeyError, TypeError, ValueError):
+            raise CodecError(
+                "the .gspc header lacks the attributes or side_info section gspc 1 writes"
+            ) from None
+        chunks = {ch.type: ch.payload for ch in c.chunks if ch.type in ATTRIBUTE_CHUNKS}
+        res_chunks = {ch.index: ch.payload for ch in c.chunks if ch.type == RESIDUAL_CHUNK}
+        restorer_name = opts.restorer if opts.restorer is not None else side.get("restorer", "none")
+        restorer = load_restorer(restorer_name) if opts.restore else None
+    rep.bytes = _byte_budget(Path(in_path))
+    with rep.timed("attributes"):
+        scene = decode_attributes(chunks, attr_meta)
+    rep.num_gaussians_in = rep.num_gaussians_out = scene.num_gaussians
+    scene = scene.to(device)
+    cams = [Camera.from_dict(v["camera"]) for v in views]
+
+    if cams and (opts.restore or opts.refine):
+        with rep.timed("render"):
+            degraded = render_images(scene, cams, background, progress, "render coded")
+        with rep.timed("restore"):
+            targets = []
+            for k, (img, v) in enumerate(zip(degraded, views)):
+                if "residual" in v and k in res_chunks:
+                    r = residuals.decode_residual(res_chunks[k], v["residual"])
+                    r = torch.from_numpy(r).to(img)
+                else:
+                    r = torch.zeros_like(img)
+                target = restorer.restore(img, r) if restorer is not None else img
+                targets.append(target.clamp(0, 1))
+                if progress:
+                    progress("restore", k + 1, len(cams))
+        if opts.refine and opts.iterations > 0:
+            with rep.timed("refine"):
+                cb = (lambda i, loss: progress("refine", i, opts.iterations)) if progress else None
+                bg = torch.tensor(background, dtype=scene.means.dtype, device=device)
+                scene = refine(
+                    scene,
+                    cams,
+                    targets,
+                    iterations=opts.iterations,
+                    background=bg,
+                    seed=opts.seed,
+                    progress=cb,
+                )
+    rep.info["restorer"] = restorer_name if opts.restore else "off"
+    rep.info["views"] = len(cams)
+    with rep.timed("write"):
+        write_ply(scene.to("cpu"), out_path)
+    return rep

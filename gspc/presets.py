@@ -1,0 +1,33 @@
+"""Named quality presets: one table for the whole encoder (attribute codec + side information).
+
+Like CompressAI's zoo: a preset is a name for a complete, versioned configuration; CLI options
+override single fields.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from gspc.codec.presets import PRESETS as ATTRIBUTE_PRESETS
+from gspc.codec.presets import CodecParams
+from gspc.errors import InputError
+
+
+@dataclass(frozen=True)
+class Preset:
+    attributes: CodecParams
+    residual_codec: str = "jxl"
+    residual_level: float = 4.0  # JPEG XL distance (coarser is larger)
+
+
+QUALITY: dict[str, Preset] = {
+    "low": Preset(ATTRIBUTE_PRESETS["low"], "jxl", 4.0),
+    "high": Preset(ATTRIBUTE_PRESETS["high"], "jxl", 2.0),
+}
+
+
+def quality_preset(name: str) -> Preset:
+    try:
+        return QUALITY[name]
+    except KeyError:
+        raise InputError(f"unknown quality preset {name!r}; choose one of {', '.join(QUALITY)}") from None

@@ -1,0 +1,145 @@
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from gspc.codec.attributes import (
+    _rotation_dequantise,
+    _rotation_quantise,
+    decode_attributes,
+    encode_attributes,
+    rotation_error_bound,
+    search_lambda,
+)
+from gspc.codec.presets import PRESETS, CodecParams
+from gspc.errors import CodecError
+from gspc.scene import make_scene, num_sh_rest, scene_equal
+
+
+def _scene(n=500, degree=3, seed=0, **over):
+    rng = np.random.default_rng(seed)
+    k = num_sh_rest(degree)
+    attrs = dict(
+        means=rng.normal(size=(n, 3)),
+        quats=rng.normal(size=(n, 4)),
+        log_scales=rng.normal(-4, 1, size=(n, 3)),
+        opacities=rng.normal(1, 2, size=n),
+        sh_dc=rng.normal(size=(n, 3)),
+        sh_rest=rng.normal(0, 0.05, size=(n, k, 3)) * (rng.uniform(size=(n, 1, 1)) < 0.5),
+    )
+    attrs.update(over)
+    return make_scene(**attrs, sh_degree=degree)
+
+
+def _check_exact(scene, params=PRESETS["high"], visible=None):
+    enc = encode_attributes(scene, params, visible)
+    dec = decode_attributes(enc.chunks, enc.meta)
+    assert scene_equal(dec, enc.decoded)
+    assert dec.num_gaussians == len(enc.kept)
+    dec.validate()
+    return enc
+
+
+@pytest.mark.parametrize("degree", [0, 1, 2, 3])
+def test_sh_degrees(degree):
+    enc = _check_exact(_scene(degree=degree))
+    assert ("SHRS" in enc.chunks) == (degree > 0)
+
+
+HARD = {
+    "one": dict(n=1),
+    "one_point": dict(means=np.zeros((300, 3)) + 0.25),
+    "far": dict(means=1e6 + np.random.default_rng(1).normal(size=(300, 3))),
+    "huge_tiny_scales": dict(log_scales=np.random.default_rng(2).choice([-30.0, 20.0], size=(500, 3))),
+    "opacity_0_1": dict(opacities=np.random.default_rng(3).choice([-30.0, 30.0], size=500)),
+    "sh_zero": dict(sh_rest=np.zeros((500, 15, 3)), sh_dc=np.zeros((500, 3))),
+}
+
+
+@pytest.mark.parametrize("case", list(HARD))
+def test_hard_cases(case):
+    over = dict(HARD[case])
+    n = over.pop("n", None) or len(next(iter(over.values())))
+    params = CodecParams(keep_transparent=True)
+    _check_exact(_scene(n=n, **over), params)
+    _check_exact(_scene(n=n, **over), PRESETS["low"]) if case != "opacity_0_1" else None
+
+
+def test_attribute_errors_within_steps():
+    scene = _scene(n=2000, degree=1)
+    p = CodecParams(keep_transparent=True)
+    enc = _check_exact(scene, p)
+    src, dec = scene.subset(enc.kept), enc.decoded
+    assert (dec.log_scales - src.log_scales).abs().max() <= p.scale_step / 2 + 1e-6
+    assert (dec.sh_dc - src.sh_dc).abs().max() <= p.dc_step / 2 + 1e-6
+    a, b = torch.sigmoid(dec.opacities), torch.sigmoid(src.opacities)
+    assert (a - b).abs().max() <= p.opacity_step / 2 + 1e-4
+
+
+def test_rotation_error_bound():
+    rng = np.random.default_rng(5)
+    q = rng.normal(size=(20000, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    for levels in (8, 64, 354):
+        out = _rotation_dequantise(_rotation_quantise(q, levels), levels).astype(np.float64)
+        dot = np.abs((out * q).sum(1)) / np.linalg.norm(out, axis=1)
+        angle = 2 * np.arccos(np.clip(dot, -1, 1))
+        assert angle.max() <= rotation_error_bound(levels)
+    assert rotation_error_bound(354) < math.radians(2)
+
+
+def test_pruning():
+    n = 400
+    op = np.where(np.arange(n) % 4 == 0, -10.0, 2.0)  # alpha 4.5e-5 vs 0.88
+    scene = _scene(n=n, opacities=op)
+    visible = np.arange(n) % 5 != 0
+    enc = _check_exact(scene, CodecParams(), visible)
+    expect = (np.arange(n) % 4 != 0) & visible
+    assert sorted(enc.kept.tolist()) == np.flatnonzero(expect).tolist()
+    enc = _check_exact(scene, CodecParams(keep_transparent=True, keep_invisible=True), visible)
+    assert sorted(enc.kept.tolist()) == list(range(n))
+    with pytest.raises(CodecError):
+        encode_attributes(_scene(n=10, opacities=np.full(10, -20.0)), CodecParams())
+
+
+def test_no_sh_path_costs_little():
+    quiet = _scene(n=3000, sh_rest=np.zeros((3000, 15, 3)))
+    loud = _scene(n=3000)
+    a = encode_attributes(quiet, PRESETS["high"]).chunks["SHRS"]
+    b = encode_attributes(loud, PRESETS["high"]).chunks["SHRS"]
+    assert len(a) < 200 < len(b)
+
+
+def test_search_lambda_hits_target():
+    scene = _scene(n=3000, degree=1)
+    full = encode_attributes(scene, PRESETS["high"]).num_bytes
+    target = int(full * 0.6)
+    enc = search_lambda(scene, target, PRESETS["high"], rel_tol=0.05)
+    assert 0.95 * target <= enc.num_bytes <= target
+
+
+def test_corrupt_chunk_raises():
+    enc = encode_attributes(_scene(n=200), PRESETS["low"])
+    chunks = dict(enc.chunks)
+    chunks["SCAL"] = chunks["SCAL"][:-5]
+    with pytest.raises(CodecError):
+        decode_attributes(chunks, enc.meta)
+    with pytest.raises(CodecError):
+        decode_attributes({k: v for k, v in enc.chunks.items() if k != "ROTN"}, enc.meta)
+
+
+def test_shared_scenes(shared_data):
+    from gspc.io import read_scene
+
+    files = [shared_data / "donut" / "fused.ply", *sorted((shared_data / "statues").glob("*.sog"))[:2]]
+    for f in files:
+        if f.exists():
+            _check_exact(read_scene(f), PRESETS["low"])
+
+
+def test_det_log_matches_log():
+    from gspc.codec.attributes import det_log
+
+    x = np.concatenate([np.linspace(1e-6, 1, 10001), np.geomspace(1e-300, 1e300, 200)])
+    assert np.allclose(det_log(x), np.log(x), rtol=1e-15, atol=1e-12)

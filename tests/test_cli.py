@@ -1,0 +1,110 @@
+"""End-to-end CLI runs on a tiny synthetic scene, and bad input giving one-line errors."""
+
+import numpy as np
+import pytest
+import torch
+from typer.testing import CliRunner
+
+from gspc.cli import app
+from gspc.io import read_scene, write_ply
+from gspc.scene import make_scene
+
+runner = CliRunner()
+
+
+def tiny_scene(n=300, sh_degree=1, seed=0):
+    g = np.random.default_rng(seed)
+    k = (sh_degree + 1) ** 2 - 1
+    return make_scene(
+        g.normal(0, 0.3, (n, 3)),
+        g.normal(0, 1, (n, 4)),
+        g.normal(-3.0, 0.3, (n, 3)),
+        g.normal(1.0, 1.0, n),
+        g.normal(0, 0.5, (n, 3)),
+        g.normal(0, 0.1, (n, k, 3)),
+        sh_degree,
+    )
+
+
+def run(*args):
+    return runner.invoke(app, [str(a) for a in args])
+
+
+def assert_one_line_error(res, needle):
+    assert res.exit_code == 1, res.output
+    text = res.output.strip()
+    assert "Traceback" not in text
+    assert text.startswith("error:"), text
+    assert needle.lower() in text.lower(), text
+
+
+@pytest.fixture
+def scene_file(tmp_path):
+    p = tmp_path / "scene.ply"
+    write_ply(tiny_scene(), p)
+    return p
+
+
+@pytest.mark.slow
+def test_encode_decode_end_to_end(tmp_path, scene_file):
+    gspc_file = tmp_path / "s.gspc"
+    res = run("encode", scene_file, "-o", gspc_file, "--views", 6, "--max-side", 48)
+    assert res.exit_code == 0, res.output
+    assert gspc_file.stat().st_size > 0
+    res = run("info", gspc_file)
+    assert res.exit_code == 0, res.output
+    assert "POSN" in res.output
+    out = tmp_path / "out.ply"
+    res = run("decode", gspc_file, "-o", out, "--iterations", 5)
+    assert res.exit_code == 0, res.output
+    dec = read_scene(out)
+    assert dec.num_gaussians > 0 and dec.sh_degree == 1
+    assert all(torch.isfinite(t).all() for t in dec.tensors().values())
+    res = run("eval", scene_file, out, "--views", 2, "--max-side", 32)
+    assert res.exit_code == 0 and "PSNR" in res.output, res.output
+
+
+def test_info_and_render_scene(tmp_path, scene_file):
+    res = run("info", scene_file)
+    assert res.exit_code == 0, res.output
+    res = run("render", scene_file, "-o", tmp_path / "imgs", "--views", 2, "--max-side", 32)
+    assert res.exit_code == 0, res.output
+    assert len(list((tmp_path / "imgs").glob("*.png"))) == 2
+
+
+def test_convert_round_trip(tmp_path, scene_file):
+    res = run("convert", scene_file, "-o", tmp_path / "c.ply")
+    assert res.exit_code == 0, res.output
+    assert read_scene(tmp_path / "c.ply").num_gaussians == 300
+
+
+def test_bad_inputs_give_one_line_errors(tmp_path, scene_file):
+    assert_one_line_error(run("info", tmp_path / "missing.ply"), "missing.ply")
+    junk = tmp_path / "junk.ply"
+    junk.write_bytes(b"hello world")
+    assert_one_line_error(run("encode", junk, "-o", tmp_path / "x.gspc"), "junk.ply")
+    assert not (tmp_path / "x.gspc").exists()
+    notgspc = tmp_path / "n.gspc"
+    notgspc.write_bytes(b"not a gspc file at all")
+    assert_one_line_error(run("decode", notgspc, "-o", tmp_path / "o.ply"), "")
+    assert not (tmp_path / "o.ply").exists()
+    assert_one_line_error(
+        run("encode", scene_file, "-o", tmp_path / "y.gspc", "--quality", "best"), "quality"
+    )
+    assert_one_line_error(
+        run("encode", scene_file, "-o", tmp_path / "y.gspc", "--views-fraction", 0), "fraction"
+    )
+    badcams = tmp_path / "cams.json"
+    badcams.write_text("{not json")
+    assert_one_line_error(
+        run("encode", scene_file, "-o", tmp_path / "y.gspc", "--cameras", badcams), "cams.json"
+    )
+    assert not (tmp_path / "y.gspc").exists()
+
+
+@pytest.mark.skipif(torch.cuda.is_available(), reason="checks the no-GPU message")
+def test_cuda_request_without_gpu(tmp_path, scene_file):
+    gspc_file = tmp_path / "s.gspc"
+    assert run("encode", scene_file, "-o", gspc_file, "--views", 4, "--max-side", 32).exit_code == 0
+    assert_one_line_error(run("decode", gspc_file, "-o", tmp_path / "o.ply", "--device", "cuda"), "cuda")
+    assert not (tmp_path / "o.ply").exists()

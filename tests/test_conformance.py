@@ -1,0 +1,259 @@
+"""Each vector in spec/vectors/ gives the outcome MANIFEST.json states; the spec hex dump is valid_minimal."""
+
+import functools
+import hashlib
+import importlib.util
+import json
+import re
+import struct
+import sys
+import zlib
+from pathlib import Path
+
+import msgpack
+import numpy as np
+import pytest
+
+from gspc.codec import container
+from gspc.codec.container import Chunk, pack, unpack
+from gspc.errors import FormatError, InputError
+
+ROOT = Path(__file__).resolve().parents[1]
+VECTORS = ROOT / "spec" / "vectors"
+SPEC = ROOT / "spec" / "gspc-format.md"
+MANIFEST = json.loads((VECTORS / "MANIFEST.json").read_text())["vectors"]
+
+
+@functools.cache
+def load_tool(name: str):
+    """Import tools/<name>.py (tools/ is not a package)."""
+    spec = importlib.util.spec_from_file_location(f"gspc_tools_{name}", ROOT / "tools" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # dataclasses look their module up here
+    spec.loader.exec_module(module)
+    return module
+
+
+def from_json(value):
+    if isinstance(value, dict):
+        if set(value) == {"$bin"}:
+            return bytes.fromhex(value["$bin"])
+        return {k: from_json(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [from_json(v) for v in value]
+    return value
+
+
+def chunk_summary(chunks: list[Chunk]) -> list[dict]:
+    return [
+        {
+            "type": c.type,
+            "index": c.index,
+            "required": c.required,
+            "length": len(c.payload),
+            "sha256": hashlib.sha256(c.payload).hexdigest(),
+        }
+        for c in chunks
+    ]
+
+
+@pytest.mark.parametrize("vector", MANIFEST, ids=[v["file"] for v in MANIFEST])
+def test_vector(vector: dict) -> None:
+    data = (VECTORS / vector["file"]).read_bytes()
+    assert hashlib.sha256(data).hexdigest() == vector["sha256"], (
+        "vector file changed since the manifest was made"
+    )
+    if vector["expect"] == "ok":
+        c = unpack(data)
+        assert list(c.version) == vector["version"]
+        assert c.header == from_json(vector["header"])
+        assert chunk_summary(c.chunks) == vector["chunks"]
+        assert chunk_summary(c.skipped) == vector["skipped"]
+        return
+    with pytest.raises(FormatError) as err:
+        unpack(data)
+    assert type(err.value).__name__ == vector["error"], str(err.value)
+    for words in vector["message_contains"]:
+        assert words in str(err.value)
+
+
+def test_manifest_covers_every_file() -> None:
+    assert {v["file"] for v in MANIFEST} == {p.name for p in VECTORS.glob("*.gspc")}
+    kinds = {v["error"] for v in MANIFEST if v["expect"] == "error"}
+    error_classes = {
+        c.__name__ for c in vars(container).values() if isinstance(c, type) and issubclass(c, FormatError)
+    }
+    assert kinds == error_classes - {"FormatError"}, "every error class is exercised by a vector"
+
+
+def test_vectors_are_what_make_vectors_makes() -> None:
+    """The stored files are reproducible; a change to the tool that changes them must be deliberate."""
+    mv = load_tool("make_vectors")
+    vs = mv.all_vectors()
+    assert {v.name + ".gspc": v.data for v in vs} == {p.name: p.read_bytes() for p in VECTORS.glob("*.gspc")}
+    assert mv.manifest(vs)["vectors"] == MANIFEST
+    assert mv.check_with_reader(vs) == []
+
+
+def spec_hexdump() -> bytes:
+    block = re.search(r"```hexdump\n(.*?)```", SPEC.read_text(), re.S).group(1)
+    out = b""
+    for line in block.strip().splitlines():
+        hexpart = line[10:].split("|")[0]
+        out += bytes.fromhex(hexpart.replace(" ", ""))
+    return out
+
+
+def test_spec_hexdump_is_the_minimal_file() -> None:
+    dump = spec_hexdump()
+    assert dump == (VECTORS / "valid_minimal.gspc").read_bytes()
+    assert dump == pack({}, [])
+    assert len(dump) == 48
+
+
+def test_minimal_file_parses_by_hand_from_the_spec() -> None:
+    """Follow spec sections 2 and 12 with struct, zlib and msgpack only."""
+    d = spec_hexdump()
+    magic, major, minor, h, hcrc = struct.unpack_from("<8sHHII", d, 0)
+    assert magic == bytes.fromhex("8947535043 0d0a1a".replace(" ", ""))
+    assert (major, minor, h) == (1, 0, 15)
+    assert hcrc == zlib.crc32(d[20 : 20 + h]) == 0x646BF91C
+    assert msgpack.unpackb(d[20 : 20 + h]) == {"chunks": [], "meta": {}}
+    t = (20 + h + 7) // 8 * 8
+    assert d[20 + h : t] == bytes(t - 20 - h)
+    assert d[t : t + 4] == b"GEND"
+    assert struct.unpack_from("<I", d, t + 4)[0] == zlib.crc32(d[: t + 4]) == 0x6BA4C6E1
+    assert len(d) == t + 8
+    text = SPEC.read_text()
+    assert "0x646bf91c" in text and "0x6ba4c6e1" in text and "0xCBF43926" in text
+    assert zlib.crc32(b"123456789") == 0xCBF43926
+
+
+def test_spec_registry_matches_known_types() -> None:
+    text = SPEC.read_text()
+    registered = set(re.findall(r"^\| `([A-Z0-9]{4})` \|", text, re.M))
+    assert registered == set(container.KNOWN_TYPES)
+    assert text.count("Payload formats: to be specified with codec version 1") >= len(registered)
+
+
+# ------------------------------------------------------------------ limits too big to store as vectors
+
+
+def table_file(n_chunks: int) -> bytes:
+    mv = load_tool("make_vectors")
+    entries = [(mv.entry("RESI", b"", index=i), b"") for i in range(n_chunks)]
+    return mv.build({}, entries)
+
+
+def test_chunk_count_limit() -> None:
+    assert len(unpack(table_file(container.MAX_CHUNKS)).chunks) == container.MAX_CHUNKS
+    with pytest.raises(container.LimitExceeded, match="65536 entries"):
+        unpack(table_file(container.MAX_CHUNKS + 1))
+
+
+def test_header_length_at_limit_is_checked_against_the_file() -> None:
+    d = pack({}, [])
+    at_limit = d[:12] + struct.pack("<I", container.MAX_HEADER_LENGTH) + d[16:]
+    with pytest.raises(container.Truncated):
+        unpack(at_limit)
+    over = d[:12] + struct.pack("<I", container.MAX_HEADER_LENGTH + 1) + d[16:]
+    with pytest.raises(container.LimitExceeded):
+        unpack(over)
+
+
+# ------------------------------------------------------------------ writer and API
+
+
+def test_roundtrip_and_skipping() -> None:
+    header = {"scene": {"count": 3, "bbox": [[0.0, 1.5], [-2.0, 3.0]]}, "blob": b"\x00\xff", "none": None}
+    chunks = [
+        Chunk("RESI", b"r1", index=1),
+        Chunk("POSN", bytes(range(256)) * 3),
+        Chunk("OPAC", b"", required=False),
+        Chunk("xEXT", b"private", required=False),
+    ]
+    c = unpack(pack(header, chunks))
+    assert c.version == container.VERSION
+    assert c.header == header
+    assert c.chunks == chunks[:3]
+    assert c.skipped == chunks[3:]
+    assert c.find("RESI", 1).payload == b"r1" and c.find("RESI", 0) is None
+    # A reader that knows xEXT keeps it; one that does not know POSN refuses it.
+    assert len(unpack(pack(header, chunks), known_types={"POSN", "RESI", "OPAC", "xEXT"}).chunks) == 4
+    with pytest.raises(container.UnknownRequiredChunk, match="POSN#0"):
+        unpack(pack(header, chunks), known_types={"RESI"})
+
+
+def test_layout_is_aligned() -> None:
+    data = pack({"a": 1}, [Chunk("RESI", b"x" * n, index=n) for n in range(12)])
+    assert len(data) % 8 == 0
+    info = container.describe(data)
+    assert all(c["offset"] % 8 == 0 for c in info["chunks"])
+    assert sum(info["totals"].values()) == info["file_size"] == len(data)
+
+
+def test_describe(tmp_path: Path) -> None:
+    path = tmp_path / "s.gspc"
+    container.write(path, {"codec": "x"}, [Chunk("POSN", b"p" * 100), Chunk("RESI", b"r" * 9, index=0)])
+    info = container.describe(path)
+    assert info["version"] == (1, 0)
+    assert [(c["type"], c["index"], c["size"], c["required"]) for c in info["chunks"]] == [
+        ("POSN", 0, 100, True),
+        ("RESI", 0, 9, True),
+    ]
+    assert info["bytes_per_type"] == {"POSN": 104, "RESI": 16}
+    assert sum(info["totals"].values()) == info["file_size"]
+    assert info["header_size"] > 0 and info["meta_keys"] == ["codec"]
+    # describe lists a required chunk this reader does not know instead of refusing the file
+    unknown = container.describe((VECTORS / "invalid_unknown_required.gspc").read_bytes())
+    assert unknown["chunks"][-1]["type"] == "ZZZZ" and unknown["chunks"][-1]["known"] is False
+
+
+def test_write_is_atomic(tmp_path: Path) -> None:
+    path = tmp_path / "s.gspc"
+    container.write(path, {}, [Chunk("POSN", b"1")])
+    before = path.read_bytes()
+    with pytest.raises(ValueError):
+        container.write(path, {"bad": np.float32(1)}, [])  # refused before anything is written
+    with pytest.raises(ValueError):
+        container.write(path, {}, [Chunk("POSN", b"1"), Chunk("POSN", b"2")])
+    assert path.read_bytes() == before
+    assert [p.name for p in tmp_path.iterdir()] == ["s.gspc"]
+    assert container.read(path).chunks == [Chunk("POSN", b"1")]
+
+
+def test_read_missing_file(tmp_path: Path) -> None:
+    with pytest.raises(InputError, match="cannot read"):
+        container.read(tmp_path / "nope.gspc")
+
+
+def nested(levels: int) -> list:
+    out: list = [1]
+    for _ in range(levels - 1):
+        out = [out]
+    return out
+
+
+@pytest.mark.parametrize(
+    "header, chunks, words",
+    [
+        ({1: "x"}, [], "not a str"),
+        ({"a": {"b": np.int64(3)}}, [], "header.meta.a.b"),
+        ({"a": 2**64}, [], "64 bits"),
+        ({"d": nested(31)}, [], "deeper"),
+        ([], [], "dict"),
+        ({}, [Chunk("POS", b"")], "4 ASCII"),
+        ({}, [Chunk("PO N", b"")], "4 ASCII"),
+        ({}, [Chunk("RESI", b"", index=-1)], "index"),
+        ({}, [Chunk("RESI", b"", index=2**32)], "index"),
+        ({}, [Chunk("POSN", np.zeros(3, np.float32))], "not bytes"),
+    ],
+)
+def test_pack_refuses_what_readers_refuse(header, chunks, words) -> None:
+    with pytest.raises(ValueError, match=words):
+        pack(header, chunks)
+
+
+def test_pack_accepts_the_deepest_allowed_header() -> None:
+    deep = nested(container.MAX_DEPTH - 2)  # top map (level 1) > meta (2) > 30 lists (3..32)
+    assert unpack(pack({"d": deep}, [])).header == {"d": deep}

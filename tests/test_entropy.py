@@ -1,0 +1,75 @@
+import numpy as np
+import pytest
+
+from gspc.codec.entropy import (
+    bit_length,
+    decode_matrix,
+    encode_matrix,
+    fit_model,
+    model_weights,
+    pack_bits,
+    unpack_bits,
+)
+from gspc.errors import CodecError
+
+
+def _roundtrip(q):
+    out = decode_matrix(encode_matrix(q))
+    assert out.dtype == np.int64 and np.array_equal(out, q)
+
+
+def test_bit_length():
+    x = np.array([0, 1, 2, 3, 4, 255, 256, 2**48 - 1, 2**48])
+    assert bit_length(x).tolist() == [0, 1, 2, 2, 3, 8, 9, 48, 49]
+
+
+@pytest.mark.parametrize("m", [1, 2, 3, 63, 64, 65, 1000])
+def test_matrix_roundtrip_sizes(m):
+    rng = np.random.default_rng(m)
+    _roundtrip(rng.integers(-5, 6, size=(m, 3)))
+
+
+def test_matrix_roundtrip_mixed_channels():
+    rng = np.random.default_rng(0)
+    m = 5000
+    walk = np.cumsum(rng.integers(-3, 4, m))
+    q = np.stack(
+        [
+            walk,
+            walk + rng.integers(-1, 2, m),
+            np.zeros(m, int),
+            rng.integers(0, 2, m),
+            rng.integers(-(10**6), 10**6, m),
+        ],
+        axis=1,
+    )
+    _roundtrip(q)
+
+
+def test_context_pays_on_smooth_data():
+    rng = np.random.default_rng(1)
+    walk = np.cumsum(rng.integers(-2, 3, 20000))[:, None]
+    iid = rng.permutation(walk[:, 0])[:, None]
+    assert len(encode_matrix(walk)) < 0.6 * len(encode_matrix(iid))
+
+
+def test_models_are_integer_tables():
+    rng = np.random.default_rng(2)
+    for sym in [rng.integers(0, 3, 100), np.rint(rng.laplace(0, 40, 3000)).astype(int)]:
+        spec, _ = fit_model(sym)
+        assert all(isinstance(v, int) for v in spec)
+        w = model_weights(spec)
+        assert (w == np.floor(w)).all() and (w >= 0).all()
+
+
+def test_raw_bits_roundtrip():
+    rng = np.random.default_rng(3)
+    v = rng.integers(0, 2**47, 500).astype(np.uint64)
+    lengths = bit_length(v.astype(np.int64))
+    assert np.array_equal(unpack_bits(pack_bits(v, lengths), lengths), v)
+
+
+def test_corrupt_payload_raises_codec_error():
+    payload = encode_matrix(np.arange(100)[:, None])
+    with pytest.raises(CodecError):
+        decode_matrix(payload[:-7])

@@ -1,0 +1,518 @@
+import io
+import json
+import math
+import zipfile
+from pathlib import Path
+
+import imagecodecs
+import numpy as np
+import pytest
+import torch
+from plyfile import PlyData, PlyElement
+
+from gspc.errors import InputError
+from gspc.io import read_compressed_ply, read_ply, read_scene, read_sog, write_ply
+from gspc.io.ply import inria_bytes_per_gaussian
+from gspc.scene import GaussianScene, num_sh_rest, scene_equal
+
+SH_C0 = 0.28209479177387814
+
+
+def random_scene(degree: int, n: int = 7, seed: int = 0) -> GaussianScene:
+    g = torch.Generator().manual_seed(seed)
+    k = num_sh_rest(degree)
+    return GaussianScene(
+        means=torch.randn(n, 3, generator=g),
+        quats=torch.randn(n, 4, generator=g),
+        log_scales=torch.randn(n, 3, generator=g) - 4,
+        opacities=torch.randn(n, generator=g),
+        sh_dc=torch.randn(n, 3, generator=g),
+        sh_rest=torch.randn(n, k, 3, generator=g) * 0.1,
+        sh_degree=degree,
+    )
+
+
+# ---------------------------------------------------------------- INRIA PLY
+
+
+@pytest.mark.parametrize("degree", [0, 1, 2, 3])
+def test_ply_round_trip_is_bit_exact(tmp_path, degree):
+    scene = random_scene(degree)
+    write_ply(scene, tmp_path / "s.ply")
+    back = read_ply(tmp_path / "s.ply")
+    assert back.sh_degree == degree
+    assert scene_equal(scene, back)
+    assert (tmp_path / "s.ply").stat().st_size > 7 * inria_bytes_per_gaussian(degree)
+
+
+def test_ply_layout_is_inria_channel_major(tmp_path):
+    scene = random_scene(2)
+    write_ply(scene, tmp_path / "s.ply")
+    ply = PlyData.read(str(tmp_path / "s.ply"))
+    assert not ply.text and ply.byte_order == "<"
+    names = list(ply["vertex"].data.dtype.names)
+    assert names[:9] == ["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"]
+    assert names[-8:] == ["opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"]
+    assert len(names) * 4 == inria_bytes_per_gaussian(2)
+    data = ply["vertex"].data
+    # f_rest_j for j in [c*K, (c+1)*K) is coefficient j - c*K of channel c.
+    assert np.array_equal(data["f_rest_1"], scene.sh_rest[:, 1, 0].numpy())
+    assert np.array_equal(data["f_rest_8"], scene.sh_rest[:, 0, 1].numpy())
+    assert np.array_equal(data["f_rest_23"], scene.sh_rest[:, 7, 2].numpy())
+    assert np.array_equal(data["rot_0"], scene.quats[:, 0].numpy())
+    assert not data["nx"].any()
+
+
+def test_ply_extras_and_normals_are_kept(tmp_path):
+    scene = random_scene(1)
+    normals = np.arange(7, dtype=np.float32)
+    scene.extra = {
+        "red": np.arange(7, dtype=np.uint8),
+        "nx": normals,
+        "ny": normals,
+        "nz": normals,
+        "w": np.ones(7),
+    }
+    write_ply(scene, tmp_path / "s.ply")
+    back = read_ply(tmp_path / "s.ply")
+    assert scene_equal(scene, back)
+    assert set(back.extra) == {"red", "nx", "ny", "nz", "w"}
+    assert back.extra["red"].dtype == np.uint8 and np.array_equal(back.extra["red"], scene.extra["red"])
+    assert back.extra["w"].dtype == np.float64
+    assert np.array_equal(back.extra["nz"], normals)
+
+
+@pytest.mark.parametrize("text,order", [(True, "="), (False, ">")])
+def test_ply_reads_ascii_and_big_endian(tmp_path, text, order):
+    scene = random_scene(3, n=4)
+    write_ply(scene, tmp_path / "le.ply")
+    ply = PlyData.read(str(tmp_path / "le.ply"))
+    PlyData([PlyElement.describe(ply["vertex"].data, "vertex")], text=text, byte_order=order).write(
+        str(tmp_path / "other.ply")
+    )
+    assert scene_equal(scene, read_ply(tmp_path / "other.ply"))
+
+
+def test_ply_write_is_atomic(tmp_path):
+    good = random_scene(0)
+    write_ply(good, tmp_path / "s.ply")
+    before = (tmp_path / "s.ply").read_bytes()
+    bad = random_scene(0)
+    bad.means[0, 0] = float("nan")
+    with pytest.raises(InputError):
+        write_ply(bad, tmp_path / "s.ply")
+    assert (tmp_path / "s.ply").read_bytes() == before
+    assert [p.name for p in tmp_path.iterdir()] == ["s.ply"]
+    with pytest.raises(InputError, match="output directory"):
+        write_ply(good, tmp_path / "no" / "s.ply")
+
+
+def _write_vertex(path: Path, columns: dict[str, np.ndarray]) -> None:
+    arr = np.empty(len(next(iter(columns.values()))), dtype=[(k, "<f4") for k in columns])
+    for k, v in columns.items():
+        arr[k] = v
+    PlyData([PlyElement.describe(arr, "vertex")]).write(str(path))
+
+
+def _inria_columns(n: int = 3, n_rest: int = 0) -> dict[str, np.ndarray]:
+    names = ["x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", *[f"f_rest_{i}" for i in range(n_rest)]]
+    names += ["opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"]
+    return {k: np.full(n, 0.5, np.float32) for k in names}
+
+
+def test_ply_errors(tmp_path):
+    with pytest.raises(InputError, match="no such file"):
+        read_scene(tmp_path / "absent.ply")
+    (tmp_path / "text.ply").write_text("hello world\n")
+    with pytest.raises(InputError, match="unrecognised scene file"):
+        read_scene(tmp_path / "text.ply")
+    with pytest.raises(InputError, match="not a PLY file"):
+        read_ply(tmp_path / "text.ply")
+    (tmp_path / "empty.ply").write_bytes(b"")
+    with pytest.raises(InputError, match="empty"):
+        read_scene(tmp_path / "empty.ply")
+
+
+def test_ply_truncated(tmp_path):
+    write_ply(random_scene(1, n=50), tmp_path / "s.ply")
+    data = (tmp_path / "s.ply").read_bytes()
+    (tmp_path / "cut.ply").write_bytes(data[: len(data) - 100])
+    with pytest.raises(InputError, match="truncated"):
+        read_scene(tmp_path / "cut.ply")
+    (tmp_path / "header.ply").write_bytes(data[:40])
+    with pytest.raises(InputError, match="truncated"):
+        read_scene(tmp_path / "header.ply")
+
+
+def test_ply_missing_properties_are_named(tmp_path):
+    cols = _inria_columns()
+    del cols["scale_1"], cols["rot_3"]
+    _write_vertex(tmp_path / "m.ply", cols)
+    with pytest.raises(InputError, match="missing vertex properties: scale_1, rot_3"):
+        read_scene(tmp_path / "m.ply")
+
+
+def test_ply_bad_sh_count(tmp_path):
+    _write_vertex(tmp_path / "sh.ply", _inria_columns(n_rest=6))
+    with pytest.raises(InputError, match="6 f_rest properties match no SH degree"):
+        read_scene(tmp_path / "sh.ply")
+    _write_vertex(tmp_path / "sh4.ply", _inria_columns(n_rest=4))
+    with pytest.raises(InputError, match="not a multiple of 3"):
+        read_scene(tmp_path / "sh4.ply")
+
+
+def test_ply_nan_and_inf(tmp_path):
+    cols = _inria_columns(n=4)
+    cols["opacity"][2] = np.nan
+    _write_vertex(tmp_path / "nan.ply", cols)
+    with pytest.raises(InputError, match="opacities has NaN or Inf values in 1 Gaussian"):
+        read_scene(tmp_path / "nan.ply")
+    cols = _inria_columns(n=4)
+    cols["y"][:2] = np.inf
+    _write_vertex(tmp_path / "inf.ply", cols)
+    with pytest.raises(InputError, match="means has NaN or Inf values in 2 Gaussian"):
+        read_scene(tmp_path / "inf.ply")
+
+
+def test_ply_zero_gaussians(tmp_path):
+    _write_vertex(tmp_path / "zero.ply", _inria_columns(n=0))
+    with pytest.raises(InputError, match="zero Gaussians"):
+        read_scene(tmp_path / "zero.ply")
+
+
+# ---------------------------------------------------------------- SOG
+
+
+def _webp(rgba: np.ndarray) -> bytes:
+    return imagecodecs.webp_encode(rgba, lossless=True)
+
+
+def _image(pixels: np.ndarray, width: int) -> np.ndarray:
+    """Row-major pixels (n, 4) padded into an (H, width, 4) image."""
+    h = -(-len(pixels) // width)
+    img = np.zeros((h * width, 4), np.uint8)
+    img[: len(pixels)] = pixels
+    return img.reshape(h, width, 4)
+
+
+def _encode_quats(q: np.ndarray) -> np.ndarray:
+    """Smallest-three as the SOG spec describes: drop the largest |component|, made positive."""
+    q = q / np.linalg.norm(q, axis=1, keepdims=True)
+    mode = np.abs(q).argmax(1)
+    q = q * np.sign(q[np.arange(len(q)), mode])[:, None]
+    kept = np.stack([np.delete(row, m) for row, m in zip(q, mode, strict=True)])
+    bytes3 = np.round((kept * math.sqrt(2) * 0.5 + 0.5) * 255).astype(np.uint8)
+    return np.concatenate([bytes3, (252 + mode)[:, None].astype(np.uint8)], axis=1), q
+
+
+def make_sog(path: Path, n: int = 10, bands: int = 0, seed: int = 0, meta_override=None) -> dict:
+    """A tiny SOG zip with random quantised content; returns what a decoder should produce."""
+    rng = np.random.default_rng(seed)
+    width = 4
+    qpos = rng.integers(0, 65536, (n, 3))
+    mins, maxs = np.array([-1.0, -0.5, 0.0]), np.array([1.0, 2.0, 0.25])
+    lo = np.concatenate([qpos & 255, np.full((n, 1), 255)], 1).astype(np.uint8)
+    hi = np.concatenate([qpos >> 8, np.full((n, 1), 255)], 1).astype(np.uint8)
+    quat_px, unit = _encode_quats(rng.normal(size=(n, 4)))
+    scale_idx = rng.integers(0, 256, (n, 3))
+    colour_idx = rng.integers(0, 256, (n, 3))
+    alpha = rng.integers(1, 255, n)
+    alpha[0], alpha[1] = 0, 255
+    scale_book = np.sort(rng.uniform(-10, 0, 256))
+    colour_book = np.linspace(-1.7, 1.7, 256)
+    meta = {
+        "version": 2,
+        "count": n,
+        "means": {"mins": mins.tolist(), "maxs": maxs.tolist(), "files": ["means_l.webp", "means_u.webp"]},
+        "scales": {"codebook": scale_book.tolist(), "files": ["scales.webp"]},
+        "quats": {"files": ["quats.webp"]},
+        "sh0": {"codebook": colour_book.tolist(), "files": ["sh0.webp"]},
+    }
+    pad = np.full((n, 1), 255, np.uint8)
+    files = {
+        "means_l.webp": _webp(_image(lo, width)),
+        "means_u.webp": _webp(_image(hi, width)),
+        "quats.webp": _webp(_image(quat_px, width)),
+        "scales.webp": _webp(_image(np.concatenate([scale_idx.astype(np.uint8), pad], 1), width)),
+        "sh0.webp": _webp(_image(np.concatenate([colour_idx, alpha[:, None]], 1).astype(np.uint8), width)),
+    }
+    t = mins + (maxs - mins) * qpos / 65535
+    expected = {
+        "means": np.sign(t) * (np.exp(np.abs(t)) - 1),
+        "quats": unit,
+        "log_scales": scale_book[scale_idx],
+        "sh_dc": colour_book[colour_idx],
+        "alpha": alpha / 255,
+        "sh_rest": np.zeros((n, 0, 3)),
+    }
+    if bands:
+        k = num_sh_rest(bands)
+        palette = 70  # more than one row of 64 entries
+        labels = rng.integers(0, palette, n)
+        entries = rng.integers(0, 256, (palette, k, 3))
+        rows = -(-palette // 64)
+        cent = np.zeros((rows * 64, k, 4), np.uint8)
+        cent[:palette, :, :3] = entries
+        cent[..., 3] = 255
+        sh_book = np.linspace(-0.5, 0.5, 256)
+        meta["shN"] = {
+            "count": palette,
+            "bands": bands,
+            "codebook": sh_book.tolist(),
+            "files": ["shN_centroids.webp", "shN_labels.webp"],
+        }
+        files["shN_centroids.webp"] = _webp(cent.reshape(rows, 64 * k, 4))
+        lab = np.stack([labels & 255, labels >> 8, np.zeros(n, int), np.full(n, 255)], 1).astype(np.uint8)
+        files["shN_labels.webp"] = _webp(_image(lab, width))
+        expected["sh_rest"] = sh_book[entries[labels]]
+    if meta_override:
+        meta_override(meta)
+    with zipfile.ZipFile(path, "w", compression=zipfile.ZIP_STORED) as z:
+        for name, data in files.items():
+            z.writestr(name, data)
+        z.writestr("meta.json", json.dumps(meta))
+    return expected
+
+
+@pytest.mark.parametrize("bands", [0, 1, 3])
+def test_sog_decodes_known_values(tmp_path, bands):
+    exp = make_sog(tmp_path / "s.sog", bands=bands)
+    scene = read_scene(tmp_path / "s.sog")
+    assert scene.sh_degree == bands and scene.num_gaussians == 10
+    np.testing.assert_allclose(scene.means.numpy(), exp["means"], rtol=1e-6, atol=1e-7)
+    np.testing.assert_allclose(scene.log_scales.numpy(), exp["log_scales"], rtol=1e-6)
+    np.testing.assert_allclose(scene.sh_dc.numpy(), exp["sh_dc"], rtol=1e-6, atol=1e-7)
+    np.testing.assert_allclose(scene.sh_rest.numpy(), exp["sh_rest"], rtol=1e-6, atol=1e-7)
+    # 8-bit smallest-three: each kept component is within half a step of 1/sqrt2 / 255 * 2.
+    np.testing.assert_allclose(scene.quats.numpy(), exp["quats"], atol=0.01)
+    np.testing.assert_allclose(scene.quats.norm(dim=1).numpy(), 1.0, atol=1e-6)
+    alpha = torch.sigmoid(scene.opacities.double()).numpy()
+    np.testing.assert_allclose(alpha[2:], exp["alpha"][2:], atol=1e-6)
+    assert alpha[0] < 1e-5 and alpha[1] > 1 - 1e-5  # 0 and 255 clamp to finite logits
+
+
+def test_sog_folder_layout(tmp_path):
+    exp = make_sog(tmp_path / "s.sog")
+    folder = tmp_path / "unzipped"
+    with zipfile.ZipFile(tmp_path / "s.sog") as z:
+        z.extractall(folder)
+    a = read_scene(folder)
+    b = read_sog(folder / "meta.json")
+    assert scene_equal(a, b) and scene_equal(a, read_scene(tmp_path / "s.sog"))
+    np.testing.assert_allclose(a.log_scales.numpy(), exp["log_scales"], rtol=1e-6)
+
+
+def test_sog_errors(tmp_path):
+    (tmp_path / "bad.sog").write_bytes(b"PK\x03\x04 this is not really a zip")
+    with pytest.raises(InputError, match="not a readable SOG zip"):
+        read_scene(tmp_path / "bad.sog")
+
+    make_sog(tmp_path / "v1.sog", meta_override=lambda m: m.update(version=1))
+    with pytest.raises(InputError, match="SOG version 1 is not supported"):
+        read_scene(tmp_path / "v1.sog")
+
+    make_sog(tmp_path / "zero.sog", meta_override=lambda m: m.update(count=0))
+    with pytest.raises(InputError, match="zero Gaussians"):
+        read_scene(tmp_path / "zero.sog")
+
+    make_sog(tmp_path / "big.sog", meta_override=lambda m: m.update(count=13))
+    with pytest.raises(InputError, match="12 pixels for 13 Gaussians"):
+        read_scene(tmp_path / "big.sog")
+
+    make_sog(tmp_path / "book.sog", meta_override=lambda m: m["scales"].update(codebook=[1.0, 2.0]))
+    with pytest.raises(InputError, match="scales.codebook"):
+        read_scene(tmp_path / "book.sog")
+
+    make_sog(tmp_path / "nan.sog", meta_override=lambda m: m["means"].update(mins=[float("nan"), 0, 0]))
+    with pytest.raises(InputError, match="means.mins"):
+        read_scene(tmp_path / "nan.sog")
+
+    make_sog(tmp_path / "nofile.sog", meta_override=lambda m: m["quats"].update(files=["gone.webp"]))
+    with pytest.raises(InputError, match="no member 'gone.webp'"):
+        read_scene(tmp_path / "nofile.sog")
+
+    make_sog(tmp_path / "nokey.sog", meta_override=lambda m: m.pop("sh0"))
+    with pytest.raises(InputError, match="lacks 'sh0'"):
+        read_scene(tmp_path / "nokey.sog")
+
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w") as z:
+        z.writestr("meta.json", "{not json")
+    (tmp_path / "json.sog").write_bytes(buf.getvalue())
+    with pytest.raises(InputError, match="meta.json is not valid JSON"):
+        read_scene(tmp_path / "json.sog")
+
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w") as z:
+        z.writestr("other.txt", "x")
+    (tmp_path / "nometa.sog").write_bytes(buf.getvalue())
+    with pytest.raises(InputError, match="no member 'meta.json'"):
+        read_scene(tmp_path / "nometa.sog")
+
+
+# ---------------------------------------------------------------- PlayCanvas compressed PLY
+
+
+def _pack(fields: list[tuple[np.ndarray, int]]) -> np.ndarray:
+    """Pack unsigned integer fields MSB first."""
+    out = np.zeros(len(fields[0][0]), np.uint64)
+    for values, bits in fields:
+        out = (out << np.uint64(bits)) | values.astype(np.uint64)
+    return out.astype(np.uint32)
+
+
+def make_compressed_ply(path: Path, n: int = 300, colour_bounds: bool = False, sh_bands: int = 0, seed=0):
+    """A compressed PLY with random content packed per the layout; returns the expected decode."""
+    rng = np.random.default_rng(seed)
+    chunks = -(-n // 256)
+    ci = np.arange(n) // 256
+    geo = [f"{b}_{a}" for b in ("min", "max") for a in "xyz"] + [
+        f"{b}_scale_{a}" for b in ("min", "max") for a in "xyz"
+    ]
+    names = geo + ([f"{b}_{c}" for b in ("min", "max") for c in "rgb"] if colour_bounds else [])
+    chunk = np.empty(chunks, dtype=[(k, "<f4") for k in names])
+    lo, hi = (
+        rng.uniform(-2, 0, (chunks, 3)).astype(np.float32),
+        rng.uniform(0.1, 2, (chunks, 3)).astype(np.float32),
+    )
+    slo, shi = (
+        rng.uniform(-9, -5, (chunks, 3)).astype(np.float32),
+        rng.uniform(-4, 0, (chunks, 3)).astype(np.float32),
+    )
+    for i, a in enumerate("xyz"):
+        chunk[f"min_{a}"], chunk[f"max_{a}"] = lo[:, i], hi[:, i]
+        chunk[f"min_scale_{a}"], chunk[f"max_scale_{a}"] = slo[:, i], shi[:, i]
+    clo, chi = np.zeros((chunks, 3), np.float32), np.ones((chunks, 3), np.float32)
+    if colour_bounds:
+        clo, chi = (
+            rng.uniform(-0.2, 0.3, (chunks, 3)).astype(np.float32),
+            rng.uniform(0.6, 1.3, (chunks, 3)).astype(np.float32),
+        )
+        for i, c in enumerate("rgb"):
+            chunk[f"min_{c}"], chunk[f"max_{c}"] = clo[:, i], chi[:, i]
+
+    p = np.stack([rng.integers(0, 2048, n), rng.integers(0, 1024, n), rng.integers(0, 2048, n)], 1)
+    s = np.stack([rng.integers(0, 2048, n), rng.integers(0, 1024, n), rng.integers(0, 2048, n)], 1)
+    c = rng.integers(0, 256, (n, 4))
+    q = rng.normal(size=(n, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    mode = np.abs(q).argmax(1)
+    q *= np.sign(q[np.arange(n), mode])[:, None]
+    kept = np.stack([np.delete(row, m) for row, m in zip(q, mode, strict=True)])
+    k10 = np.round((kept / math.sqrt(2) + 0.5) * 1023).astype(np.int64)
+    vertex = np.empty(
+        n, dtype=[(k, "<u4") for k in ("packed_position", "packed_rotation", "packed_scale", "packed_color")]
+    )
+    vertex["packed_position"] = _pack([(p[:, 0], 11), (p[:, 1], 10), (p[:, 2], 11)])
+    vertex["packed_scale"] = _pack([(s[:, 0], 11), (s[:, 1], 10), (s[:, 2], 11)])
+    vertex["packed_color"] = _pack([(c[:, 0], 8), (c[:, 1], 8), (c[:, 2], 8), (c[:, 3], 8)])
+    vertex["packed_rotation"] = _pack([(mode, 2), (k10[:, 0], 10), (k10[:, 1], 10), (k10[:, 2], 10)])
+    elements = [PlyElement.describe(chunk, "chunk"), PlyElement.describe(vertex, "vertex")]
+    k = num_sh_rest(sh_bands)
+    sh_bytes = rng.integers(0, 256, (n, 3 * k))
+    if sh_bands:
+        sh = np.empty(n, dtype=[(f"f_rest_{i}", "u1") for i in range(3 * k)])
+        for i in range(3 * k):
+            sh[f"f_rest_{i}"] = sh_bytes[:, i]
+        elements.append(PlyElement.describe(sh, "sh"))
+    PlyData(elements).write(str(path))
+    steps = np.array([2047, 1023, 2047])
+    rgb = clo[ci] + (chi[ci] - clo[ci]) * c[:, :3] / 255
+    t = np.where(sh_bytes == 0, 0.0, np.where(sh_bytes == 255, 1.0, (sh_bytes + 0.5) / 256))
+    return {
+        "means": lo[ci] + (hi[ci] - lo[ci]) * p / steps,
+        "log_scales": slo[ci] + (shi[ci] - slo[ci]) * s / steps,
+        "sh_dc": (rgb - 0.5) / SH_C0,
+        "alpha": c[:, 3] / 255,
+        "quats": q,
+        "sh_rest": ((t - 0.5) * 8).reshape(n, 3, k).transpose(0, 2, 1),
+    }
+
+
+@pytest.mark.parametrize("colour_bounds,sh_bands", [(False, 0), (True, 0), (True, 2)])
+def test_compressed_ply_decodes_known_values(tmp_path, colour_bounds, sh_bands):
+    exp = make_compressed_ply(tmp_path / "c.ply", colour_bounds=colour_bounds, sh_bands=sh_bands)
+    scene = read_scene(tmp_path / "c.ply")
+    assert scene.num_gaussians == 300 and scene.sh_degree == sh_bands
+    np.testing.assert_allclose(scene.means.numpy(), exp["means"], rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(scene.log_scales.numpy(), exp["log_scales"], rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(scene.sh_dc.numpy(), exp["sh_dc"], rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(scene.sh_rest.numpy(), exp["sh_rest"], rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose(scene.quats.numpy(), exp["quats"], atol=2e-3)
+    alpha = torch.sigmoid(scene.opacities.double()).numpy()
+    inner = (exp["alpha"] > 0) & (exp["alpha"] < 1)
+    np.testing.assert_allclose(alpha[inner], exp["alpha"][inner], atol=1e-6)
+    assert scene_equal(scene, read_compressed_ply(tmp_path / "c.ply"))
+
+
+def test_compressed_ply_errors(tmp_path):
+    make_compressed_ply(tmp_path / "c.ply", n=300)
+    ply = PlyData.read(str(tmp_path / "c.ply"))
+    chunk = ply["chunk"].data
+    fewer = np.empty(1, dtype=chunk.dtype)
+    fewer[:] = chunk[:1]
+    PlyData([PlyElement.describe(fewer, "chunk"), ply["vertex"]]).write(str(tmp_path / "few.ply"))
+    with pytest.raises(InputError, match="1 chunks cannot hold 300 splats"):
+        read_scene(tmp_path / "few.ply")
+
+    keep = [n for n in chunk.dtype.names if n != "max_scale_y"]
+    partial = np.empty(len(chunk), dtype=[(n, "<f4") for n in keep])
+    for n in keep:
+        partial[n] = chunk[n]
+    PlyData([PlyElement.describe(partial, "chunk"), ply["vertex"]]).write(str(tmp_path / "miss.ply"))
+    with pytest.raises(InputError, match="missing chunk properties: max_scale_y"):
+        read_scene(tmp_path / "miss.ply")
+
+    write_ply(random_scene(0), tmp_path / "inria.ply")
+    with pytest.raises(InputError, match="not a compressed PLY"):
+        read_compressed_ply(tmp_path / "inria.ply")
+
+
+# ---------------------------------------------------------------- real files (../shared/data)
+
+REAL = {
+    "donut/fused.ply": 45_624,
+    "statues/angel-kneeling.sog": 83_547,
+    "statues/angel-with-candlestick.sog": 80_821,
+    "statues/angel.sog": 71_359,
+    "statues/massa.sog": 58_649,
+    "statues/trumpet.sog": 89_292,
+    "statues/angel.compressed.ply": 71_377,
+}
+
+
+@pytest.mark.parametrize("name", list(REAL))
+def test_real_scenes_load_sanely(shared_data, name):
+    scene = read_scene(shared_data / name)
+    assert scene.num_gaussians == REAL[name]
+    assert scene.sh_degree == 0
+    if not name.endswith("fused.ply"):  # quantised formats store unit quaternions
+        np.testing.assert_allclose(scene.quats.norm(dim=1).numpy(), 1.0, atol=1e-5)
+    alpha = torch.sigmoid(scene.opacities)
+    assert 0.3 < alpha.mean() < 0.7
+    colour = 0.5 + SH_C0 * scene.sh_dc
+    assert 0.1 < colour.median() < 0.9
+    assert ((colour > -0.1) & (colour < 1.1)).float().mean() > 0.95
+    extent = scene.means.quantile(0.99, dim=0) - scene.means.quantile(0.01, dim=0)
+    scales = scene.log_scales.exp()
+    # An object: its median splat is far smaller than the object, which is not degenerate in any axis.
+    assert (extent > 0.05).all() and scales.median() < 0.05 * extent.max()
+
+
+def test_real_sog_and_compressed_ply_agree(shared_data):
+    """angel.sog and angel.compressed.ply are two encodings of one scene (SOG turned 180 deg about z)."""
+    from scipy.spatial import cKDTree
+
+    sog = read_scene(shared_data / "statues/angel.sog")
+    cply = read_scene(shared_data / "statues/angel.compressed.ply")
+    flipped = cply.means.numpy() * np.array([-1.0, -1.0, 1.0], np.float32)
+    dist, idx = cKDTree(sog.means.numpy()).query(flipped)
+    close = dist < 2e-3
+    assert close.mean() > 0.99
+    assert np.median(np.abs(cply.sh_dc.numpy()[close] - sog.sh_dc.numpy()[idx[close]])) < 1e-3
+    assert np.median(np.abs(cply.log_scales.numpy()[close] - sog.log_scales.numpy()[idx[close]])) < 0.05
+    # Rotating by 180 deg about z maps quaternion (w, x, y, z) to (-z, -y, x, w) (up to sign).
+    a = cply.quats.numpy()[close]
+    a = np.stack([-a[:, 3], -a[:, 2], a[:, 1], a[:, 0]], 1)
+    b = sog.quats.numpy()[idx[close]]
+    assert np.median(np.abs((a * b).sum(1))) > 0.999

@@ -1,0 +1,91 @@
+import msgpack
+import numpy as np
+import pytest
+
+from gspc.codec.residuals import (
+    IMAGE_CODECS,
+    choose_gain,
+    decode_residual,
+    encode_residual,
+    plan_residual_rates,
+)
+from gspc.errors import CodecError, InputError
+
+LEVELS = {"jxl": 1.0, "webp": 80, "avif": 80}
+
+
+def _residual(seed=0, h=48, w=40, amp=0.05):
+    """A smooth signed residual with some edges, like a render error."""
+    rng = np.random.default_rng(seed)
+    yy, xx = np.mgrid[0:h, 0:w] / 8.0
+    base = np.sin(yy)[..., None] * np.cos(xx)[..., None] * np.array([1.0, 0.6, -0.4])
+    return (amp * (base + 0.2 * rng.standard_normal((h, w, 3)))).astype(np.float32)
+
+
+def _psnr(a, b):
+    return 10 * np.log10(1.0 / np.mean((a - b) ** 2))
+
+
+@pytest.mark.parametrize("codec", sorted(IMAGE_CODECS))
+def test_round_trip_each_codec(codec):
+    r = _residual()
+    payload, meta = encode_residual(r, {"codec": codec, "level": LEVELS[codec]})
+    meta = msgpack.unpackb(msgpack.packb(meta))  # meta travels as msgpack in the container
+    out = decode_residual(payload, meta)
+    assert out.shape == r.shape and out.dtype == np.float32
+    # Far better than sending nothing (PSNR of a zero residual) and deterministic.
+    assert _psnr(out, r) > _psnr(np.zeros_like(r), r) + 5
+    assert np.array_equal(out, decode_residual(payload, meta))
+
+
+def test_jxl_16_bit_round_trip():
+    r = _residual()
+    p16, m16 = encode_residual(r, {"codec": "jxl", "level": 0.5, "bits": 16})
+    assert m16["bits"] == 16 and m16["offset"] == 32768
+    assert _psnr(decode_residual(p16, m16), r) > _psnr(np.zeros_like(r), r) + 10
+
+
+def test_webp_refuses_16_bit():
+    with pytest.raises(InputError):
+        encode_residual(_residual(), {"codec": "webp", "bits": 16})
+
+
+def test_gain_maps_percentile_to_range_and_is_capped():
+    r = _residual(amp=0.1)
+    g = choose_gain(r, 8, 100.0)
+    assert np.isclose(np.abs(r).max() * g, 127, rtol=1e-5)
+    assert choose_gain(np.zeros((4, 4, 3), np.float32), 8, 99.9, max_gain=300.0) == 300.0
+
+
+def test_zero_residual_and_quiet_tiles():
+    z = np.zeros((32, 32, 3), np.float32)
+    payload, meta = encode_residual(z)
+    # JPEG XL may leave +-1 level of ringing on a flat image: 1 / max_gain.
+    assert np.abs(decode_residual(payload, meta)).max() <= 1.0 / meta["gain"] + 1e-9
+    r = _residual(h=64, w=64)
+    r[:32] *= 1e-3  # top half negligible
+    _, meta = encode_residual(r, {"tile": 32, "zero_rms": 1e-3})
+    assert meta["zeroed_tiles"] == 2
+
+
+def test_bad_input_and_payload():
+    with pytest.raises(InputError):
+        encode_residual(np.zeros((8, 8), np.float32))
+    with pytest.raises(CodecError):
+        encode_residual(_residual(), {"codec": "nope"})
+    payload, meta = encode_residual(_residual())
+    with pytest.raises(CodecError):
+        decode_residual(payload[: len(payload) // 3], meta)
+    with pytest.raises(CodecError):
+        decode_residual(payload, {**meta, "shape": [10, 10]})
+    with pytest.raises(CodecError):
+        decode_residual(payload, {"codec": "jxl"})
+
+
+def test_plan_rates_skips_quiet_views_and_refines_loud_ones():
+    rs = [_residual(amp=a, seed=i) for i, a in enumerate([0.0, 0.02, 0.05, 0.2])]
+    d = plan_residual_rates(rs, 2.0)
+    assert d[0] is None
+    assert d[1] > d[2] > d[3]
+    assert all(1.0 <= v <= 4.0 for v in d[1:])
+    assert plan_residual_rates([np.zeros((4, 4, 3), np.float32)], 2.0) == [None]

@@ -1,0 +1,54 @@
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from gspc.io import read_scene
+from gspc.scene import GaussianScene, num_sh_rest
+from gspc.stats import scene_stats
+
+
+def _scene(n: int = 1000, degree: int = 3) -> GaussianScene:
+    g = torch.Generator().manual_seed(1)
+    k = num_sh_rest(degree)
+    means = torch.rand(n, 3, generator=g) * torch.tensor([2.0, 4.0, 6.0]) - 1.0
+    return GaussianScene(
+        means=means,
+        quats=torch.randn(n, 4, generator=g),
+        log_scales=torch.full((n, 3), math.log(0.01)),
+        opacities=torch.cat([torch.full((n // 4,), -10.0), torch.full((n - n // 4,), 0.0)]),
+        sh_dc=torch.zeros(n, 3),
+        sh_rest=torch.full((n, k, 3), 0.1),
+        sh_degree=degree,
+    )
+
+
+def test_stats_values():
+    st = scene_stats(_scene())
+    assert st["count"] == 1000 and st["sh_degree"] == 3
+    assert st["ply_bytes_per_gaussian"] == 248
+    assert st["bounds_min_x"] >= -1.0 and st["bounds_max_z"] <= 5.0
+    assert st["bounds_p01_y"] > st["bounds_min_y"] and st["bounds_p99_y"] < st["bounds_max_y"]
+    assert st["robust_extent"] == pytest.approx(math.sqrt(2**2 + 4**2 + 6**2), rel=0.05)
+    assert st["scale_mean"] == pytest.approx(0.01) and st["scale_std"] == pytest.approx(0.0, abs=1e-9)
+    assert st["opacity_min"] == pytest.approx(1 / (1 + math.exp(10)))
+    assert st["opacity_max"] == pytest.approx(0.5)
+    assert st["frac_opacity_below_1_255"] == pytest.approx(0.25)
+    assert st["color_g_mean"] == pytest.approx(0.5)
+    assert st["sh_rest_energy_mean"] == pytest.approx(45 * 0.01, rel=1e-5)
+    assert st["position_y_mean"] == pytest.approx(1.0, abs=0.2)
+
+
+def test_stats_are_plain_numbers_and_degree_zero():
+    st = scene_stats(_scene(n=10, degree=0))
+    assert st["ply_bytes_per_gaussian"] == 68 and st["sh_rest_energy_max"] == 0.0
+    assert all(type(v) in (int, float) for v in st.values())
+    assert all(np.isfinite(v) for v in st.values())
+
+
+def test_stats_on_real_scene(shared_data):
+    st = scene_stats(read_scene(shared_data / "statues/massa.sog"))
+    assert st["count"] == 58_649 and st["sh_degree"] == 0
+    assert 0 <= st["frac_opacity_below_1_255"] < 0.05
+    assert 1.0 < st["robust_extent"] < 10.0

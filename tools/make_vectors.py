@@ -1,0 +1,708 @@
+"""Make the gspc conformance vectors in spec/vectors/ and their manifest (MANIFEST.json, README.md).
+
+    python tools/make_vectors.py            # (re)write spec/vectors/
+    python tools/make_vectors.py --check    # exit 1 if spec/vectors/ differs from what this script makes
+
+Files are assembled here byte by byte from spec/gspc-format.md, not with gspc.codec.container, so the vectors
+and the reader are two independent readings of the spec. The expected outcome of each vector is stated here;
+generation fails if the reader disagrees with it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import struct
+import sys
+import zlib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import msgpack
+
+ROOT = Path(__file__).resolve().parents[1]
+OUT = ROOT / "spec" / "vectors"
+MAGIC = b"\x89GSPC\r\n\x1a"
+
+
+def crc(b: bytes) -> int:
+    return zlib.crc32(b) & 0xFFFFFFFF
+
+
+def pad8(n: int) -> int:
+    return -n % 8
+
+
+def payload(name: str, n: int) -> bytes:
+    """Deterministic filler bytes, different for each name."""
+    out = b""
+    while len(out) < n:
+        out += hashlib.sha256(name.encode() + len(out).to_bytes(4, "little")).digest()
+    return out[:n]
+
+
+def entry(type_: str, data: bytes, index: int = 0, flags: int = 1, **extra) -> dict:
+    return {"type": type_, "flags": flags, "index": index, "length": len(data), "crc": crc(data), **extra}
+
+
+def frame(header_raw: bytes, payloads: list[bytes], major: int = 1, minor: int = 0) -> bytes:
+    """Preamble, header, zero padding, padded payloads, end marker, file CRC (spec: File layout)."""
+    head = MAGIC + struct.pack("<HHII", major, minor, len(header_raw), crc(header_raw)) + header_raw
+    body = head + bytes(pad8(len(head)))
+    for p in payloads:
+        body += p + bytes(pad8(len(p)))
+    body += b"GEND"
+    return body + struct.pack("<I", crc(body))
+
+
+def build(meta: dict, chunks: list[tuple[dict, bytes]], major: int = 1, minor: int = 0, **top) -> bytes:
+    header = msgpack.packb({"chunks": [e for e, _ in chunks], "meta": meta, **top}, use_bin_type=True)
+    return frame(header, [p for _, p in chunks], major, minor)
+
+
+def refresh_file_crc(data: bytes) -> bytes:
+    return data[:-4] + struct.pack("<I", crc(data[:-4]))
+
+
+def flip(data: bytes, offset: int, bit: int = 0) -> bytes:
+    return data[:offset] + bytes([data[offset] ^ (1 << bit)]) + data[offset + 1 :]
+
+
+def to_json(value):
+    """msgpack value -> JSON value; bin becomes {"$bin": hex} (the manifest's only extension)."""
+    if isinstance(value, bytes):
+        return {"$bin": value.hex()}
+    if isinstance(value, dict):
+        return {k: to_json(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [to_json(v) for v in value]
+    return value
+
+
+@dataclass
+class Vector:
+    name: str
+    data: bytes
+    description: str
+    error: str | None = None  # FormatError subclass name; None: the file is valid
+    message_contains: list[str] = field(default_factory=list)
+    version: tuple[int, int] = (1, 0)
+    meta: dict | None = None
+    kept: list[tuple[dict, bytes]] = field(default_factory=list)  # chunks a 1.0 reader returns, in file order
+    skipped: list[tuple[dict, bytes]] = field(default_factory=list)  # unknown optional chunks
+
+    def manifest(self) -> dict:
+        out = {
+            "file": self.name + ".gspc",
+            "size": len(self.data),
+            "sha256": hashlib.sha256(self.data).hexdigest(),
+            "description": self.description,
+        }
+        if self.error:
+            out.update(expect="error", error=self.error, message_contains=self.message_contains)
+            return out
+
+        def chunk_list(chunks):
+            return [
+                {
+                    "type": e["type"],
+                    "index": e["index"],
+                    "required": bool(e["flags"] & 1),
+                    "length": len(p),
+                    "sha256": hashlib.sha256(p).hexdigest(),
+                }
+                for e, p in chunks
+            ]
+
+        out.update(
+            expect="ok",
+            version=list(self.version),
+            header=to_json(self.meta),
+            chunks=chunk_list(self.kept),
+            skipped=chunk_list(self.skipped),
+        )
+        return out
+
+
+def valid(
+    name: str, description: str, meta: dict, chunks, skipped=(), minor: int = 0, data=None, **top
+) -> Vector:
+    """A valid vector: `chunks` (kept by a reader), then `skipped` (unknown optional), in file order."""
+    all_chunks = list(chunks) + list(skipped)
+    data = data if data is not None else build(meta, all_chunks, 1, minor, **top)
+    return Vector(name, data, description, None, [], (1, minor), meta, list(chunks), list(skipped))
+
+
+def bad(name: str, data: bytes, error: str, description: str, *contains: str) -> Vector:
+    return Vector(name, data, description, error, list(contains))
+
+
+CAMERAS = [
+    {
+        "name": f"view{i:03d}",
+        "width": 64,
+        "height": 48,
+        "K": [[50.0, 0.0, 32.0], [0.0, 50.0, 24.0], [0.0, 0.0, 1.0]],
+        "world_to_cam": [[1.0, 0.0, 0.0, 0.1 * i], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 4.0], [0, 0, 0, 1]],
+    }
+    for i in range(2)
+]
+REGISTRY = ["POSN", "OPAC", "SCAL", "ROTN", "SHDC", "SHRS", "RESI"]
+
+
+def valid_vectors() -> list[Vector]:
+    vs = [
+        valid(
+            "valid_minimal", "smallest valid file: empty meta, no chunks (the spec's worked hex dump)", {}, []
+        )
+    ]
+    for i, t in enumerate(REGISTRY):
+        if t == "RESI":
+            chunks = [
+                (entry(t, payload(f"{t}{v}", 5 + v), index=v), payload(f"{t}{v}", 5 + v)) for v in range(3)
+            ]
+            desc = "three RESI chunks, indices 0, 1, 2 (one per side-information view)"
+        else:
+            data = payload(t, 9 + 3 * i)
+            chunks = [(entry(t, data), data)]
+            desc = f"one {t} chunk of {len(data)} bytes (padded to a multiple of 8)"
+        vs.append(valid(f"valid_chunk_{t}", desc, {"codec": {"id": "test", "version": 1}}, chunks))
+    full_meta = {
+        "scene": {"count": 1000, "sh_degree": 3, "bbox": [[-1.5, -1.0, -0.5], [1.5, 1.0, 0.5]]},
+        "codec": {
+            "positions": {"id": "posn-test", "bits": 16},
+            "attributes": {"id": "attr-test", "lambda": 0.002},
+        },
+        "cameras": CAMERAS,
+        "note": "bin values, nil, booleans and negative numbers are all allowed",
+        "blob": b"\x00\x01\xfe\xff",
+        "flags": [None, True, False, -1, -(2**40), 2**63, 0.5],
+    }
+    full = []
+    for t in REGISTRY:
+        for v in range(2 if t == "RESI" else 1):
+            data = payload(f"full{t}{v}", 17 + len(full))
+            full.append((entry(t, data, index=v), data))
+    vs.append(
+        valid(
+            "valid_all_types", "every gspc 1.0 chunk type, a realistic header with cameras", full_meta, full
+        )
+    )
+    lengths = [(entry("RESI", payload("len", n), index=n), payload("len", n)) for n in range(10)]
+    vs.append(valid("valid_lengths_0_to_9", "RESI chunks of 0..9 bytes: every padding amount", {}, lengths))
+    opt = payload("OPAC-optional", 6)
+    vs.append(
+        valid(
+            "valid_optional_known",
+            "a known type marked optional is returned",
+            {},
+            [(entry("OPAC", opt, flags=0), opt)],
+        )
+    )
+    posn, extra = payload("POSN-u", 12), payload("xTRA", 21)
+    vs.append(
+        valid(
+            "valid_unknown_optional",
+            "an unknown optional chunk (xTRA) is verified and skipped",
+            {},
+            [(entry("POSN", posn), posn)],
+            [(entry("xTRA", extra, flags=0), extra)],
+        )
+    )
+    newt = payload("NEWT", 11)
+    vs.append(
+        valid(
+            "valid_newer_minor",
+            "version 1.9: unknown top-level and entry keys, a reserved flag bit, an unknown optional chunk",
+            {"codec": {"id": "future"}},
+            [(entry("POSN", posn, flags=0b11, note="entry keys a 1.0 reader ignores"), posn)],
+            [(entry("NEWT", newt, flags=0), newt)],
+            minor=9,
+            future={"anything": [1, 2, 3]},
+        )
+    )
+    # Same content with msgpack written the long way: keys reordered, ints in wider encodings than needed.
+    e_posn = entry("POSN", posn)
+    raw = (
+        b"\xde\x00\x02"  # map16, 2 pairs
+        + b"\xd9\x04meta"  # str8 "meta"
+        + b"\xdf\x00\x00\x00\x00"  # map32, empty
+        + b"\xd9\x06chunks"
+        + b"\xdc\x00\x01"  # array16, 1 entry
+        + b"\x85"
+        + b"\xa3crc"
+        + b"\xce"
+        + struct.pack(">I", e_posn["crc"])
+        + b"\xa6length\xcf"
+        + struct.pack(">Q", len(posn))  # uint64
+        + b"\xa5index\xd3"
+        + struct.pack(">q", 0)  # int64
+        + b"\xa5flags\xcd\x00\x01"  # uint16
+        + b"\xa4type\xdb\x00\x00\x00\x04POSN"  # str32
+    )
+    vs.append(
+        valid(
+            "valid_noncanonical_msgpack",
+            "keys out of the usual order and integers in wider msgpack encodings than needed",
+            {},
+            [(e_posn, posn)],
+            data=frame(raw, [posn]),
+        )
+    )
+    return vs
+
+
+def layout(data: bytes) -> dict[str, int]:
+    """Offsets of the regions of a file made by build() (for truncations and bit flips)."""
+    (h,) = struct.unpack_from("<I", data, 12)
+    top = msgpack.unpackb(data[20 : 20 + h])
+    pos = 20 + h
+    out = {"header": 20, "header_padding": pos}
+    pos += pad8(pos)
+    for e in top["chunks"]:
+        name = f"{e['type']}{e['index']}"
+        out[f"chunk_{name}"] = pos
+        pos += e["length"]
+        out[f"chunk_{name}_padding"] = pos
+        pos += pad8(pos)
+    out["end_marker"] = pos
+    out["file_crc"] = pos + 4
+    return out
+
+
+def invalid_vectors() -> list[Vector]:
+    posn, resi = payload("base-POSN", 13), payload("base-RESI", 8)
+    base_chunks = [(entry("POSN", posn), posn), (entry("RESI", resi, index=1), resi)]
+    base = build({"scene": "base"}, base_chunks)
+    reg = layout(base)
+    assert reg["header_padding"] % 8 and reg["chunk_POSN0_padding"] % 8, "base must exercise both paddings"
+    vs = [
+        bad("invalid_magic_png", b"\x89PNG\r\n\x1a\n" + base[8:], "BadMagic", "a PNG signature", "magic"),
+        bad("invalid_magic_text", b"GSPC 1.0\n", "BadMagic", "short text file", "magic"),
+        bad(
+            "invalid_magic_crlf",
+            base.replace(b"\r\n", b"\n", 1),
+            "BadMagic",
+            "CR LF in the magic turned into LF (text-mode transfer)",
+            "magic",
+        ),
+        bad("invalid_major_2", build({}, [], major=2), "UnsupportedVersion", "major version 2", "2.0"),
+        bad("invalid_major_0", build({}, [], major=0), "UnsupportedVersion", "major version 0", "0.0"),
+        bad(
+            "invalid_major_2_other_layout",
+            MAGIC + struct.pack("<HH", 2, 3) + b"a different layout",
+            "UnsupportedVersion",
+            "a newer major version may change everything after byte 12",
+            "2.3",
+        ),
+    ]
+    zz = payload("ZZZZ", 4)
+    vs.append(
+        bad(
+            "invalid_unknown_required",
+            build({}, [*base_chunks, (entry("ZZZZ", zz), zz)]),
+            "UnknownRequiredChunk",
+            "a required chunk of unknown type ZZZZ",
+            "ZZZZ#0",
+        )
+    )
+    vs.append(
+        bad(
+            "invalid_duplicate_chunk",
+            build({}, [base_chunks[0], base_chunks[0]]),
+            "DuplicateChunk",
+            "POSN#0 twice",
+            "POSN#0",
+        )
+    )
+    r0, r1 = payload("dupR0", 3), payload("dupR1", 5)
+    vs.append(
+        bad(
+            "invalid_duplicate_index",
+            build({}, [(entry("RESI", r0, index=2), r0), (entry("RESI", r1, index=2), r1)]),
+            "DuplicateChunk",
+            "two RESI chunks with index 2",
+            "RESI#2",
+        )
+    )
+    vs.append(
+        bad(
+            "invalid_duplicate_unknown_optional",
+            build({}, [(entry("xTRA", r0, flags=0), r0), (entry("xTRA", r0, flags=0), r0)]),
+            "DuplicateChunk",
+            "duplicates are refused even among chunks a reader would skip",
+            "xTRA#0",
+        )
+    )
+    vs.append(
+        bad(
+            "invalid_trailing_bytes",
+            base + b"extra!!!",
+            "TrailingBytes",
+            "8 bytes after the trailer",
+            "8 bytes",
+        )
+    )
+    vs.append(
+        bad(
+            "invalid_trailing_zero",
+            base + b"\x00",
+            "TrailingBytes",
+            "one zero byte after the trailer",
+            "1 bytes",
+        )
+    )
+
+    # Truncation at every region boundary of the base file, and one byte short.
+    cuts = {0: "magic (empty file)", 4: "middle of the magic", 8: "major", 10: "minor", 12: "header_length"}
+    cuts[16] = "header_crc"
+    for region, off in reg.items():
+        cuts.setdefault(off, region.replace("_", " "))
+    cuts.setdefault(len(base) - 1, "last byte of the file CRC")
+    for off, region in sorted(cuts.items()):
+        vs.append(
+            bad(
+                f"invalid_truncated_{off:03d}",
+                base[:off],
+                "Truncated",
+                f"base file cut to {off} bytes: it ends where the {region} begins",
+                f"offset {off}",
+            )
+        )
+
+    # One flipped bit in each region (no checksum repaired).
+    flips = [
+        ("magic", 3, 0, "BadMagic"),
+        ("major", 8, 1, "UnsupportedVersion"),
+        ("minor", 10, 0, "ChecksumMismatch"),
+        ("header_length_low", 12, 0, "ChecksumMismatch"),
+        ("header_length_high", 15, 7, "LimitExceeded"),
+        ("header_length_mid", 13, 1, "Truncated"),
+        ("header_crc", 17, 4, "ChecksumMismatch"),
+        ("header", reg["header"] + 5, 2, "ChecksumMismatch"),
+        ("header_padding", reg["header_padding"], 0, "BadPadding"),
+        ("posn_payload", reg["chunk_POSN0"] + 6, 5, "ChecksumMismatch"),
+        ("posn_padding", reg["chunk_POSN0_padding"] + 1, 3, "BadPadding"),
+        ("resi_payload", reg["chunk_RESI1"], 7, "ChecksumMismatch"),
+        ("end_marker", reg["end_marker"] + 2, 1, "BadMagic"),
+        ("file_crc", reg["file_crc"] + 3, 6, "ChecksumMismatch"),
+    ]
+    where = {"header": "header", "posn_payload": "POSN#0", "resi_payload": "RESI#1", "file_crc": "whole file"}
+    for region, off, bit, error in flips:
+        vs.append(
+            bad(
+                f"invalid_flip_{region}",
+                flip(base, off, bit),
+                error,
+                f"bit {bit} of byte {off} flipped ({region.replace('_', ' ')})",
+                *([where[region]] if region in where else []),
+            )
+        )
+
+    # Lengths pointing past the end, and absurd lengths and counts.
+    def with_header(raw: bytes, payloads=(posn, resi)) -> bytes:
+        return frame(raw, list(payloads))
+
+    h_len = struct.unpack_from("<I", base, 12)[0]
+    past = base[:12] + struct.pack("<I", len(base)) + base[16:]
+    vs.append(
+        bad("invalid_header_length_past_end", past, "Truncated", "header_length = file size", "offset 12")
+    )
+    absurd = base[:12] + b"\xff\xff\xff\xff" + base[16:]
+    vs.append(
+        bad("invalid_header_length_absurd", absurd, "LimitExceeded", "header_length = 2^32-1", "offset 12")
+    )
+    long_posn = dict(base_chunks[0][0], length=1000)
+    vs.append(
+        bad(
+            "invalid_chunk_length_past_end",
+            build({}, [(long_posn, posn), base_chunks[1]]),
+            "Truncated",
+            "POSN length 1000 in a file of about 200 bytes (checksums valid)",
+            "POSN#0",
+        )
+    )
+    huge = dict(base_chunks[0][0], length=2**64 - 1)
+    vs.append(
+        bad(
+            "invalid_chunk_length_absurd",
+            build({}, [(huge, posn)]),
+            "LimitExceeded",
+            "POSN length 2^64-1",
+            "POSN",
+        )
+    )
+
+    def head(chunks_raw: bytes, meta_raw: bytes = b"\x80") -> bytes:
+        return b"\x82\xa6chunks" + chunks_raw + b"\xa4meta" + meta_raw
+
+    vs += [
+        bad(
+            "invalid_chunk_count_absurd",
+            with_header(head(b"\xdd\xff\xff\xff\xff")),
+            "BadHeader",
+            "chunk table array32 of 2^32-1 entries",
+            "msgpack",
+        ),
+        bad(
+            "invalid_map_count_absurd",
+            with_header(head(b"\x90", b"\xdf\xff\xff\xff\xff")),
+            "BadHeader",
+            "meta map32 of 2^32-1 pairs",
+            "msgpack",
+        ),
+        bad(
+            "invalid_str_length_absurd",
+            with_header(head(b"\x90", b"\x81\xdb\xff\xff\xff\xff")),
+            "BadHeader",
+            "a str32 of 2^32-1 bytes",
+            "msgpack",
+        ),
+        bad(
+            "invalid_bin_length_absurd",
+            with_header(head(b"\x90", b"\x81\xa1k\xc6\xff\xff\xff\xf0")),
+            "BadHeader",
+            "a bin32 of 2^32-16 bytes",
+            "msgpack",
+        ),
+        bad("invalid_header_zero_length", frame(b"", []), "BadHeader", "header_length 0", "0"),
+        bad(
+            "invalid_header_not_map",
+            frame(msgpack.packb([[], {}]), []),
+            "BadHeader",
+            "header is an array",
+            "not a map",
+        ),
+        bad(
+            "invalid_header_no_chunks",
+            frame(msgpack.packb({"meta": {}}), []),
+            "BadHeader",
+            "no 'chunks' key",
+            "'chunks'",
+        ),
+        bad(
+            "invalid_header_no_meta",
+            frame(msgpack.packb({"chunks": []}), []),
+            "BadHeader",
+            "no 'meta' key",
+            "'meta'",
+        ),
+        bad(
+            "invalid_header_meta_not_map",
+            frame(msgpack.packb({"chunks": [], "meta": [1]}), []),
+            "BadHeader",
+            "meta is an array",
+            "'meta'",
+        ),
+        bad(
+            "invalid_header_extra_bytes",
+            frame(msgpack.packb({"chunks": [], "meta": {}}) + b"\xc0", []),
+            "BadHeader",
+            "a msgpack nil after the header map, inside header_length",
+            "after",
+        ),
+        bad(
+            "invalid_header_incomplete",
+            frame(b"\x82\xa6chunks\x90\xa4meta", []),
+            "BadHeader",
+            "header map missing its last value",
+            "msgpack",
+        ),
+        bad(
+            "invalid_header_reserved_byte",
+            frame(b"\x82\xa6chunks\x90\xa4meta\xc1", []),
+            "BadHeader",
+            "msgpack's never-used byte 0xc1",
+            "msgpack",
+        ),
+        bad(
+            "invalid_header_bad_utf8",
+            frame(b"\x82\xa6chunks\x90\xa4meta\x81\xa2\xff\xfe\xc0", []),
+            "BadHeader",
+            "a str that is not UTF-8",
+            "msgpack",
+        ),
+        bad(
+            "invalid_header_ext_type",
+            frame(head(b"\x90", b"\x81\xa1t\xd4\x05\x00"), []),
+            "BadHeader",
+            "msgpack extension type 5",
+            "extension",
+        ),
+        bad(
+            "invalid_header_timestamp",
+            frame(head(b"\x90", b"\x81\xa1t\xd6\xff\x00\x00\x00\x01"), []),
+            "BadHeader",
+            "msgpack timestamp (extension -1)",
+            "extension",
+        ),
+        bad(
+            "invalid_header_int_key",
+            frame(head(b"\x90", b"\x81\x01\xc0"), []),
+            "BadHeader",
+            "a map key that is an integer",
+            "key",
+        ),
+        bad(
+            "invalid_header_duplicate_key",
+            frame(head(b"\x90", b"\x82\xa1a\x01\xa1a\x02"), []),
+            "BadHeader",
+            "meta has key 'a' twice",
+            "'a'",
+        ),
+        bad(
+            "invalid_header_too_deep",
+            frame(head(b"\x90", b"\x81\xa1d" + b"\x91" * 40 + b"\xc0"), []),
+            "BadHeader",
+            "40 nested arrays",
+            "deeper",
+        ),
+    ]
+
+    def table_vec(name: str, e: dict, desc: str, *contains: str) -> Vector:
+        return bad(name, build({}, [(e, posn)]), "BadHeader", desc, *contains)
+
+    e0 = entry("POSN", posn)
+    vs += [
+        table_vec("invalid_entry_short_type", dict(e0, type="POS"), "chunk type of 3 characters", "'POS'"),
+        table_vec("invalid_entry_symbol_type", dict(e0, type="PO$N"), "chunk type with a '$'", "'PO$N'"),
+        table_vec("invalid_entry_int_type", dict(e0, type=1234), "chunk type is an integer", "1234"),
+        table_vec("invalid_entry_negative_index", dict(e0, index=-1), "index -1", "index"),
+        table_vec("invalid_entry_big_index", dict(e0, index=2**32), "index 2^32", "index"),
+        table_vec("invalid_entry_bool_length", dict(e0, length=True), "length is a boolean", "length"),
+        table_vec("invalid_entry_negative_length", dict(e0, length=-1), "length -1", "length"),
+        table_vec("invalid_entry_float_crc", dict(e0, crc=1.5), "crc is a float", "crc"),
+        table_vec(
+            "invalid_entry_no_crc", {k: v for k, v in e0.items() if k != "crc"}, "entry without crc", "'crc'"
+        ),
+        table_vec("invalid_entry_not_map", [1, 2, 3], "entry is an array", "entry 0"),
+    ]
+
+    # Damage from a checksum-repairing attacker or a buggy writer: checksums valid, rules broken.
+    hp = reg["header_padding"]
+    vs.append(
+        bad(
+            "invalid_nonzero_padding",
+            refresh_file_crc(base[:hp] + b"\x01" + base[hp + 1 :]),
+            "BadPadding",
+            "a header padding byte is 1 (file CRC repaired)",
+            f"offset {hp}",
+        )
+    )
+    po = reg["chunk_POSN0"]
+    vs.append(
+        bad(
+            "invalid_chunk_crc",
+            refresh_file_crc(base[:po] + b"X" + base[po + 1 :]),
+            "ChecksumMismatch",
+            "POSN payload changed, file CRC repaired",
+            "POSN#0",
+        )
+    )
+    em = reg["end_marker"]
+    vs.append(
+        bad(
+            "invalid_end_marker",
+            refresh_file_crc(base[:em] + b"GEN!" + base[em + 4 :]),
+            "BadMagic",
+            "end marker GEN!",
+            "end marker",
+        )
+    )
+    assert h_len > 0
+    return vs
+
+
+def all_vectors() -> list[Vector]:
+    vs = valid_vectors() + invalid_vectors()
+    names = [v.name for v in vs]
+    assert len(names) == len(set(names)), "vector names must be unique"
+    return vs
+
+
+def manifest(vs: list[Vector]) -> dict:
+    return {
+        "about": (
+            "gspc conformance vectors (spec/gspc-format.md, section 13). expect 'ok': a reader returns "
+            "this version, header (msgpack bin shown as {'$bin': hex}) and these chunks in file order, "
+            "unknown "
+            "optional ones under 'skipped'. expect 'error': a reader refuses the file; 'error' names the "
+            "FormatError subclass of the reference reader and 'message_contains' words its message holds."
+        ),
+        "generated_by": "python tools/make_vectors.py",
+        "vectors": [v.manifest() for v in vs],
+    }
+
+
+def readme(vs: list[Vector]) -> str:
+    lines = [
+        "# gspc conformance vectors",
+        "",
+        "Made by `python tools/make_vectors.py`; checked by `tests/test_conformance.py`. Each file",
+        "exercises one feature or one kind of damage; MANIFEST.json holds the exact expected outcome",
+        "(decoded header, chunk hashes, or the error). The format is described in `../gspc-format.md`.",
+        "",
+        "| file | bytes | expected | what it holds |",
+        "|---|---:|---|---|",
+    ]
+    for v in vs:
+        lines.append(f"| `{v.name}.gspc` | {len(v.data)} | {v.error or 'ok'} | {v.description} |")
+    return "\n".join(lines) + "\n"
+
+
+def check_with_reader(vs: list[Vector]) -> list[str]:
+    """Problems where the reference reader disagrees with a vector's stated outcome."""
+    sys.path.insert(0, str(ROOT))
+    from gspc.codec import container
+
+    problems = []
+    for v in vs:
+        try:
+            c = container.unpack(v.data)
+        except container.FormatError as e:
+            if type(e).__name__ != v.error:
+                problems.append(
+                    f"{v.name}: expected {v.error or 'ok'}, reader raised {type(e).__name__}: {e}"
+                )
+            elif missing := [s for s in v.message_contains if s not in str(e)]:
+                problems.append(f"{v.name}: message {str(e)!r} lacks {missing}")
+            continue
+        if v.error:
+            problems.append(f"{v.name}: expected {v.error}, reader accepted it")
+        elif c.header != v.meta or [(x.type, x.index, x.payload) for x in c.chunks] != [
+            (e["type"], e["index"], p) for e, p in v.kept
+        ]:
+            problems.append(f"{v.name}: reader decoded different content")
+    return problems
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--check", action="store_true", help="compare with spec/vectors/ instead of writing")
+    args = ap.parse_args()
+    vs = all_vectors()
+    if problems := check_with_reader(vs):
+        print("\n".join(problems), file=sys.stderr)
+        return 1
+    files = {v.name + ".gspc": v.data for v in vs}
+    files["MANIFEST.json"] = (json.dumps(manifest(vs), indent=1) + "\n").encode()
+    files["README.md"] = readme(vs).encode()
+    if args.check:
+        stale = [n for n, d in files.items() if not (OUT / n).is_file() or (OUT / n).read_bytes() != d]
+        extra = sorted(p.name for p in OUT.glob("*.gspc") if p.name not in files)
+        for n in stale + extra:
+            print(f"differs: spec/vectors/{n}", file=sys.stderr)
+        return 1 if stale or extra else 0
+    OUT.mkdir(parents=True, exist_ok=True)
+    for p in OUT.glob("*.gspc"):
+        if p.name not in files:
+            p.unlink()
+    for n, d in files.items():
+        (OUT / n).write_bytes(d)
+    print(f"wrote {len(vs)} vectors to {OUT.relative_to(ROOT)}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
