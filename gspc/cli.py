@@ -107,6 +107,9 @@ def encode(
     max_side: int = typer.Option(400, help="longest side of the side-information views, in pixels"),
     side_info: bool = typer.Option(True, help="store residual side information"),
     keep_invisible: bool = typer.Option(False, help="keep Gaussians no view sees"),
+    background: tuple[float, float, float] = typer.Option(
+        (0.0, 0.0, 0.0), help="render background RGB in [0, 1] (1 1 1 for scenes trained on white)"
+    ),
 ) -> None:
     """Compress a 3DGS scene into a .gspc file."""
     from gspc.pipeline import EncodeOptions
@@ -121,6 +124,7 @@ def encode(
         max_side=max_side,
         side_info=side_info,
         keep_invisible=keep_invisible,
+        background=background,
     )
     with _progress_bars() as cb:
         rep = run(scene, output, cameras, opts, progress=cb)

@@ -59,6 +59,7 @@ class DecodeOptions:
     restorer: str | None = None  # None: the one the bitstream names
     device: str = "cpu"
     seed: int = 0
+    lr_scale: float = 1.0  # multiplies every refinement learning rate
 
 
 @dataclass
@@ -261,6 +262,7 @@ def decode(
                     iterations=opts.iterations,
                     background=bg,
                     seed=opts.seed,
+                    lr_scale=opts.lr_scale,
                     progress=cb,
                 )
     rep.info["restorer"] = restorer_name if opts.restore else "off"

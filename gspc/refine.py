@@ -107,9 +107,14 @@ def refine(
     if not groups:
         return out.detach()
     opt = torch.optim.Adam(groups, eps=1e-15)
+    base = [g["lr"] for g in opt.param_groups]
     gen = torch.Generator().manual_seed(seed)
 
     for it in range(iterations):
+        # Cosine decay to zero: late steps only polish, so the result depends little on where it stops.
+        decay = 0.5 * (1 + np.cos(np.pi * it / iterations))
+        for g, lr0 in zip(opt.param_groups, base):
+            g["lr"] = lr0 * decay
         v = int(torch.randint(len(cameras), (1,), generator=gen))
         image = render(out, cameras[v], background).image
         l1 = (image - targets[v]).abs().mean()

@@ -1,11 +1,15 @@
+import constriction
 import numpy as np
 import pytest
 
 from gspc.codec.entropy import (
+    PRECISION,
+    _categorical,
     bit_length,
     decode_matrix,
     encode_matrix,
     fit_model,
+    fixed_point_table,
     model_weights,
     pack_bits,
     unpack_bits,
@@ -73,3 +77,26 @@ def test_corrupt_payload_raises_codec_error():
     payload = encode_matrix(np.arange(100)[:, None])
     with pytest.raises(CodecError):
         decode_matrix(payload[:-7])
+
+
+def _coder_symbol_at(model, quantile: int) -> int:
+    # A one-symbol ANS stream whose state has low 24 bits = quantile decodes the symbol whose
+    # cumulative interval [cdf[s], cdf[s+1]) holds it: this reads the coder's own fixed-point table.
+    dec = constriction.stream.stack.AnsCoder(np.array([quantile, 1], dtype=np.uint32))
+    return int(dec.decode(model, 1)[0])
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_coder_uses_exactly_our_integer_table(seed):
+    rng = np.random.default_rng(seed)
+    sym = np.rint(rng.laplace(0, [0.3, 3, 30, 300][seed], 2000)).astype(np.int64)
+    for spec in [fit_model(sym)[0], [2, -40, 25, 3, seed * 7, seed * 5], [3, 5, 9, 0, 1, 1023, 0, 7]]:
+        f = fixed_point_table(spec)
+        assert f.sum() == 1 << PRECISION and (f >= 1).all()
+        cdf = np.concatenate([[0], np.cumsum(f)])
+        model = _categorical(spec)
+        picks = np.unique(np.r_[0, 1, 2, np.argsort(f)[:5], np.argsort(f)[-5:], f.size - 1])
+        picks = picks[picks < f.size]
+        for i in picks:
+            assert _coder_symbol_at(model, int(cdf[i])) == i
+            assert _coder_symbol_at(model, int(cdf[i + 1] - 1)) == i

@@ -12,6 +12,7 @@ Chunks (bytes, stored by the container under these types):
   only flagged Gaussians' SH rest, coefficient-major, steps growing with degree. No SHRS at degree 0.
 Each chunk is an :func:`gspc.codec.entropy.encode_matrix` payload (SHRS: a msgpack pair).
 Dequantisation runs in float64 with correctly rounded ops and casts to float32 at the end.
+The byte layouts are specified in spec/gspc-format.md, section 10.
 """
 
 from __future__ import annotations

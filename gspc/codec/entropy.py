@@ -36,6 +36,8 @@ NUM_MODES = 4
 _EMPIRICAL_MAX_WINDOW = 512
 _EMPIRICAL_SCALE = 1023
 _WEIGHT_SCALE = float(1 << 30)
+PRECISION = 24  # constriction's default range coder: 32-bit words, 64-bit state, 24-bit probabilities
+MAX_WINDOW = 1 << 22  # symbols per model (constriction needs fewer than 2^24 - 1)
 
 
 def _thetas() -> np.ndarray:
@@ -122,14 +124,44 @@ def fit_model(sym: np.ndarray) -> tuple[list[int], float]:
     return best, best_bits
 
 
+def fixed_point_table(spec: list[int]) -> np.ndarray:
+    """The exact integer frequencies the range coder uses: every symbol >= 1, summing to 2^PRECISION.
+
+    With n symbols, weights w and W = sum(w): ``f = 1 + floor(w * (2^PRECISION - n) / W)``, then the
+    shortfall ``2^PRECISION - sum(f)`` (0 <= shortfall < n) goes to the first symbol of largest weight.
+    All int64 arithmetic: weights are below 2^39 and the window below 2^24, so nothing overflows.
+    """
+    w = model_weights(spec).astype(np.int64)
+    n = w.size
+    if (w < 0).any() or w.max() >= 1 << 39 or w.sum() <= 0:
+        raise CodecError("entropy model has weights outside 0..2^39 or none positive")
+    if not 2 <= n <= MAX_WINDOW:
+        raise CodecError(f"entropy model window of {n} symbols is outside 2..{MAX_WINDOW}")
+    free = (1 << PRECISION) - n
+    f = 1 + (w * free) // int(w.sum())
+    f[int(np.argmax(w))] += (1 << PRECISION) - int(f.sum())
+    return f
+
+
+def model_for(spec: list[int]):
+    """The constriction model of a spec, or None for specs that code no bits (kinds 0 and 1)."""
+    return _categorical(spec) if spec[0] >= 2 else None
+
+
 def _categorical(spec: list[int]):
-    return constriction.stream.model.Categorical(model_weights(spec), perfect=False)
+    # constriction's fast quantiser (ContiguousCategoricalEntropyModel::
+    # from_floating_point_probabilities_fast)
+    # sets cdf[i] = floor(sum(p[:i]) * (2^24 - n) / sum(p)) + i. Given p = f - 1 (integers, so every sum is
+    # exact in float64 and the scale is exactly 1.0), that is cdf[i] = sum(f[:i]): the coder uses f exactly.
+    f = fixed_point_table(spec)
+    return constriction.stream.model.Categorical((f - 1).astype(np.float64), perfect=False)
 
 
-def encode_symbols(enc, sym: np.ndarray, spec: list[int]) -> None:
+def encode_symbols(enc, sym: np.ndarray, spec: list[int], model=None) -> None:
     if spec[0] < 2 or sym.size == 0:
         return
-    enc.encode((np.asarray(sym, dtype=np.int64) - spec[1]).astype(np.int32), _categorical(spec))
+    model = _categorical(spec) if model is None else model
+    enc.encode((np.asarray(sym, dtype=np.int64) - spec[1]).astype(np.int32), model)
 
 
 def decode_symbols(dec, n: int, spec: list[int], model=None) -> np.ndarray:

@@ -119,6 +119,16 @@ def _read_manifest(weights_dir: Path, name: str) -> dict:
         raise CodecError(f"restorer {name!r}: {path} does not parse: {e}") from None
 
 
+def available_restorers(weights_dir: str | Path | None = None) -> list[str]:
+    """Names a decoder can load: 'none' plus every restorer in the weights manifest."""
+    path = (Path(weights_dir) if weights_dir is not None else WEIGHTS_DIR) / MANIFEST
+    try:
+        names = sorted(json.loads(path.read_text()))
+    except (OSError, ValueError):
+        names = []
+    return ["none", *names]
+
+
 def load_restorer(
     name: str,
     weights_dir: str | Path | None = None,

@@ -1,0 +1,316 @@
+"""Tile-based front-to-back alpha compositing in pure PyTorch, with a recomputing backward.
+
+``composite`` is the only entry point, so a compiled kernel can replace it. Rules (3DGS):
+alpha = min(0.99, o * exp(-q / 2)) with q = d^T conic d, d = pixel centre - mean; alphas below
+1/255 are skipped; Gaussians are composited in increasing depth; a pixel stops before the Gaussian
+that would take its transmittance below 1e-4. There is deliberately no "skip if q < 0" rule: q
+rounds slightly negative at a Gaussian's centre and that rule would drop the Gaussian there.
+
+How it is vectorised: each Gaussian is listed in every 8x8 tile its alpha >= 1/255 box touches
+(lists in depth order). Tiles are processed in chunks, and each chunk walks its lists in blocks of
+``BLOCK`` Gaussians, so one step works on a (tiles, BLOCK, 64 pixels) array; a tile leaves the walk
+when its list ends or all its pixels have stopped. In tile-centred pixel coordinates the exponent
+is a quadratic, log o - q/2 = k . [1, x, y, x^2, xy, y^2], so one matmul evaluates a whole block
+(in base 2: exp2 is several times faster than exp on CPU). Elementwise work is in place and avoids
+boolean masks, which are slow on CPU. The backward pass repeats the walk (nothing per pixel and
+Gaussian is stored) and uses the closed-form gradient of compositing: with weights
+w_i = alpha_i T_i and g_i = dL/dw_i, dL/dalpha_i = g_i T_i - (sum_{j>i} w_j g_j) / (1 - alpha_i).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+
+TILE = 8
+PIXELS = TILE * TILE
+BLOCK = 32  # Gaussians per tile per step
+STEP_BUDGET = 1 << 19  # elements of one (tiles, BLOCK, pixels) array; bounds memory
+ALPHA_MIN = 1.0 / 255.0
+ALPHA_MAX = 0.99
+T_MIN = 1e-4
+DEAD_POWER = -1e4  # exponent of padding entries: exp2() is exactly 0
+LOG2_E = 1.4426950408889634
+
+
+@dataclass
+class TileBins:
+    """Which Gaussians (indices into depth-sorted arrays) touch which tile, tile lists contiguous."""
+
+    gauss: torch.Tensor  # (P,) Gaussian of each (tile, Gaussian) pair, grouped by tile, depth order within
+    tile: torch.Tensor  # (P,) tile of each pair
+    start: torch.Tensor  # (tiles,) first pair of each tile
+    count: torch.Tensor  # (tiles,) pairs of each tile
+    tiles_x: int
+    tiles_y: int
+
+
+def composite(
+    means2d: torch.Tensor,
+    conics: torch.Tensor,
+    opacities: torch.Tensor,
+    features: torch.Tensor,
+    depths: torch.Tensor,
+    extents: torch.Tensor,
+    width: int,
+    height: int,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Composite Gaussians front to back; returns (sum_i w_i features_i (H, W, C), alpha (H, W)).
+
+    means2d (M, 2) pixels, conics (M, 3) as (a, b, c), opacities (M,), features (M, C), depths (M,)
+    sort key (ties keep input order), extents (M, 2) half-sizes of the box outside which alpha < 1/255,
+    negative for Gaussians never drawn (others need opacity >= 1/255). Differentiable w.r.t. means2d,
+    conics, opacities and features.
+    """
+    c = features.shape[1]
+    order = torch.sort(depths.detach(), stable=True).indices
+    order = order[extents.detach()[order, 0] >= 0]  # drop the never-drawn (extents -1)
+    means2d, conics, features = (x.index_select(0, order) for x in (means2d, conics, features))
+    opacities = opacities.index_select(0, order)
+    bins = bin_tiles(means2d.detach(), extents.detach().index_select(0, order), width, height)
+    out = _Composite.apply(means2d, conics, opacities, features, bins, width, height)
+    return out[..., :c], out[..., c]
+
+
+def bin_tiles(means2d: torch.Tensor, extents: torch.Tensor, width: int, height: int) -> TileBins:
+    """List every Gaussian in each tile whose pixel centres its box reaches, keeping input order."""
+    tiles_x, tiles_y = -(-width // TILE), -(-height // TILE)
+    dev = means2d.device
+    # Tile i holds pixel centres i*TILE + 0.5 ... i*TILE + TILE - 0.5.
+    lo = torch.ceil((means2d - extents - (TILE - 0.5)) / TILE)
+    hi = torch.floor((means2d + extents - 0.5) / TILE)
+    lo = torch.maximum(lo, torch.zeros_like(lo)).long()
+    hi = torch.minimum(hi, torch.tensor([tiles_x - 1, tiles_y - 1], device=dev, dtype=hi.dtype)).long()
+    span = (hi - lo + 1).clamp_min(0)
+    n = span[:, 0] * span[:, 1]
+    gauss = torch.repeat_interleave(torch.arange(len(n), device=dev), n)
+    # Per pair: its rank k inside its Gaussian's box, the box's first tile and width.
+    per_gauss = torch.stack([torch.cumsum(n, 0) - n, lo[:, 0], lo[:, 1], span[:, 0]], 1).index_select(
+        0, gauss
+    )
+    first, x0, y0, sx = per_gauss.unbind(1)
+    k = torch.arange(len(gauss), device=dev) - first
+    row = torch.div(k, sx, rounding_mode="floor")
+    tile = (y0 + row) * tiles_x + x0 + (k - row * sx)
+    # A stable sort groups pairs by tile and keeps the depth order inside each tile.
+    tile, perm = torch.sort(tile.int(), stable=True)
+    gauss, tile = gauss.index_select(0, perm), tile.long()
+    count = torch.bincount(tile, minlength=tiles_x * tiles_y)
+    return TileBins(gauss, tile, torch.cumsum(count, 0) - count, count, tiles_x, tiles_y)
+
+
+def _pixel_basis(dtype: torch.dtype, device: torch.device) -> torch.Tensor:
+    """(6, 64) monomials [1, x, y, x^2, xy, y^2] of pixel centres relative to the tile centre."""
+    r = torch.arange(TILE, dtype=dtype, device=device) + 0.5 - TILE / 2
+    y, x = torch.meshgrid(r, r, indexing="ij")
+    x, y = x.reshape(-1), y.reshape(-1)
+    return torch.stack([torch.ones_like(x), x, y, x * x, x * y, y * y])
+
+
+def _pair_params(means2d, conics, opacities, bins: TileBins) -> torch.Tensor:
+    """(6, P): u, v (centre relative to the pair's tile centre), conic a, b, c and log opacity."""
+    packed = torch.cat([means2d, conics, torch.log(opacities)[:, None]], 1).index_select(0, bins.gauss)
+    packed = packed.T.contiguous()
+    tx = bins.tile % bins.tiles_x
+    packed[0] -= (tx * TILE + TILE / 2).to(packed.dtype)
+    packed[1] -= ((bins.tile - tx) // bins.tiles_x * TILE + TILE / 2).to(packed.dtype)
+    return packed
+
+
+def _pair_coefficients(params: torch.Tensor) -> torch.Tensor:
+    """(P + 1, 6) base-2 exponent coefficients per pair; the extra last row is padding (alpha 0)."""
+    u, v, a, b, c, log_o = params
+    coef = torch.empty(params.shape[1] + 1, 6, dtype=params.dtype, device=params.device)
+    au_bv, bu_cv = a * u + b * v, b * u + c * v
+    body = coef[:-1]
+    torch.mul(log_o - 0.5 * (u * au_bv + v * bu_cv), LOG2_E, out=body[:, 0])
+    torch.mul(au_bv, LOG2_E, out=body[:, 1])
+    torch.mul(bu_cv, LOG2_E, out=body[:, 2])
+    torch.mul(a, -0.5 * LOG2_E, out=body[:, 3])
+    torch.mul(b, -LOG2_E, out=body[:, 4])
+    torch.mul(c, -0.5 * LOG2_E, out=body[:, 5])
+    coef[-1] = 0.0
+    coef[-1, 0] = DEAD_POWER
+    return coef
+
+
+class _Composite(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, means2d, conics, opacities, features, bins: TileBins, width: int, height: int):
+        coef = _pair_coefficients(_pair_params(means2d, conics, opacities, bins))
+        feat = _pair_features(features, bins)
+        out = _walk(coef, feat, bins, None)  # (tiles, C + 1, 64)
+        ctx.save_for_backward(means2d, conics, opacities, features, out)
+        ctx.bins = bins
+        return _tiles_to_image(out, bins, width, height)
+
+    @staticmethod
+    def backward(ctx, grad_out):
+        means2d, conics, opacities, features, out = ctx.saved_tensors
+        bins = ctx.bins
+        params = _pair_params(means2d, conics, opacities, bins)
+        feat = _pair_features(features, bins)
+        grad_pix = _image_to_tiles(grad_out.contiguous(), bins)
+        d_coef, d_feat = _walk(_pair_coefficients(params), feat, bins, (grad_pix, out))
+        grads = _chain_to_gaussians(d_coef, d_feat, params, opacities, features, bins)
+        return (*grads, None, None, None)
+
+
+def _pair_features(features: torch.Tensor, bins: TileBins) -> torch.Tensor:
+    """(P + 1, C + 1) features per pair plus a ones channel (its composite is the alpha image);
+    the extra last row (padding) is zero."""
+    f = torch.cat([features, torch.ones_like(features[:, :1])], 1)
+    out = f.new_zeros(len(bins.gauss) + 1, f.shape[1])
+    torch.index_select(f, 0, bins.gauss, out=out[:-1])
+    return out
+
+
+class _Rules:
+    """Per-dtype constants of the compositing rules, as used by the in-place elementwise ops."""
+
+    def __init__(self, dtype: torch.dtype, device: torch.device):
+        def below(x: float) -> float:  # largest value < x in dtype: threshold() keeps v > t, we need v >= x
+            t = torch.tensor(x, dtype=dtype)
+            return float(torch.nextafter(t, torch.zeros_like(t)))
+
+        self.alpha_min = below(ALPHA_MIN)
+        self.t_min = below(T_MIN)
+        self.one = torch.ones((), dtype=dtype, device=device)
+        self.pix = _pixel_basis(dtype, device)
+
+
+def _alphas(kc: torch.Tensor, r: _Rules) -> torch.Tensor:
+    """(b, L, 64) alpha of each listed Gaussian at each tile pixel: capped at 0.99, 0 below 1/255."""
+    b, n = kc.shape[:2]
+    alpha = torch.mm(kc.reshape(b * n, 6), r.pix).reshape(b, n, PIXELS).exp2_()
+    alpha.clamp_(max=ALPHA_MAX)
+    return F.threshold_(alpha, r.alpha_min, 0.0)
+
+
+def _transmittance(alpha: torch.Tensor, t_in: torch.Tensor, r: _Rules) -> torch.Tensor:
+    """(b, L + 1, 64) transmittance before each Gaussian and after the last (serial product order)."""
+    b, n, _ = alpha.shape
+    trans = torch.empty(b, n + 1, PIXELS, dtype=alpha.dtype, device=alpha.device)
+    trans[:, 0] = t_in
+    torch.sub(r.one, alpha, out=trans[:, 1:])
+    return trans.cumprod_(1)
+
+
+def _included(t_after: torch.Tensor, r: _Rules) -> torch.Tensor | None:
+    """1 where the pixel has not stopped (3DGS: stop before T would drop below 1e-4), else 0;
+    None when no pixel stops in this block. t_after only decreases, so this is the stop rule."""
+    if float(t_after[:, -1].min()) >= T_MIN:
+        return None
+    return F.threshold(t_after, r.t_min, 0.0).sign_()
+
+
+def _walk(coef: torch.Tensor, feat: torch.Tensor, bins: TileBins, grad):
+    """Forward (grad None): composited (tiles, C + 1, 64). Backward: per-pair d coef, d feat.
+
+    Pixel-side arrays are channel-major (tiles, C + 1, 64): bmm is several times faster that way.
+    """
+    n_pairs = len(coef) - 1
+    dev, dt = coef.device, coef.dtype
+    r = _Rules(dt, dev)
+    order = torch.sort(bins.count, descending=True).indices
+    order = order[: int((bins.count > 0).sum())]
+    chunk = max(1, STEP_BUDGET // (PIXELS * BLOCK))
+    if grad is None:
+        out = torch.zeros(len(bins.count), feat.shape[1], PIXELS, dtype=dt, device=dev)
+    else:
+        grad_pix, out_saved = grad
+        # R = sum over Gaussians not yet walked of w_j g_j; before the walk it is grad . output.
+        remaining_all = (grad_pix * out_saved).sum(1)
+        d_coef, d_feat = torch.zeros_like(coef), torch.zeros_like(feat)
+    offs = torch.arange(BLOCK, device=dev)
+    for lo in range(0, len(order), chunk):
+        tiles = order[lo : lo + chunk]
+        start, count = bins.start.index_select(0, tiles), bins.count.index_select(0, tiles)
+        trans_run = torch.ones(len(tiles), PIXELS, dtype=dt, device=dev)
+        if grad is None:
+            acc = torch.zeros(len(tiles), feat.shape[1], PIXELS, dtype=dt, device=dev)
+        else:
+            gpix, remaining = grad_pix.index_select(0, tiles), remaining_all.index_select(0, tiles)
+        live = torch.arange(len(tiles), device=dev)
+        k = 0
+        while len(live):
+            b = len(live)
+            cnt = count.index_select(0, live)
+            pos = torch.where(
+                offs < (cnt - k)[:, None], (start.index_select(0, live) + k)[:, None] + offs, n_pairs
+            )
+            pos = pos.reshape(-1)  # (b * L,) pair rows, padding -> the zero-alpha row
+            alpha = _alphas(coef.index_select(0, pos).reshape(b, -1, 6), r)  # (b, L, 64)
+            trans = _transmittance(alpha, trans_run.index_select(0, live), r)
+            t_before, t_end = trans[:, :-1], trans[:, -1].clone()  # (the backward reuses trans)
+            keep = _included(trans[:, 1:], r)
+            w = alpha * t_before
+            if keep is not None:
+                w.mul_(keep)
+            fc = feat.index_select(0, pos).reshape(b, -1, feat.shape[1])  # (b, L, C + 1)
+            if grad is None:
+                acc.index_add_(0, live, torch.bmm(fc.transpose(1, 2), w))
+            else:
+                gp = gpix.index_select(0, live)  # (b, C + 1, 64)
+                d_feat.index_copy_(
+                    0, pos, torch.bmm(gp, w.transpose(1, 2)).transpose(1, 2).reshape(len(pos), -1)
+                )
+                # d_alpha_i = g_i T_i - R_i / (1 - alpha_i), R_i = sum_{j > i} w_j g_j, g = dL/dw.
+                g = torch.bmm(fc, gp)
+                after = torch.mul(w, g).cumsum_(1)
+                torch.sub(remaining.index_select(0, live)[:, None, :], after, out=after)  # R_i
+                remaining.index_copy_(0, live, after[:, -1])
+                d_alpha = g.mul_(t_before).sub_(after.div_(torch.sub(r.one, alpha, out=trans[:, 1:])))
+                # d power = alpha d_alpha where alpha is below the 0.99 cap (negated: -alpha or 0).
+                gate = F.threshold_(alpha.neg_(), -ALPHA_MAX, 0.0)
+                if keep is not None:
+                    gate.mul_(keep)
+                d_power_neg = d_alpha.mul_(gate)
+                d_coef.index_copy_(0, pos, torch.mm(d_power_neg.reshape(-1, PIXELS), r.pix.T).neg_())
+            trans_run.index_copy_(0, live, t_end)
+            k += BLOCK
+            live = live[(cnt > k) & (t_end >= T_MIN).any(1)]
+        if grad is None:
+            out.index_copy_(0, tiles, acc)
+    if grad is None:
+        return out
+    return d_coef[:n_pairs], d_feat[:n_pairs]
+
+
+def _chain_to_gaussians(d_coef, d_feat, params, opacities, features, bins: TileBins):
+    """Gradients of means2d, conics, opacities, features from per-pair exponent/feature gradients."""
+    u, v, a, b, c, _ = params
+    g0, g1, g2, g3, g4, g5 = d_coef.T
+    per_pair = torch.stack(
+        [
+            a * g1 + b * g2 - (a * u + b * v) * g0,  # d u
+            b * g1 + c * g2 - (b * u + c * v) * g0,  # d v
+            u * g1 - 0.5 * (u * u * g0 + g3),  # d a
+            v * g1 + u * g2 - u * v * g0 - g4,  # d b
+            v * g2 - 0.5 * (v * v * g0 + g5),  # d c
+            g0,  # d log o
+        ],
+        1,
+    )
+    m = len(opacities)
+    per_gauss = per_pair.new_zeros(m, 6).index_add_(0, bins.gauss, per_pair)
+    d_feat_g = features.new_zeros(features.shape).index_add_(0, bins.gauss, d_feat[:, : features.shape[1]])
+    return per_gauss[:, :2], per_gauss[:, 2:5], per_gauss[:, 5] / opacities, d_feat_g
+
+
+def _tiles_to_image(t: torch.Tensor, bins: TileBins, width: int, height: int) -> torch.Tensor:
+    """(tiles, C, 64) -> (H, W, C)."""
+    c = t.shape[1]
+    img = t.reshape(bins.tiles_y, bins.tiles_x, c, TILE, TILE).permute(0, 3, 1, 4, 2)
+    return img.reshape(bins.tiles_y * TILE, bins.tiles_x * TILE, c)[:height, :width]
+
+
+def _image_to_tiles(img: torch.Tensor, bins: TileBins) -> torch.Tensor:
+    """(H, W, C) -> (tiles, C, 64), zero beyond the image."""
+    h, w, c = img.shape
+    pad = img.new_zeros(bins.tiles_y * TILE, bins.tiles_x * TILE, c)
+    pad[:h, :w] = img
+    t = pad.reshape(bins.tiles_y, TILE, bins.tiles_x, TILE, c).permute(0, 2, 4, 1, 3)
+    return t.reshape(bins.tiles_y * bins.tiles_x, c, PIXELS)

@@ -1,0 +1,266 @@
+"""The tile renderer against the dense float64 reference (images and gradients), plus API behaviour."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from gspc.cameras import Camera
+from gspc.errors import DeviceError, InputError
+from gspc.render import rasterize as rast
+from gspc.render import render
+from gspc.render.reference import render_reference
+from gspc.render.sh import sh_basis
+from gspc.scene import ATTRIBUTE_NAMES, make_scene, num_sh_rest
+
+F64 = torch.float64
+W, H = 32, 24
+
+
+def camera(angle: float = 0.3, cx: float = W / 2 + 1.3, cy: float = H / 2 - 0.7, f: float = 30.0, dist=3.0):
+    """A camera `dist` units from the origin, rotated about y and x, with an off-centre principal point."""
+    ry = np.array([[math.cos(angle), 0, -math.sin(angle)], [0, 1, 0], [math.sin(angle), 0, math.cos(angle)]])
+    b = 0.5 * angle
+    rx = np.array([[1, 0, 0], [0, math.cos(b), -math.sin(b)], [0, math.sin(b), math.cos(b)]])
+    w2c = np.eye(4)
+    w2c[:3, :3] = rx @ ry
+    w2c[2, 3] = dist
+    return Camera(w2c, np.array([[f, 0, cx], [0, f * 1.1, cy], [0, 0, 1.0]]), W, H)
+
+
+def axis_camera():
+    """Identity rotation: camera z equals world z + 3 exactly, so equal-depth ties are exact."""
+    w2c = np.eye(4)
+    w2c[2, 3] = 3.0
+    return Camera(w2c, np.array([[30.0, 0, W / 2], [0, 30.0, H / 2], [0, 0, 1.0]]), W, H)
+
+
+def random_scene(n: int, deg: int, seed: int, spread=0.6, log_scale=-2.0, dtype=F64, **override):
+    g = torch.Generator().manual_seed(seed)
+
+    def r(*s):
+        return torch.randn(*s, generator=g, dtype=F64)
+
+    attrs = {
+        "means": r(n, 3) * spread,
+        "quats": r(n, 4),
+        "log_scales": r(n, 3) * 0.6 + log_scale,
+        "opacities": r(n) * 2.0,
+        "sh_dc": r(n, 3) * 0.6,
+        "sh_rest": r(n, num_sh_rest(deg), 3) * 0.3,
+    }
+    attrs.update(override)
+    return make_scene(**attrs, sh_degree=deg, dtype=dtype)
+
+
+def loss_weights(h: int, w: int, seed: int = 7):
+    g = torch.Generator().manual_seed(seed)
+    return torch.randn(h, w, 3, generator=g, dtype=F64), torch.randn(h, w, 2, generator=g, dtype=F64)
+
+
+def run(fn, scene, cam, **kw):
+    """Render and differentiate a fixed random linear loss of image, alpha and depth."""
+    s = scene.detach()
+    for t in s.tensors().values():
+        t.requires_grad_(True)
+    out = fn(s, cam, **kw)
+    wi, wad = loss_weights(cam.height, cam.width)
+    dt = out.image.dtype
+    loss = (out.image * wi.to(dt)).sum() + (out.alpha * wad[..., 0].to(dt)).sum()
+    loss = loss + (out.depth * wad[..., 1].to(dt)).sum()
+    grads = torch.autograd.grad(loss, [s.tensors()[k] for k in ATTRIBUTE_NAMES], allow_unused=True)
+    grads = [
+        torch.zeros_like(s.tensors()[k]) if g is None else g
+        for k, g in zip(ATTRIBUTE_NAMES, grads, strict=True)
+    ]
+    return out, dict(zip(ATTRIBUTE_NAMES, grads, strict=True))
+
+
+def assert_close(a: torch.Tensor, b: torch.Tensor, tol: float, what: str) -> None:
+    a, b = a.detach(), b.detach()
+    scale = max(1.0, float(b.abs().max())) if b.numel() else 1.0
+    err = float((a.to(F64) - b.to(F64)).abs().max()) if b.numel() else 0.0
+    assert err <= tol * scale, f"{what}: max error {err:.3g} (scale {scale:.3g})"
+
+
+def check_against_reference(scene, cam, tol=1e-10, **kw):
+    out, grads = run(render, scene, cam, backend="torch", **kw)
+    ref, ref_grads = run(render_reference, scene, cam, **kw)
+    for name in ("image", "alpha", "depth"):
+        assert_close(getattr(out, name), getattr(ref, name), tol, name)
+    for name in ATTRIBUTE_NAMES:
+        assert torch.isfinite(grads[name]).all(), f"non-finite gradient of {name}"
+        assert_close(grads[name], ref_grads[name], tol, f"d/d {name}")
+    return out, ref
+
+
+@pytest.mark.parametrize("deg", [0, 1, 2, 3])
+def test_random_scenes_match_reference(deg):
+    out, _ = check_against_reference(random_scene(120, deg, seed=deg), camera(), background=[0.2, 0.5, 0.9])
+    assert 0.2 < float(out.alpha.detach().mean()) < 0.95  # the scene really covers the image
+
+
+def test_image_size_not_a_multiple_of_the_tile():
+    cam = camera().scaled(0.9)  # 29 x 22: partial tiles on the right and bottom edges
+    assert cam.width % 8 and cam.height % 8
+    check_against_reference(random_scene(80, 1, seed=12), cam)
+
+
+def test_lower_sh_degree_matches_reference():
+    check_against_reference(random_scene(60, 3, seed=11), camera(), sh_degree=1)
+
+
+def test_dense_opaque_scene_hits_transmittance_stop():
+    scene = random_scene(
+        200, 1, seed=3, spread=0.3, log_scale=-1.5, opacities=torch.full((200,), 3.0, dtype=F64)
+    )
+    out, ref = check_against_reference(scene, camera())
+    assert float(ref.alpha.max()) > 1 - 2e-4  # some pixels stopped at T < 1e-4
+
+
+def test_walk_in_small_blocks_and_chunks(monkeypatch):
+    # Many steps and chunks, tiles leaving the walk at different times: same result.
+    monkeypatch.setattr(rast, "BLOCK", 3)
+    monkeypatch.setattr(rast, "STEP_BUDGET", 64 * 3 * 2)
+    scene = random_scene(150, 2, seed=5, spread=0.4, opacities=torch.full((150,), 2.5, dtype=F64))
+    check_against_reference(scene, camera())
+
+
+def _hard_cases() -> dict[str, tuple]:
+    n = 24
+    g = torch.Generator().manual_seed(1)
+
+    def r(*s):
+        return torch.randn(*s, generator=g, dtype=F64)
+
+    def logit(p):
+        return torch.log(p / (1 - p))
+
+    xy = r(n, 2) * 0.5
+    cases = {}
+    # Centres behind the camera (z_cam < 0) and large enough to cover the view if they were drawn.
+    cases["behind_camera"] = dict(means=torch.cat([xy, torch.full((n, 1), -3.5, dtype=F64) + r(n, 1)], 1))
+    # Centres just in front of / just behind the near plane (z_cam = 0.01), scales reaching across it.
+    z = 0.01 + torch.linspace(-0.008, 0.03, n, dtype=F64) - 3.0
+    cases["near_plane"] = dict(means=torch.cat([xy * 0.01, z[:, None]], 1), log_scales=r(n, 3) * 0.3 - 3.0)
+    # Off-screen centres (up to 4x the frustum) whose tails may or may not reach the image.
+    cases["off_screen"] = dict(
+        means=torch.cat([r(n, 2) * 4.0, r(n, 1) * 0.3], 1), log_scales=r(n, 3) * 0.5 - 0.5
+    )
+    # Needle-thin: one long axis, two tiny ones (the 0.3 low-pass keeps them a pixel wide).
+    needle = torch.cat([torch.full((n, 1), -0.5, dtype=F64), torch.full((n, 2), -9.0, dtype=F64)], 1)
+    cases["needle"] = dict(log_scales=needle + r(n, 3) * 0.2)
+    # Huge Gaussians covering the whole image.
+    cases["huge"] = dict(log_scales=r(n, 3) * 0.3 + 1.5, opacities=r(n) - 2.0)
+    # Nearly transparent: opacities just above and below 1/255.
+    cases["transparent"] = dict(
+        opacities=logit(torch.linspace(0.7, 2.0, n, dtype=F64) / 255.0), log_scales=r(n, 3) * 0.3 - 1.0
+    )
+    # Opacity exactly 1 in float64 (sigmoid(40) rounds to 1): alpha capped at 0.99, pixels stop.
+    cases["opaque"] = dict(opacities=torch.full((n,), 40.0, dtype=F64), log_scales=r(n, 3) * 0.3 - 1.8)
+    # Equal depths: ties keep index order in both renderers (axis camera makes the z values exact).
+    eq = torch.cat([xy * 0.3, torch.full((n, 1), 0.25, dtype=F64)], 1)
+    cases["equal_depths"] = dict(
+        means=eq, opacities=torch.full((n,), 1.0, dtype=F64), log_scales=r(n, 3) * 0.2 - 1.5
+    )
+    # Camera inside a Gaussian whose centre is just in front of it, and inside one whose centre is behind.
+    inside = torch.tensor([[0.0, 0.0, -2.7], [0.1, 0.0, -3.2]], dtype=F64)
+    cases["camera_inside"] = dict(
+        means=torch.cat([inside, r(n - 2, 3) * 0.5]),
+        log_scales=torch.cat([torch.full((2, 3), 0.5, dtype=F64), r(n - 2, 3) * 0.5 - 2.0]),
+        opacities=torch.cat([torch.tensor([0.5, 2.0], dtype=F64), r(n - 2)]),
+    )
+    return cases
+
+
+@pytest.mark.parametrize("case", list(_hard_cases()))
+def test_hard_cases_match_reference(case):
+    override = _hard_cases()[case]
+    n = 24 if "means" not in override else len(override["means"])
+    scene = random_scene(n, 3, seed=2, **override)
+    cam = axis_camera() if case in ("equal_depths", "near_plane", "camera_inside") else camera()
+    check_against_reference(scene, cam, background=[0.1, 0.2, 0.3])
+
+
+def test_point_at_pixel_centre_is_drawn_in_float32():
+    # q rounds slightly negative at the centre; the Gaussian must still be drawn there with alpha = o.
+    cam = axis_camera()
+    u, v = 10.5, 7.5  # a pixel centre
+    means = torch.tensor([[(u - W / 2) / 30.0, (v - H / 2) / 30.0, 0.0]]) * 3.0
+    scene = make_scene(means, [[1.0, 0.2, -0.1, 0.3]], [[-9.0, -9.5, -8.0]], [0.0], [[1.0, 0.0, 0.0]])
+    out = render(scene, cam, backend="torch")
+    assert out.alpha.dtype == torch.float32
+    assert abs(float(out.alpha[7, 10]) - 0.5) < 1e-5
+    assert abs(float(out.depth[7, 10]) - 0.5 * 3.0) < 1e-5
+
+
+def test_float32_agrees_with_reference():
+    scene = random_scene(150, 3, seed=4, dtype=torch.float32)
+    out, grads = run(render, scene, camera(), backend="torch", background=[0.3, 0.3, 0.3])
+    ref, ref_grads = run(render_reference, scene, camera(), background=[0.3, 0.3, 0.3])
+    assert out.image.dtype == torch.float32
+    for name in ("image", "alpha", "depth"):
+        err = (getattr(out, name).double() - getattr(ref, name)).abs()
+        assert float(err.mean()) < 1e-6 and float(err.max()) < 1e-4, name
+    for name in ATTRIBUTE_NAMES:
+        a, b = grads[name].double(), ref_grads[name]
+        assert float((a - b).norm() / b.norm()) < 1e-4, name
+
+
+def test_background_alpha_and_depth():
+    cam = axis_camera()
+    bg = torch.tensor([0.25, 0.5, 0.75])
+    # Nothing visible (all behind the camera): background everywhere, alpha and depth zero.
+    empty = random_scene(10, 0, seed=0, dtype=torch.float32, means=torch.tensor([[0.0, 0.0, -5.0]] * 10))
+    out = render(empty, cam, background=bg)
+    assert torch.equal(out.image, bg.expand(H, W, 3)) and not out.alpha.any() and not out.depth.any()
+    # One opaque wall-sized Gaussian at camera depth 2: alpha 0.99, depth = alpha * 2, colour blended.
+    wall = make_scene(
+        [[0.0, 0.0, -1.0]], [[1.0, 0, 0, 0]], [[3.0, 3.0, -6.0]], [40.0], [[0.0, 0.0, 0.0]], dtype=F64
+    )
+    out = render(wall, cam, background=bg.double())
+    assert torch.allclose(out.alpha, torch.full((H, W), 0.99, dtype=F64))
+    assert torch.allclose(out.depth, 0.99 * 2.0 * torch.ones(H, W, dtype=F64))
+    assert torch.allclose(out.image, 0.99 * 0.5 + 0.01 * bg.double().expand(H, W, 3))
+    # Default background is black.
+    assert torch.allclose(render(wall, cam).image, torch.full((H, W, 3), 0.99 * 0.5, dtype=F64))
+
+
+def test_sh_degree_argument_truncates_bands():
+    scene = random_scene(40, 3, seed=8, dtype=torch.float32)
+    low = make_scene(
+        scene.means, scene.quats, scene.log_scales, scene.opacities, scene.sh_dc, scene.sh_rest[:, :3]
+    )
+    assert torch.equal(render(scene, camera(), sh_degree=1).image, render(low, camera()).image)
+    with pytest.raises(InputError):
+        render(low, camera(), sh_degree=2)
+
+
+def test_backend_choice_and_errors():
+    scene = random_scene(5, 0, seed=0, dtype=torch.float32)
+    assert torch.equal(render(scene, camera()).image, render(scene, camera(), backend="torch").image)
+    with pytest.raises(DeviceError, match="CUDA"):
+        render(scene, camera(), backend="gsplat")
+    with pytest.raises(InputError, match="backend"):
+        render(scene, camera(), backend="opengl")
+    with pytest.raises(InputError, match="background"):
+        render(scene, camera(), background=[0.0, 1.0])
+
+
+def test_sh_basis_is_orthonormal_on_the_sphere():
+    # Midpoint quadrature in (theta, phi): checks every constant and polynomial of the 16 bands.
+    nt, npz = 200, 400
+    theta = (torch.arange(nt, dtype=F64) + 0.5) * math.pi / nt
+    phi = (torch.arange(npz, dtype=F64) + 0.5) * 2 * math.pi / npz
+    t, p = torch.meshgrid(theta, phi, indexing="ij")
+    dirs = torch.stack([t.sin() * p.cos(), t.sin() * p.sin(), t.cos()], -1).reshape(-1, 3)
+    weight = (t.sin() * (math.pi / nt) * (2 * math.pi / npz)).reshape(-1, 1)
+    y = sh_basis(dirs, 3)
+    gram = y.T @ (y * weight)
+    assert torch.allclose(gram, torch.eye(16, dtype=F64), atol=1e-4)
+    # INRIA's sign convention for band 1: Y = (-C1 y, C1 z, -C1 x).
+    b = sh_basis(torch.tensor([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]], dtype=F64), 1)
+    assert b[0, 1] < 0 and b[1, 2] > 0 and b[2, 3] < 0

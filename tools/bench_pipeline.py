@@ -1,0 +1,325 @@
+"""End-to-end benchmark of gspc: attribute codec, side information, restoration and refinement.
+
+    python tools/bench_pipeline.py --lego /work/fits/lego200_20k [--donut] [--statues massa] \
+        [--iterations 300] [--sweep 0,100,300,1000,3000] [--lams 3,6,12,24]
+
+Per scene (lego fits: against the held-out photos and the original's renders; donut and statues:
+against the original's renders), all at views the side information did NOT cover:
+- rows: original; G~ only; G~ refined on I~ + R~; G~ refined on the restorer's output (if shipped);
+- a rate-distortion comparison at equal total bytes: the attribute codec alone over a lambda sweep
+  versus gspc (codec + side information + refinement) at the same lambdas;
+- decode iterations against PSNR and seconds.
+Writes bench/pipeline.md and bench/pipeline_rd.png.
+"""
+
+from __future__ import annotations
+
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import imagecodecs
+import numpy as np
+import torch
+import typer
+
+from gspc.cameras import (
+    Camera,
+    load_cameras,
+    sample_views,
+    save_cameras_json,
+    split_test_views,
+    synthesize_views,
+)
+from gspc.io import read_scene
+from gspc.metrics import psnr, quantize8, ssim
+from gspc.pipeline import DecodeOptions, EncodeOptions, decode, encode, render_images
+from gspc.restore.restorer import available_restorers
+
+SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
+
+
+@dataclass
+class Setup:
+    name: str
+    scene_path: Path
+    train_cams: list[Camera]  # the encoder samples its side-information views from these
+    eval_cams: list[Camera]  # never carry side information
+    background: tuple[float, float, float]
+    photos: list[torch.Tensor] | None = None  # held-out photos at eval_cams (lego)
+
+
+def lego_setup(folder: Path, tmp: Path) -> Setup:
+    cams = load_cameras(folder / "cameras.json")
+    train, test = split_test_views(cams, every=8)
+    photos = []
+    for i in test:
+        img = imagecodecs.png_decode((folder / "test" / f"{cams[i].name}.png").read_bytes())
+        photos.append(torch.from_numpy(img[..., :3].astype(np.float32) / 255))
+    return Setup(
+        f"lego ({folder.name})",
+        folder / "point_cloud.ply",
+        [cams[i] for i in train],
+        [cams[i] for i in test],
+        (1.0, 1.0, 1.0),
+        photos,
+    )
+
+
+def synth_setup(name: str, path: Path, views: int = 60, size: int = 320, n_eval: int = 12) -> Setup:
+    scene = read_scene(path)
+    cams = synthesize_views(scene, views, width=size, height=size)
+    # Evaluate on views the encoder will not sample: the complement of sample_views(0.4) over all views.
+    side = set(sample_views(cams, 0.4))
+    rest = [i for i in range(len(cams)) if i not in side]
+    pick = [rest[int(j)] for j in np.linspace(0, len(rest) - 1, n_eval).round()]
+    return Setup(name, path, cams, [cams[i] for i in pick], (0.0, 0.0, 0.0))
+
+
+def score(scene_path: Path, s: Setup, reference: list[torch.Tensor]) -> dict[str, float]:
+    imgs = render_images(read_scene(scene_path), s.eval_cams, s.background)
+    out = {
+        "psnr": float(np.mean([psnr(quantize8(a), quantize8(b)) for a, b in zip(imgs, reference)])),
+        "ssim": float(np.mean([ssim(quantize8(a), quantize8(b)) for a, b in zip(imgs, reference)])),
+    }
+    if s.photos is not None:
+        out["psnr_photo"] = float(np.mean([psnr(quantize8(a), quantize8(b)) for a, b in zip(imgs, s.photos)]))
+        out["ssim_photo"] = float(np.mean([ssim(quantize8(a), quantize8(b)) for a, b in zip(imgs, s.photos)]))
+    return out
+
+
+def run_point(
+    s: Setup,
+    tmp: Path,
+    ref,
+    quality="low",
+    lam=None,
+    side_info=True,
+    iterations=300,
+    restorer="none",
+    restore=True,
+    refine=True,
+    tag="",
+) -> dict:
+    cams_file = tmp / f"{s.name.split()[0]}_train_cameras.json"
+    if not cams_file.exists():
+        save_cameras_json(s.train_cams, cams_file)
+    gfile = tmp / f"{s.name.split()[0]}_{quality}_{lam}_{side_info}.gspc"
+    max_side = max(max(c.width, c.height) for c in s.train_cams)
+    t0 = time.perf_counter()
+    if not gfile.exists():
+        encode(
+            s.scene_path,
+            gfile,
+            cams_file,
+            EncodeOptions(
+                quality=quality, lam=lam, side_info=side_info, max_side=max_side, background=s.background
+            ),
+        )
+    enc_s = time.perf_counter() - t0
+    out_ply = tmp / f"out_{tag}.ply"
+    t0 = time.perf_counter()
+    rep = decode(
+        gfile,
+        out_ply,
+        DecodeOptions(iterations=iterations, restorer=restorer, restore=restore, refine=refine),
+    )
+    dec_s = time.perf_counter() - t0
+    res = score(out_ply, s, ref)
+    res.update(
+        bytes=gfile.stat().st_size,
+        n=rep.num_gaussians_out,
+        encode_s=enc_s,
+        decode_s=dec_s,
+        side=sum(v for k, v in rep.bytes.items() if k == "RESI"),
+    )
+    return res
+
+
+def fmt_row(label: str, r: dict, n_in: int, photos: bool) -> str:
+    cells = [label]
+    if photos:
+        cells += [f"{r.get('psnr_photo', float('nan')):.2f}", f"{r.get('ssim_photo', float('nan')):.4f}"]
+    p = r["psnr"]
+    cells += [
+        "∞" if p == float("inf") else f"{p:.2f}",
+        f"{r['ssim']:.4f}",
+        f"{r['bytes']:,}",
+        f"{r['bytes'] / n_in:.2f}",
+        f"{r.get('encode_s', 0):.1f}",
+        f"{r.get('decode_s', 0):.1f}",
+    ]
+    return "| " + " | ".join(cells) + " |"
+
+
+def bench_scene(
+    s: Setup,
+    tmp: Path,
+    iterations: int,
+    sweep: list[int],
+    lams: list[float],
+    restorers: list[str],
+    lines: list[str],
+    curves: dict,
+) -> None:
+    scene = read_scene(s.scene_path)
+    n_in = scene.num_gaussians
+    ref = render_images(scene, s.eval_cams, s.background)
+    photos = s.photos is not None
+    print(
+        f"== {s.name}: {n_in} Gaussians, {len(s.train_cams)} train / {len(s.eval_cams)} eval views",
+        flush=True,
+    )
+    lines += [
+        f"### {s.name}",
+        "",
+        f"{n_in:,} Gaussians (SH degree {scene.sh_degree}); side information at 40% of "
+        f"{len(s.train_cams)} views; scored at {len(s.eval_cams)} other views "
+        f"({s.eval_cams[0].width}x{s.eval_cams[0].height}).",
+        "",
+    ]
+    head = (
+        ["row"]
+        + (["PSNR photos", "SSIM photos"] if photos else [])
+        + ["PSNR vs original", "SSIM vs original", "bytes", "B/Gaussian", "encode s", "decode s"]
+    )
+    lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    orig = score(s.scene_path, s, ref)
+    orig.update(bytes=s.scene_path.stat().st_size)
+    lines.append(
+        fmt_row("original (PLY)" if s.scene_path.suffix == ".ply" else "original", orig, n_in, photos)
+    )
+    for q in ("low", "high"):
+        r = run_point(s, tmp, ref, quality=q, refine=False, restore=False, tag=f"{q}_plain")
+        lines.append(fmt_row(f"{q}: G~ only", r, n_in, photos))
+        r = run_point(s, tmp, ref, quality=q, iterations=iterations, tag=f"{q}_none")
+        lines.append(fmt_row(f"{q}: G~ refined on I~ + R~ ({iterations} it)", r, n_in, photos))
+        for name in restorers:
+            r = run_point(s, tmp, ref, quality=q, iterations=iterations, restorer=name, tag=f"{q}_{name}")
+            lines.append(fmt_row(f"{q}: G~ refined on restorer '{name}' ({iterations} it)", r, n_in, photos))
+        print("\n".join(lines[-2 - len(restorers) :]), flush=True)
+    lines.append("")
+
+    if lams:
+        lines += [
+            "Rate-distortion at equal total bytes (PSNR vs the original's renders): the attribute codec "
+            "alone at each lambda, and gspc (same lambda, + side information, refined "
+            f"{iterations} it on I~ + R~). Gain = gspc minus the codec-alone curve interpolated (in log "
+            "bytes) at gspc's total bytes.",
+            "",
+            "| lambda | codec bytes | codec PSNR | gspc bytes (side info) | gspc PSNR | gain at equal bytes |",
+            "|---|---|---|---|---|---|",
+        ]
+        base, full = [], []
+        for lam in lams:
+            b = run_point(s, tmp, ref, lam=lam, side_info=False, refine=False, restore=False, tag=f"b{lam}")
+            f = run_point(s, tmp, ref, lam=lam, iterations=iterations, tag=f"f{lam}")
+            base.append((b["bytes"], b["psnr"]))
+            full.append((f["bytes"], f["psnr"], f["side"]))
+        bx = np.log([p[0] for p in base])
+        by = np.array([p[1] for p in base])
+        order = np.argsort(bx)
+        for lam, (bb, bp), (fb, fp, side) in zip(lams, base, full):
+            lo, hi = bx[order][0], bx[order][-1]
+            x = np.log(fb)
+            gain = fp - float(np.interp(x, bx[order], by[order])) if lo <= x <= hi else float("nan")
+            g = f"{gain:+.2f} dB" if np.isfinite(gain) else "outside the codec's range"
+            lines.append(f"| {lam} | {bb:,} | {bp:.2f} | {fb:,} ({side:,}) | {fp:.2f} | {g} |")
+        lines.append("")
+        curves[s.name] = {"codec alone": [(b, p) for b, p in base], "gspc": [(b, p) for b, p, _ in full]}
+
+    if sweep:
+        lines += [
+            "Decode iterations (low preset, restorer 'none') against quality and time, CPU, one thread:",
+            "",
+            "| iterations | PSNR vs original | " + ("PSNR photos | " if photos else "") + "decode s |",
+            "|---|---|" + ("---|" if photos else "") + "---|",
+        ]
+        for it in sweep:
+            r = run_point(s, tmp, ref, iterations=it, tag=f"sweep{it}")
+            ph = f"{r['psnr_photo']:.2f} | " if photos else ""
+            lines.append(f"| {it} | {r['psnr']:.2f} | {ph}{r['decode_s']:.1f} |")
+            print(lines[-1], flush=True)
+        lines.append("")
+
+
+def plot(curves: dict, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(curves), figsize=(5 * len(curves), 4), squeeze=False)
+    for ax, (name, cs) in zip(axes[0], curves.items()):
+        for label, pts in cs.items():
+            pts = sorted(pts)
+            ax.plot([b / 1024 for b, _ in pts], [p for _, p in pts], "o-", label=label)
+        ax.set_xscale("log")
+        ax.set_xlabel("total KiB")
+        ax.set_ylabel("PSNR vs original renders (dB)")
+        ax.set_title(name)
+        ax.grid(True, alpha=0.3)
+        ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
+def main(
+    lego: list[Path] = typer.Option([], help="lego fit folders (tools/fit_scene.py output)"),
+    donut: bool = typer.Option(True, help="include ../shared/data/donut/fused.ply"),
+    statues: list[str] = typer.Option(["massa"], help="statue names from ../shared/data/statues"),
+    iterations: int = typer.Option(300, help="refinement iterations of the main rows"),
+    sweep: str = typer.Option(
+        "0,100,300,1000,3000", help="decode iterations for the speed table ('' to skip)"
+    ),
+    sweep_scenes: int = typer.Option(1, help="how many scenes (in order) get the iteration sweep"),
+    lams: str = typer.Option("3,6,12,24", help="lambdas of the rate-distortion comparison ('' to skip)"),
+    rd_scenes: int = typer.Option(2, help="how many scenes (in order) get the rate-distortion comparison"),
+    out: Path = typer.Option(Path("bench/pipeline.md")),
+) -> None:
+    torch.set_num_threads(1)
+    setups = [lego_setup(p, Path()) for p in lego]
+    if donut:
+        setups.append(synth_setup("donut", SHARED / "donut" / "fused.ply"))
+    setups += [
+        synth_setup(f"statue {n} (SOG, already quantised)", SHARED / "statues" / f"{n}.sog") for n in statues
+    ]
+    restorers = [r for r in available_restorers() if r != "none"]
+    sweep_l = [int(x) for x in sweep.split(",") if x]
+    lams_l = [float(x) for x in lams.split(",") if x]
+    lines = [
+        "# gspc end to end",
+        "",
+        f"Command: `python {' '.join(sys.argv)}`",
+        "",
+        "CPU, one thread (2-core machine, timings noisy). PSNR/SSIM on 8-bit renders (3DGS convention). "
+        "Bytes are whole .gspc files (attributes + side information + header); 'original' is the input file.",
+        "",
+    ]
+    curves: dict = {}
+    t0 = time.perf_counter()
+    with tempfile.TemporaryDirectory() as d:
+        for k, s in enumerate(setups):
+            bench_scene(
+                s,
+                Path(d),
+                iterations,
+                sweep_l if k < sweep_scenes else [],
+                lams_l if k < rd_scenes else [],
+                restorers,
+                lines,
+                curves,
+            )
+            out.write_text("\n".join(lines) + "\n")
+    lines.append(f"Total benchmark time: {time.perf_counter() - t0:.0f} s.")
+    if curves:
+        plot(curves, out.with_name("pipeline_rd.png"))
+        lines += ["", f"![rate-distortion]({out.with_name('pipeline_rd.png').name})"]
+    out.write_text("\n".join(lines) + "\n")
+    print(f"wrote {out}")
+
+
+if __name__ == "__main__":
+    typer.run(main)
