@@ -251,7 +251,12 @@ def decode(
                 targets.append(target.clamp(0, 1))
                 if progress:
                     progress("restore", k + 1, len(cams))
-        if opts.refine and opts.iterations > 0:
+        # With no residual anywhere every target equals the render: the gradients are only round-off, and
+        # Adam would turn them into full-size steps (measured: 50.7 -> 41.7 dB on a statue), so skip.
+        has_residual = any("residual" in v for v in views) and opts.restore
+        if opts.refine and opts.iterations > 0 and not has_residual:
+            rep.info["refine"] = "skipped (no view carries a residual)"
+        if opts.refine and opts.iterations > 0 and has_residual:
             with rep.timed("refine"):
                 cb = (lambda i, loss: progress("refine", i, opts.iterations)) if progress else None
                 bg = torch.tensor(background, dtype=scene.means.dtype, device=device)

@@ -209,7 +209,7 @@ def bench_scene(
             f"{iterations} it on I~ + R~). Gain = gspc minus the codec-alone curve interpolated (in log "
             "bytes) at gspc's total bytes.",
             "",
-            "| lambda | codec bytes | codec PSNR | gspc bytes (side info) | gspc PSNR | gain at equal bytes |",
+            "| lambda | codec bytes | codec PSNR | gspc bytes (side info) | gspc PSNR | gain, equal bytes |",
             "|---|---|---|---|---|---|",
         ]
         base, full = [], []
