@@ -127,7 +127,8 @@ def _sh_steps(params: CodecParams, degree: int) -> list[float]:
     steps = []
     for k in range(num_sh_rest(degree)):
         deg = int(math.isqrt(k + 1))  # k = 0..2 degree 1, 3..7 degree 2, 8..14 degree 3
-        steps.append(float(params.sh_step * params.lam * params.sh_degree_growth ** (deg - 1)))
+        growth = params.sh_degree_growth ** (deg - 1)
+        steps.append(float(params.sh_step * params.lam**params.sh_lam_exponent * growth))
     return steps
 
 

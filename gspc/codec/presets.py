@@ -27,7 +27,10 @@ class CodecParams:
     rotation_step: float = 0.004  # smallest-three quaternion components
     dc_step: float = 0.007  # SH DC coefficient (colour = 0.5 + 0.282 * dc)
     sh_step: float = 0.02  # SH rest coefficients of degree 1 ...
-    sh_degree_growth: float = 1.5  # ... times this per further degree
+    sh_degree_growth: float = 1.2  # ... times this per further degree (lego: 1.2 beat 1.5 and 2)
+    # SH rest steps grow as lam ** this, slower than the others: on an SH-3 lego fit, view-dependent
+    # colour limits PSNR at low rates while geometry can coarsen further (bench/codec.md).
+    sh_lam_exponent: float = 0.5
     sh_deadzone: float = 0.2  # rounding offset towards zero for SH rest (encoder-only R-D choice)
 
     @property
@@ -43,8 +46,8 @@ class CodecParams:
 
 
 PRESETS: dict[str, CodecParams] = {
-    "high": CodecParams(lam=1.0),  # 16 position bits
-    "low": CodecParams(lam=6.0),  # 13 position bits
+    "high": CodecParams(lam=1.0),  # 15 position bits
+    "low": CodecParams(lam=10.0),  # 12 position bits; <= 10 B/G on the SH-3 lego fit
 }
 
 
