@@ -45,6 +45,7 @@ class EncodeOptions:
     max_side: int = 400  # side-information views are rendered at most this large
     residual_codec: str | None = None  # overrides the preset's
     residual_distance: float | None = None  # overrides the preset's
+    residual_scale: int | None = None  # overrides the preset's
     side_info: bool = True
     restorer: str = DEFAULT_RESTORER
     keep_invisible: bool = False
@@ -162,11 +163,12 @@ def encode(
             q = quality_preset(opts.quality)
             level = opts.residual_distance if opts.residual_distance is not None else q.residual_level
             codec = opts.residual_codec or q.residual_codec
+            scale = opts.residual_scale or q.residual_scale
             plan = residuals.plan_residual_rates(res, level)
             for k, (cam, r, d) in enumerate(zip(view_cams, res, plan)):
                 record = {"camera": cam.to_dict()}
                 if d is not None:
-                    payload, meta = residuals.encode_residual(r, {"codec": codec, "level": d})
+                    payload, meta = residuals.encode_residual(r, {"codec": codec, "level": d, "scale": scale})
                     chunks.append(container.Chunk(RESIDUAL_CHUNK, payload, required=True, index=k))
                     record["residual"] = meta
                 view_records.append(record)
@@ -227,6 +229,10 @@ def decode(
             ) from None
         chunks = {ch.type: ch.payload for ch in c.chunks if ch.type in ATTRIBUTE_CHUNKS}
         res_chunks = {ch.index: ch.payload for ch in c.chunks if ch.type == RESIDUAL_CHUNK}
+        with_res = {k for k, v in enumerate(views) if isinstance(v, dict) and "residual" in v}
+        if set(res_chunks) != with_res:
+            bad = sorted(set(res_chunks) ^ with_res)[0]
+            raise CodecError(f"side-information view {bad} has a RESI chunk or a residual record, not both")
         restorer_name = opts.restorer if opts.restorer is not None else side.get("restorer", "none")
         restorer = load_restorer(restorer_name) if opts.restore else None
     rep.bytes = _byte_budget(Path(in_path))
@@ -242,7 +248,7 @@ def decode(
         with rep.timed("restore"):
             targets = []
             for k, (img, v) in enumerate(zip(degraded, views)):
-                if "residual" in v and k in res_chunks:
+                if k in res_chunks:
                     r = residuals.decode_residual(res_chunks[k], v["residual"])
                     r = torch.from_numpy(r).to(img)
                 else:

@@ -18,6 +18,7 @@ class Preset:
     attributes: CodecParams
     residual_codec: str = "jxl"
     residual_level: float = 4.0  # JPEG XL distance (coarser is larger)
+    residual_scale: int = 1  # residuals coded at 1/scale resolution
 
 
 QUALITY: dict[str, Preset] = {

@@ -29,7 +29,37 @@ DEFAULT_PARAMS = {
     "max_gain": 2048.0,  # caps amplification of near-zero residuals (in units of 1/range)
     "tile": 32,  # tiles whose RMS is below zero_rms are zeroed before coding; 0 disables
     "zero_rms": 0.0,
+    "scale": 1,  # code the residual at 1/scale resolution (box filter); the decoder upsamples bilinearly
 }
+
+
+def downsample(r: np.ndarray, factor: int) -> np.ndarray:
+    """Box-filter an (H, W, C) image by an integer factor, edge-padding to a multiple of it."""
+    if factor == 1:
+        return r
+    h, w = r.shape[:2]
+    ph, pw = -h % factor, -w % factor
+    r = np.pad(r, ((0, ph), (0, pw), (0, 0)), mode="edge")
+    return r.reshape(r.shape[0] // factor, factor, r.shape[1] // factor, factor, -1).mean(axis=(1, 3))
+
+
+def upsample(r: np.ndarray, factor: int, h: int, w: int) -> np.ndarray:
+    """Bilinear upsampling (pixel-centre aligned) back to (h, w); inverse of :func:`downsample`'s grid."""
+    if factor == 1:
+        return r[:h, :w]
+
+    def axis(n_out: int, n_in: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        x = (np.arange(n_out) + 0.5) / factor - 0.5
+        x = np.clip(x, 0, n_in - 1)
+        i0 = np.floor(x).astype(np.int64)
+        i1 = np.minimum(i0 + 1, n_in - 1)
+        return i0, i1, (x - i0).astype(np.float32)
+
+    y0, y1, fy = axis(h, r.shape[0])
+    x0, x1, fx = axis(w, r.shape[1])
+    top = r[y0][:, x0] * (1 - fx)[None, :, None] + r[y0][:, x1] * fx[None, :, None]
+    bot = r[y1][:, x0] * (1 - fx)[None, :, None] + r[y1][:, x1] * fx[None, :, None]
+    return (top * (1 - fy)[:, None, None] + bot * fy[:, None, None]).astype(np.float32)
 
 
 def _jxl_encode(img: np.ndarray, level: float) -> bytes:
@@ -118,7 +148,12 @@ def encode_residual(residual: np.ndarray, params: dict | None = None) -> tuple[b
     if bits not in (8, 16) or (bits == 16 and p["codec"] not in _SUPPORTS_16BIT):
         raise InputError(f"residual codec {p['codec']!r} does not take {bits}-bit samples")
     encode, _ = _image_codec(p["codec"])
+    full_h, full_w = r.shape[:2]
+    factor = int(p["scale"])
+    if not 1 <= factor <= 16:
+        raise InputError(f"residual scale must be 1..16, got {factor}")
     r, zeroed = _zero_quiet_tiles(r, int(p["tile"]), float(p["zero_rms"]))
+    r = downsample(r, factor).astype(np.float32)
     gain = choose_gain(r, bits, float(p["percentile"]), float(p["max_gain"]))
     offset = 1 << (bits - 1)
     top = (1 << bits) - 1
@@ -134,6 +169,8 @@ def encode_residual(residual: np.ndarray, params: dict | None = None) -> tuple[b
         "level": float(p["level"]),
         "zeroed_tiles": zeroed,
     }
+    if factor != 1:
+        meta.update(scale=factor, full_shape=[full_h, full_w])
     return payload, meta
 
 
@@ -155,7 +192,18 @@ def decode_residual(payload: bytes, meta: dict) -> np.ndarray:
         raise CodecError(f"residual decodes to shape {q.shape}, expected {h}x{w}x3")
     if not gain > 0:
         raise CodecError(f"residual gain {float(gain)} is not positive")
-    return ((q[:, :, :3].astype(np.float32) - offset) / gain).astype(np.float32)
+    r = ((q[:, :, :3].astype(np.float32) - offset) / gain).astype(np.float32)
+    factor = meta.get("scale", 1)
+    if factor != 1:
+        try:
+            fh, fw = (int(v) for v in meta["full_shape"])
+            factor = int(factor)
+        except (KeyError, TypeError, ValueError) as e:
+            raise CodecError(f"residual metadata has a bad scale or full_shape: {e}") from None
+        if not (1 <= factor <= 16 and 0 < fh <= h * factor and 0 < fw <= w * factor):
+            raise CodecError(f"residual scale {factor} does not fit shape {h}x{w} -> {fh}x{fw}")
+        r = upsample(r, factor, fh, fw)
+    return r
 
 
 def plan_residual_rates(

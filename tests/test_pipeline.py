@@ -1,0 +1,88 @@
+"""Pipeline-level behaviour: what the decoder accepts, what it writes, and when it refines."""
+
+import numpy as np
+import plyfile
+import pytest
+
+from gspc.codec import container
+from gspc.errors import CodecError
+from gspc.io import read_scene, write_ply
+from gspc.pipeline import DecodeOptions, EncodeOptions, decode, encode
+from gspc.scene import make_scene
+
+
+def scene(n=200, sh_degree=2, seed=1):
+    g = np.random.default_rng(seed)
+    k = (sh_degree + 1) ** 2 - 1
+    return make_scene(
+        g.normal(0, 0.3, (n, 3)),
+        g.normal(0, 1, (n, 4)),
+        g.normal(-2.8, 0.3, (n, 3)),
+        g.normal(1.5, 1.0, n),
+        g.normal(0, 0.6, (n, 3)),
+        g.normal(0, 0.2, (n, k, 3)),
+        sh_degree,
+    )
+
+
+@pytest.fixture(scope="module")
+def encoded(tmp_path_factory):
+    d = tmp_path_factory.mktemp("pipe")
+    src = d / "in.ply"
+    write_ply(scene(), src)
+    out = d / "s.gspc"
+    # A coarse rate so the residuals are clearly above the skip threshold.
+    rep = encode(src, out, opts=EncodeOptions(lam=40, synth_views=5, max_side=40))
+    return src, out, rep
+
+
+def test_encode_report_and_views(encoded):
+    _, out, rep = encoded
+    c = container.read(out)
+    views = c.header["side_info"]["views"]
+    assert len(views) == 2  # 40% of 5 views
+    assert rep.bytes["file"] == out.stat().st_size
+    n_res = sum(1 for ch in c.chunks if ch.type == "RESI")
+    assert n_res == sum("residual" in v for v in views) == rep.info["views with residual"]
+    assert n_res >= 1
+
+
+def test_decoded_ply_is_inria_layout(encoded, tmp_path):
+    _, out, _ = encoded
+    dst = tmp_path / "d.ply"
+    decode(out, dst, DecodeOptions(iterations=3))
+    ply = plyfile.PlyData.read(str(dst))
+    names = [p.name for p in ply["vertex"].properties]
+    k = 3 * ((2 + 1) ** 2 - 1)
+    expected = ["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"]
+    expected += [f"f_rest_{i}" for i in range(k)] + ["opacity", "scale_0", "scale_1", "scale_2"]
+    expected += ["rot_0", "rot_1", "rot_2", "rot_3"]
+    assert names == expected
+    assert read_scene(dst).num_gaussians == ply["vertex"].count
+
+
+def test_refinement_changes_scene_only_with_side_info(encoded, tmp_path):
+    _, out, _ = encoded
+    plain, refined, norestore = tmp_path / "p.ply", tmp_path / "r.ply", tmp_path / "n.ply"
+    decode(out, plain, DecodeOptions(refine=False))
+    rep = decode(out, refined, DecodeOptions(iterations=5))
+    assert "refine" in rep.seconds
+    a, b = read_scene(plain), read_scene(refined)
+    assert not np.array_equal(a.sh_dc.numpy(), b.sh_dc.numpy())
+    rep = decode(out, norestore, DecodeOptions(iterations=5, restore=False))
+    assert "refine" not in rep.seconds and "skipped" in rep.info["refine"]
+    assert np.array_equal(read_scene(norestore).sh_dc.numpy(), a.sh_dc.numpy())
+
+
+def test_residual_without_record_is_refused(encoded, tmp_path):
+    _, out, _ = encoded
+    c = container.read(out)
+    views = c.header["side_info"]["views"]
+    k = next(i for i, v in enumerate(views) if "residual" in v)
+    del views[k]["residual"]
+    bad = tmp_path / "bad.gspc"
+    container.write(bad, c.header, c.chunks)
+    dst = tmp_path / "o.ply"
+    with pytest.raises(CodecError, match=f"view {k}"):
+        decode(bad, dst)
+    assert not dst.exists()
