@@ -71,21 +71,29 @@ class Camera:
         return Camera(self.world_to_cam.copy(), K, w, h, self.name)
 
     def to_dict(self) -> dict:
-        """Plain msgpack/JSON-friendly form (used by the container header)."""
+        """Compact msgpack form for the container header (spec 10.8): binary32, little-endian.
+
+        ``intrinsics`` = fx, fy, cx, cy (zero skew); ``pose`` = the top 3 rows of world_to_cam, row-major.
+        The encoder renders with ``Camera.from_dict(cam.to_dict())`` so both sides see the same camera.
+        """
+        K = self.K
+        intr = np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2]], dtype="<f4")
         return {
             "name": self.name,
             "width": self.width,
             "height": self.height,
-            "K": [float(v) for v in self.K.reshape(-1)],
-            "world_to_cam": [float(v) for v in self.world_to_cam.reshape(-1)],
+            "intrinsics": intr.tobytes(),
+            "pose": self.world_to_cam[:3].astype("<f4").tobytes(),
         }
 
     @staticmethod
     def from_dict(d: dict) -> Camera:
         try:
-            return Camera(
-                np.array(d["world_to_cam"]), np.array(d["K"]), d["width"], d["height"], d.get("name", "")
-            )
+            fx, fy, cx, cy = np.frombuffer(d["intrinsics"], dtype="<f4", count=4).astype(np.float64)
+            pose = np.frombuffer(d["pose"], dtype="<f4", count=12).astype(np.float64).reshape(3, 4)
+            K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+            w2c = np.vstack([pose, [0.0, 0.0, 0.0, 1.0]])
+            return Camera(w2c, K, d["width"], d["height"], str(d.get("name", "")))
         except (KeyError, TypeError, ValueError) as e:
             raise InputError(f"camera record does not parse: {e}") from None
 

@@ -154,7 +154,8 @@ def encode(
     views = sample_views(cameras, opts.views_fraction) if opts.side_info else []
     view_records = []
     if views:
-        view_cams = [cameras[i] for i in views]
+        # Round-trip through the stored form so the encoder renders exactly the cameras the decoder reads.
+        view_cams = [Camera.from_dict(cameras[i].to_dict()) for i in views]
         with rep.timed("render"):
             original = render_images(scene, view_cams, opts.background, progress, "render original")
             coded = render_images(enc.decoded, view_cams, opts.background, progress, "render coded")

@@ -166,9 +166,9 @@ def encode_residual(residual: np.ndarray, params: dict | None = None) -> tuple[b
         "bits": bits,
         "gain": gain,
         "offset": offset,
-        "level": float(p["level"]),
-        "zeroed_tiles": zeroed,
     }
+    if zeroed:
+        meta["zeroed_tiles"] = zeroed  # informative
     if factor != 1:
         meta.update(scale=factor, full_shape=[full_h, full_w])
     return payload, meta
