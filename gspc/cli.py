@@ -107,6 +107,9 @@ def encode(
     max_side: int = typer.Option(400, help="longest side of the side-information views, in pixels"),
     side_info: bool = typer.Option(True, help="store residual side information"),
     keep_invisible: bool = typer.Option(False, help="keep Gaussians no view sees"),
+    check_iterations: int = typer.Option(
+        300, help="refinement iterations the encoder runs to check that side information pays (0: no check)"
+    ),
     background: tuple[float, float, float] = typer.Option(
         (0.0, 0.0, 0.0), help="render background RGB in [0, 1] (1 1 1 for scenes trained on white)"
     ),
@@ -125,6 +128,7 @@ def encode(
         side_info=side_info,
         keep_invisible=keep_invisible,
         background=background,
+        check_iterations=check_iterations,
     )
     with _progress_bars() as cb:
         rep = run(scene, output, cameras, opts, progress=cb)
@@ -136,7 +140,9 @@ def encode(
 def decode(
     source: Path = typer.Argument(..., help="input .gspc file"),
     output: Path = typer.Option(..., "-o", "--output", help="output PLY (INRIA layout)"),
-    iterations: int = typer.Option(300, help="refinement iterations"),
+    iterations: int | None = typer.Option(
+        None, help="refinement iterations (default: what the encoder validated, stored in the file)"
+    ),
     restore: bool = typer.Option(True, help="restore the rendered views with the side information"),
     refine: bool = typer.Option(True, help="refine the Gaussians against the restored views"),
     restorer: str | None = typer.Option(
@@ -148,7 +154,7 @@ def decode(
     from gspc.pipeline import DecodeOptions
     from gspc.pipeline import decode as run
 
-    if iterations < 0:
+    if iterations is not None and iterations < 0:
         raise GspcError(f"--iterations must be >= 0, got {iterations}")
     opts = DecodeOptions(
         iterations=iterations, restore=restore, refine=refine, restorer=restorer, device=device

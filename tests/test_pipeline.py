@@ -32,7 +32,7 @@ def encoded(tmp_path_factory):
     write_ply(scene(), src)
     out = d / "s.gspc"
     # A coarse rate so the residuals are clearly above the skip threshold.
-    rep = encode(src, out, opts=EncodeOptions(lam=40, synth_views=5, max_side=40))
+    rep = encode(src, out, opts=EncodeOptions(lam=40, synth_views=5, max_side=40, check_iterations=0))
     return src, out, rep
 
 
@@ -86,3 +86,19 @@ def test_residual_without_record_is_refused(encoded, tmp_path):
     with pytest.raises(CodecError, match=f"view {k}"):
         decode(bad, dst)
     assert not dst.exists()
+
+
+def test_encoder_check_keeps_side_info_only_if_refinement_pays(tmp_path):
+    src = tmp_path / "in.ply"
+    write_ply(scene(seed=4), src)
+    out = tmp_path / "c.gspc"
+    rep = encode(src, out, opts=EncodeOptions(lam=40, synth_views=6, max_side=40, check_iterations=20))
+    before, after = (float(x) for x in rep.info["check"].split(" dB")[0].split(" -> "))
+    c = container.read(out)
+    n_res = sum(1 for ch in c.chunks if ch.type == "RESI")
+    assert c.header["side_info"]["refine_iterations"] == 20
+    if after > before:
+        assert n_res >= 1 and "side info" not in rep.info
+    else:
+        assert n_res == 0 and c.header["side_info"]["views"] == []
+        assert "dropped" in rep.info["side info"]
