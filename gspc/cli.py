@@ -107,6 +107,7 @@ def encode(
     max_side: int = typer.Option(400, help="longest side of the side-information views, in pixels"),
     side_info: bool = typer.Option(True, help="store residual side information"),
     keep_invisible: bool = typer.Option(False, help="keep Gaussians no view sees"),
+    restorer: str = typer.Option("none", help="restorer the decoder should use (see gspc/restore/weights)"),
     check_iterations: int = typer.Option(
         300, help="refinement iterations the encoder runs to check that side information pays (0: no check)"
     ),
@@ -129,6 +130,7 @@ def encode(
         keep_invisible=keep_invisible,
         background=background,
         check_iterations=check_iterations,
+        restorer=restorer,
     )
     with _progress_bars() as cb:
         rep = run(scene, output, cameras, opts, progress=cb)

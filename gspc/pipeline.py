@@ -147,6 +147,7 @@ def encode(
         cameras = _fit_side(cameras, opts.max_side)
     rep.num_gaussians_in = scene.num_gaussians
     params = _codec_params(opts)
+    restorer = load_restorer(opts.restorer)  # fails early on a name the package lacks
 
     with rep.timed("attributes"):
         visible = visible_mask(scene.means.numpy(), scene.log_scales.numpy(), cameras)
@@ -188,7 +189,7 @@ def encode(
                 others = [c for i, c in enumerate(cameras) if i not in set(views)] or view_cams
                 pick = np.linspace(0, len(others) - 1, min(opts.check_views, len(others))).round().astype(int)
                 check_cams = [Camera.from_dict(others[i].to_dict()) for i in pick]
-                targets = restored_targets(coded, view_records, res_chunks, load_restorer(opts.restorer))
+                targets = restored_targets(coded, view_records, res_chunks, restorer)
                 before, after = _check_refinement(
                     scene, enc.decoded, view_cams, targets, check_cams, opts, progress
                 )
@@ -224,15 +225,14 @@ def encode(
 
 
 def restored_targets(degraded: list[torch.Tensor], views: list[dict], res_chunks: dict[int, bytes], restorer):
-    """The decoder's refinement targets: each render restored with its decoded residual (zero without one)."""
+    """The decoder's refinement targets: renders restored with their decoded residuals where one was sent."""
     out = []
     for k, (img, v) in enumerate(zip(degraded, views)):
-        if k in res_chunks:
+        if k in res_chunks and restorer is not None:
             r = torch.from_numpy(residuals.decode_residual(res_chunks[k], v["residual"])).to(img)
-        else:
-            r = torch.zeros_like(img)
-        target = restorer.restore(img, r) if restorer is not None else img
-        out.append(target.clamp(0, 1))
+            img = restorer.restore(img, r)
+        # A view without a residual keeps its render: the restorer alone measured no gain (bench/restorer.md).
+        out.append(img.clamp(0, 1))
     return out
 
 

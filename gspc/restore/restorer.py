@@ -186,6 +186,7 @@ def _atomic_write(path: Path, write) -> None:
     try:
         with os.fdopen(fd, "wb") as f:
             write(f)
+        os.chmod(tmp, 0o644)  # mkstemp creates 0600; shipped weights must be readable by everyone
         os.replace(tmp, path)
     except BaseException:
         os.unlink(tmp)
