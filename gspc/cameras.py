@@ -550,7 +550,7 @@ def _colmap_images_bin(buf: bytes) -> list:
 # ---------------------------------------------------------------------------
 
 
-def robust_bounds(scene, quantile: float = 0.01, min_opacity: float = 0.05) -> tuple[np.ndarray, np.ndarray]:
+def robust_bounds(scene, quantile: float = 0.002, min_opacity: float = 0.05) -> tuple[np.ndarray, np.ndarray]:
     """Axis-aligned box (lo, hi) holding the bulk of a scene's visible Gaussians.
 
     Gaussians below ``min_opacity`` are ignored (unless that leaves too few), and the rest weigh by
@@ -599,7 +599,7 @@ def synthesize_views(
     width: int = 512,
     height: int = 512,
     fov_deg: float = 50.0,
-    margin: float = 1.1,
+    margin: float = 1.25,
     up: Sequence[float] = (0.0, 0.0, 1.0),
 ) -> list[Camera]:
     """``n`` cameras on a Fibonacci sphere around the scene's robust box, all looking at its centre.

@@ -295,7 +295,8 @@ def _random_scene(n=3000, seed=0, floaters=30):
 
 def test_robust_bounds_ignore_floaters():
     lo, hi = robust_bounds(_random_scene())
-    assert np.all(hi - lo < [12, 6, 3]) and np.all(hi > lo)
+    # 0.2%-99.8% of a normal cloud spans about 5.8 sigma (2, 1, 0.5); floaters at +-500 would dwarf that.
+    assert np.all(hi - lo < [13, 6.5, 3.3]) and np.all(hi > lo)
     assert np.allclose((lo + hi) / 2, [5, -3, 1], atol=0.3)
 
 
