@@ -111,7 +111,9 @@ def make_scene(
     """Build a scene from arrays or tensors; ``sh_rest`` may be omitted for degree 0."""
 
     def t(x):
-        return torch.as_tensor(np.asarray(x) if not isinstance(x, torch.Tensor) else x).to(dtype)
+        if isinstance(x, torch.Tensor):
+            return x.to(dtype)
+        return torch.from_numpy(np.ascontiguousarray(x)).to(dtype)
 
     n = len(means)
     if sh_rest is None:
@@ -119,6 +121,14 @@ def make_scene(
     sh_rest = t(sh_rest)
     deg = sh_degree_from_rest(sh_rest.shape[1]) if sh_degree is None else sh_degree
     return GaussianScene(t(means), t(quats), t(log_scales), t(opacities).reshape(-1), t(sh_dc), sh_rest, deg)
+
+
+def validate_named(scene: GaussianScene, source: object) -> GaussianScene:
+    """``scene.validate()`` with the offending file or object named in the error."""
+    try:
+        return scene.validate()
+    except InputError as err:
+        raise InputError(f"{source}: {err}") from err
 
 
 def scene_equal(a: GaussianScene, b: GaussianScene) -> bool:

@@ -16,12 +16,11 @@ import math
 import os
 
 import numpy as np
-import torch
 from plyfile import PlyData
 
 from gspc.errors import InputError
 from gspc.io.ply import load_plydata, rest_names
-from gspc.scene import GaussianScene, sh_degree_from_rest
+from gspc.scene import GaussianScene, make_scene, sh_degree_from_rest, validate_named
 
 CHUNK_SIZE = 256
 SH_C0 = 0.28209479177387814
@@ -125,16 +124,7 @@ def scene_from_compressed(ply: PlyData, source: str = "PLY") -> GaussianScene:
         t = np.where(q == 0, 0.0, np.where(q == 255, 1.0, (q + 0.5) / 256.0))
         sh_rest = ((t - 0.5) * 8.0).reshape(n, 3, k).transpose(0, 2, 1)
 
-    def f32(a: np.ndarray) -> torch.Tensor:
-        return torch.from_numpy(np.ascontiguousarray(a, dtype=np.float32))
-
-    scene = GaussianScene(
-        f32(means), f32(quats), f32(log_scales), f32(opacities), f32(sh_dc), f32(sh_rest), degree
-    )
-    try:
-        return scene.validate()
-    except InputError as err:
-        raise InputError(f"{source}: {err}") from err
+    return validate_named(make_scene(means, quats, log_scales, opacities, sh_dc, sh_rest, degree), source)
 
 
 def read_compressed_ply(path: str | os.PathLike) -> GaussianScene:

@@ -22,10 +22,9 @@ from pathlib import Path
 
 import imagecodecs
 import numpy as np
-import torch
 
 from gspc.errors import InputError
-from gspc.scene import GaussianScene, num_sh_rest
+from gspc.scene import GaussianScene, make_scene, num_sh_rest, validate_named
 
 SOG_VERSION = 2
 QUAT_TAG_BASE = 252
@@ -199,13 +198,4 @@ def read_sog(path: str | os.PathLike) -> GaussianScene:
 
     sh_rest, degree = _sh_rest(path, load, meta, count)
 
-    def f32(a: np.ndarray) -> torch.Tensor:
-        return torch.from_numpy(np.ascontiguousarray(a, dtype=np.float32))
-
-    scene = GaussianScene(
-        f32(means), f32(quats), f32(log_scales), f32(opacities), f32(sh_dc), f32(sh_rest), degree
-    )
-    try:
-        return scene.validate()
-    except InputError as err:
-        raise InputError(f"{path}: {err}") from err
+    return validate_named(make_scene(means, quats, log_scales, opacities, sh_dc, sh_rest, degree), path)
