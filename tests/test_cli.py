@@ -1,29 +1,18 @@
 """End-to-end CLI runs on a tiny synthetic scene, and bad input giving one-line errors."""
 
-import numpy as np
 import pytest
 import torch
+from scenes import random_scene
 from typer.testing import CliRunner
 
 from gspc.cli import app
 from gspc.io import read_scene, write_ply
-from gspc.scene import make_scene
 
 runner = CliRunner()
 
 
-def tiny_scene(n=300, sh_degree=1, seed=0):
-    g = np.random.default_rng(seed)
-    k = (sh_degree + 1) ** 2 - 1
-    return make_scene(
-        g.normal(0, 0.3, (n, 3)),
-        g.normal(0, 1, (n, 4)),
-        g.normal(-3.0, 0.3, (n, 3)),
-        g.normal(1.0, 1.0, n),
-        g.normal(0, 0.5, (n, 3)),
-        g.normal(0, 0.1, (n, k, 3)),
-        sh_degree,
-    )
+def tiny_scene():
+    return random_scene(300, sh_degree=1, seed=0)
 
 
 def run(*args):

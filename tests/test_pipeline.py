@@ -3,25 +3,17 @@
 import numpy as np
 import plyfile
 import pytest
+from scenes import random_scene
 
 from gspc.codec import container
 from gspc.errors import CodecError
 from gspc.io import read_scene, write_ply
 from gspc.pipeline import DecodeOptions, EncodeOptions, decode, encode
-from gspc.scene import make_scene
 
 
-def scene(n=200, sh_degree=2, seed=1):
-    g = np.random.default_rng(seed)
-    k = (sh_degree + 1) ** 2 - 1
-    return make_scene(
-        g.normal(0, 0.3, (n, 3)),
-        g.normal(0, 1, (n, 4)),
-        g.normal(-2.8, 0.3, (n, 3)),
-        g.normal(1.5, 1.0, n),
-        g.normal(0, 0.6, (n, 3)),
-        g.normal(0, 0.2, (n, k, 3)),
-        sh_degree,
+def scene(seed=1):
+    return random_scene(
+        200, sh_degree=2, seed=seed, log_scale=-2.8, opacity_logit=1.5, dc_std=0.6, rest_std=0.2
     )
 
 
