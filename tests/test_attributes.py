@@ -111,6 +111,21 @@ def test_no_sh_path_costs_little():
     assert len(a) < 200 < len(b)
 
 
+def test_faint_gaussians_drop_sh_rest_and_zero_rotation_is_exact():
+    n = 500
+    quats = np.tile([1.0, 0.0, 0.0, 0.0], (n, 1))
+    opac = np.where(np.arange(n) % 2 == 0, -5.0, 3.0)  # alpha 0.0067 (kept, but faint) and 0.95
+    scene = _scene(n=n, quats=quats, opacities=opac)
+    for params in PRESETS.values():
+        enc = _check_exact(scene, params)
+        dec = enc.decoded
+        assert enc.meta["rotation_levels"] % 2 == 0
+        assert torch.equal(dec.quats, torch.tensor([[1.0, 0.0, 0.0, 0.0]]).expand(len(enc.kept), 4))
+        faint = torch.sigmoid(dec.opacities) < 0.02
+        assert faint.any() and (~faint).any()
+        assert (dec.sh_rest[faint] == 0).all() and (dec.sh_rest[~faint] != 0).any()
+
+
 def test_search_lambda_hits_target():
     scene = _scene(n=3000, degree=1)
     full = encode_attributes(scene, PRESETS["high"]).num_bytes

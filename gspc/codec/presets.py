@@ -1,10 +1,11 @@
 """Codec parameters and the named rate points (like CompressAI's zoo table: one place, versioned).
 
 Every quantisation step is ``base_step * lam``: ``lam`` is the one continuous rate knob (larger is
-smaller and coarser). Position bits follow ``lam`` unless set: 15 at lam = 1, one bit less per
-doubling of lam, within 11..16. The base steps and the bit schedule equalise the marginal dB per byte
-of every group (measured on donut at lam = 2, 6 views at 192 px: each group's PSNR slope 2.4-3.3 dB
-per B/Gaussian; before, positions gave 0.5 and opacity 4.3).
+smaller and coarser). Position bits follow ``lam`` unless set: 14 at lam = 1, one bit less per
+doubling of lam, within 11..16. The base steps and the bit schedule first equalised the marginal dB
+per byte of every group on donut (lam = 2, 6 views at 192 px); they were then retuned at the lego fit's
+SPZ-equal point (~40 dB, lam ~ 7): one bit fewer for positions, scale/rotation/DC steps x1.2-1.25
+(bytes at equal PSNR vs SPZ-style 0.498 -> 0.479, tools/bench_codec.py).
 """
 
 from __future__ import annotations
@@ -23,21 +24,25 @@ class CodecParams:
     keep_transparent: bool = False  # keep Gaussians with activated opacity below 1/255
     # Base steps at lam = 1, each in the domain where its error is least visible.
     opacity_step: float = 0.006  # activated opacity (alpha)
-    scale_step: float = 0.017  # natural-log scale: a relative size error of +-0.85%
-    rotation_step: float = 0.004  # smallest-three quaternion components
-    dc_step: float = 0.007  # SH DC coefficient (colour = 0.5 + 0.282 * dc)
+    scale_step: float = 0.021  # natural-log scale: a relative size error of +-1.05%
+    rotation_step: float = 0.005  # smallest-three quaternion components
+    dc_step: float = 0.0085  # SH DC coefficient (colour = 0.5 + 0.282 * dc)
     sh_step: float = 0.02  # SH rest coefficients of degree 1 ...
     sh_degree_growth: float = 1.2  # ... times this per further degree (lego: 1.2 beat 1.5 and 2)
     # SH rest steps grow as lam ** this, slower than the others: on an SH-3 lego fit, view-dependent
     # colour limits PSNR at low rates while geometry can coarsen further (bench/codec.md).
     sh_lam_exponent: float = 0.5
     sh_deadzone: float = 0.2  # rounding offset towards zero for SH rest (encoder-only R-D choice)
+    # Gaussians whose decoded alpha is below this * lam (at most 0.5) get no SH rest (encoder-only
+    # R-D choice): on the lego fit 40% of Gaussians are under 0.05 opaque and their view-dependent
+    # colour is invisible, yet it cost a third of the SH rest bytes.
+    sh_faint_alpha: float = 0.02
 
     @property
     def effective_position_bits(self) -> int:
         if self.position_bits is not None:
             return int(self.position_bits)
-        return int(min(16, max(11, 15 - round(math.log2(self.lam)))))
+        return int(min(16, max(11, 14 - round(math.log2(self.lam)))))
 
     def with_lambda(self, lam: float) -> CodecParams:
         if not lam > 0:
@@ -46,8 +51,8 @@ class CodecParams:
 
 
 PRESETS: dict[str, CodecParams] = {
-    "high": CodecParams(lam=1.0),  # 15 position bits
-    "low": CodecParams(lam=10.0),  # 12 position bits; <= 10 B/G on the SH-3 lego fit
+    "high": CodecParams(lam=1.0),  # 14 position bits
+    "low": CodecParams(lam=8.0),  # 11 position bits; <= 10 B/G on the SH-3 lego fit
 }
 
 
