@@ -6,13 +6,11 @@ renderer converts to the scene's dtype and device.
 
 from __future__ import annotations
 
-import contextlib
 import json
 import math
 import os
 import re
 import struct
-import tempfile
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -20,6 +18,7 @@ from pathlib import Path, PurePosixPath
 
 import numpy as np
 
+from gspc.atomic import atomic_write_bytes
 from gspc.errors import InputError
 
 
@@ -230,19 +229,7 @@ def save_cameras_json(cameras: Sequence[Camera], path: str | Path) -> None:
                 "cy": cam.cy,
             }
         )
-    _atomic_write_text(Path(path), json.dumps(records, indent=1))
-
-
-def _atomic_write_text(path: Path, text: str) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        raise
+    atomic_write_bytes(path, json.dumps(records, indent=1).encode("utf-8"))
 
 
 # --- NeRF / instant-ngp / nerfstudio transforms.json -------------------------------------------

@@ -26,9 +26,7 @@ for training scenes and the encoder's 0.4 for validation scenes).
 from __future__ import annotations
 
 import json
-import os
 import sys
-import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -37,6 +35,7 @@ import numpy as np
 import torch
 import typer
 
+from gspc.atomic import atomic_write, atomic_write_bytes
 from gspc.cameras import load_cameras, sample_views, synthesize_views
 from gspc.codec import residuals
 from gspc.codec.attributes import encode_attributes
@@ -68,6 +67,10 @@ class RatePoint:
     name: str
     lam: float
     distance: float  # base JPEG XL distance handed to plan_residual_rates
+
+
+def _save_npz_atomic(path: Path, arrays: dict[str, np.ndarray]) -> None:
+    atomic_write(path, lambda f: np.savez_compressed(f, **arrays))
 
 
 def parse_scene(spec: str) -> SceneSpec:
@@ -114,28 +117,6 @@ def parse_rates(text: str) -> list[RatePoint]:
                 raise InputError(f"rate point {item!r} is neither a preset nor lambda:distance")
             out.append(RatePoint(f"lam{float(lam):g}_d{float(dist):g}", float(lam), float(dist)))
     return out
-
-
-def _atomic_bytes(path: Path, data: bytes) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        os.unlink(tmp)
-        raise
-
-
-def _save_npz(path: Path, arrays: dict[str, np.ndarray]) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            np.savez_compressed(f, **arrays)
-        os.replace(tmp, path)
-    except BaseException:
-        os.unlink(tmp)
-        raise
 
 
 def side_info_symbols(r: np.ndarray, distance: float | None, codec: str = "jxl") -> dict[str, np.ndarray]:
@@ -214,7 +195,7 @@ def make_scene_rate(
                 )
                 arrays[f"bytes_{k}"] = sym.get("bytes", np.int64(0))
             arrays["distances"] = np.array([-1.0 if d is None else d for d in grid], np.float32)
-            _save_npz(files[i], arrays)
+            _save_npz_atomic(files[i], arrays)
             progress(f"{spec.name}/{rate.name} code", i + 1, len(cams))
     for i, (f, cam) in enumerate(zip(files, cams)):
         with np.load(f) as data:
@@ -242,7 +223,7 @@ def make_scene_rate(
 
 def write_manifest(out_dir: Path, entries: list[dict], settings: dict) -> None:
     doc = {"format": FORMAT, "settings": settings, "entries": entries}
-    _atomic_bytes(out_dir / MANIFEST, (json.dumps(doc, indent=1) + "\n").encode())
+    atomic_write_bytes(out_dir / MANIFEST, (json.dumps(doc, indent=1) + "\n").encode())
 
 
 def make_data(

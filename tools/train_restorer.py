@@ -25,7 +25,6 @@ import json
 import math
 import os
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -38,6 +37,7 @@ import typer
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from make_restorer_data import MANIFEST, side_info_from_npz  # noqa: E402
 
+from gspc.atomic import atomic_write
 from gspc.metrics import LPIPS, psnr, quantize8, ssim  # noqa: E402
 from gspc.restore.nafnet import NAFNet, count_parameters  # noqa: E402
 from gspc.restore.restorer import Restorer, save_restorer  # noqa: E402
@@ -152,14 +152,7 @@ def lr_at(step: int, total: int, base: float, warmup: int, floor: float = 1e-2) 
 
 
 def _atomic_torch_save(obj, path: Path) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    os.close(fd)
-    try:
-        torch.save(obj, tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        os.unlink(tmp)
-        raise
+    atomic_write(path, lambda f: torch.save(obj, f))
 
 
 def _ints(text: str) -> list[int]:

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import os
 import struct
-import tempfile
 import zlib
 from collections.abc import Collection
 from dataclasses import dataclass, field
@@ -17,6 +16,7 @@ from typing import Any
 
 import msgpack
 
+from gspc.atomic import atomic_write_bytes
 from gspc.errors import FormatError, InputError
 
 MAGIC = b"\x89GSPC\r\n\x1a"
@@ -219,18 +219,7 @@ def pack(header: dict, chunks: list[Chunk]) -> bytes:
 
 def write(path: str | os.PathLike, header: dict, chunks: list[Chunk]) -> None:
     """Write a gspc file atomically: a temporary file beside `path`, then a rename over it."""
-    data = pack(header, chunks)
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    atomic_write_bytes(path, pack(header, chunks), fsync=True)
 
 
 # ----------------------------------------------------------------------------------------------- reading

@@ -9,13 +9,13 @@ One ``vertex`` element with float properties ``x y z``, optional normals ``nx ny
 from __future__ import annotations
 
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 import torch
 from plyfile import PlyData, PlyElement
 
+from gspc.atomic import atomic_write
 from gspc.errors import InputError
 from gspc.scene import GaussianScene, num_sh_rest, sh_degree_from_rest
 
@@ -166,15 +166,4 @@ def write_ply(scene: GaussianScene, path: str | os.PathLike) -> None:
     vertices = scene_to_vertex_array(scene)
     element = PlyElement.describe(vertices, "vertex")
     ply = PlyData([element], text=False, byte_order="<")
-    directory = path.parent
-    if not directory.is_dir():
-        raise InputError(f"{path}: output directory {directory} does not exist")
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=directory)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            ply.write(f)
-        os.chmod(tmp, 0o644)  # mkstemp makes 0600; give the file the usual permissions
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    atomic_write(path, ply.write)
