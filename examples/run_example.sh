@@ -7,6 +7,6 @@ mkdir -p "$out"
 gspc info "$here/lego/point_cloud.ply"
 gspc encode "$here/lego/point_cloud.ply" --cameras "$here/lego/cameras.json" --background 1 1 1 -o "$out/lego.gspc"
 gspc info "$out/lego.gspc"
-gspc decode "$out/lego.gspc" -o "$out/lego_decoded.ply" --iterations 200
+gspc decode "$out/lego.gspc" -o "$out/lego_decoded.ply"
 gspc eval "$here/lego/point_cloud.ply" "$out/lego_decoded.ply" --cameras "$here/lego/cameras.json"
 echo "outputs in $out"
