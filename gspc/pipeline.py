@@ -160,7 +160,7 @@ def encode(
     chunks = [container.Chunk(name, enc.chunks[name]) for name in ATTRIBUTE_CHUNKS if name in enc.chunks]
     views = sample_views(cameras, opts.views_fraction) if opts.side_info else []
     view_records: list[dict] = []
-    res_chunks = {}
+    res_chunks: dict[int, bytes] = {}
     refine_iterations = DEFAULT_ITERATIONS
     if views:
         # Round-trip through the stored form so the encoder renders exactly the cameras the decoder reads.
@@ -175,7 +175,6 @@ def encode(
             codec = opts.residual_codec or q.residual_codec
             scale = opts.residual_scale or q.residual_scale
             plan = residuals.plan_residual_rates(res, level)
-            res_chunks: dict[int, bytes] = {}
             for k, (cam, r, d) in enumerate(zip(view_cams, res, plan)):
                 record = {"camera": cam.to_dict()}
                 if d is not None:
@@ -183,10 +182,10 @@ def encode(
                     res_chunks[k] = payload
                     record["residual"] = meta
                 view_records.append(record)
-        refine_iterations = DEFAULT_ITERATIONS
         if res_chunks and opts.check_iterations > 0:
             with rep.timed("check"):
-                others = [c for i, c in enumerate(cameras) if i not in set(views)] or view_cams
+                sent = set(views)
+                others = [c for i, c in enumerate(cameras) if i not in sent] or view_cams
                 pick = np.linspace(0, len(others) - 1, min(opts.check_views, len(others))).round().astype(int)
                 check_cams = [Camera.from_dict(others[i].to_dict()) for i in pick]
                 targets = restored_targets(coded, view_records, res_chunks, restorer)
