@@ -97,3 +97,24 @@ def test_cuda_request_without_gpu(tmp_path, scene_file):
     assert run("encode", scene_file, "-o", gspc_file, "--views", 4, "--max-side", 32).exit_code == 0
     assert_one_line_error(run("decode", gspc_file, "-o", tmp_path / "o.ply", "--device", "cuda"), "cuda")
     assert not (tmp_path / "o.ply").exists()
+
+
+def test_corrupt_file_and_missing_restorer_give_one_line_errors(tmp_path, scene_file):
+    from gspc.codec import container
+
+    gspc_file = tmp_path / "s.gspc"
+    assert run("encode", scene_file, "-o", gspc_file, "--views", 4, "--max-side", 32).exit_code == 0
+    data = bytearray(gspc_file.read_bytes())
+    data[len(data) // 2] ^= 0x40  # a flipped bit inside a chunk
+    corrupt = tmp_path / "corrupt.gspc"
+    corrupt.write_bytes(bytes(data))
+    assert_one_line_error(run("decode", corrupt, "-o", tmp_path / "o.ply"), "")
+    assert not (tmp_path / "o.ply").exists()
+
+    c = container.read(gspc_file)
+    c.header["side_info"]["restorer"] = "no-such-model"
+    renamed = tmp_path / "renamed.gspc"
+    container.write(renamed, c.header, c.chunks)
+    assert_one_line_error(run("decode", renamed, "-o", tmp_path / "o.ply"), "no-such-model")
+    assert not (tmp_path / "o.ply").exists()
+    assert_one_line_error(run("encode", scene_file, "-o", tmp_path / "x.gspc", "--restorer", "nope"), "nope")
