@@ -85,12 +85,17 @@ def test_encoder_check_keeps_side_info_only_if_refinement_pays(tmp_path):
     write_ply(scene(seed=4), src)
     out = tmp_path / "c.gspc"
     rep = encode(src, out, opts=EncodeOptions(lam=40, synth_views=6, max_side=40, check_iterations=20))
-    before, after = (float(x) for x in rep.info["check"].split(" dB")[0].split(" -> "))
+    before, after, alt = (float(x.rsplit(" ", 1)[-1]) for x in nums_text(rep.info["check"]))
     c = container.read(out)
     n_res = sum(1 for ch in c.chunks if ch.type == "RESI")
     assert c.header["side_info"]["refine_iterations"] == 20
-    if after > before:
+    if after > max(before, alt):
         assert n_res >= 1 and "side info" not in rep.info
     else:
         assert n_res == 0 and c.header["side_info"]["views"] == []
-        assert "dropped" in rep.info["side info"]
+        assert "instead" in rep.info["side info"] or "dropped" in rep.info["side info"]
+
+
+def nums_text(check: str) -> list[str]:
+    """'at N unsent views: coded A dB, refined B dB, same bytes on attributes C dB' -> the three numbers."""
+    return [part.strip().removesuffix(" dB") for part in check.split(": ", 1)[1].split(",")]
