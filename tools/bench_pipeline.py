@@ -284,7 +284,9 @@ def main(
     if donut:
         setups.append(synth_setup("donut", SHARED / "donut" / "fused.ply"))
     setups += [
-        synth_setup(f"statue {n} (SOG, already quantised)", SHARED / "statues" / f"{n}.sog") for n in statues
+        synth_setup(f"statue {n} (SOG, already quantised)", SHARED / "statues" / f"{n}.sog")
+        for n in statues
+        if n
     ]
     restorers = [r for r in available_restorers() if r != "none"]
     sweep_l = [int(x) for x in sweep.split(",") if x]
@@ -315,8 +317,8 @@ def main(
             out.write_text("\n".join(lines) + "\n")
     lines.append(f"Total benchmark time: {time.perf_counter() - t0:.0f} s.")
     if curves:
-        plot(curves, out.with_name("pipeline_rd.png"))
-        lines += ["", f"![rate-distortion]({out.with_name('pipeline_rd.png').name})"]
+        plot(curves, out.with_name(out.stem + "_rd.png"))
+        lines += ["", f"![rate-distortion]({out.stem}_rd.png)"]
     out.write_text("\n".join(lines) + "\n")
     print(f"wrote {out}")
 
