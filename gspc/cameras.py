@@ -633,6 +633,14 @@ def _order(cameras: Sequence[Camera]) -> list[int]:
     return sorted(range(len(cameras)), key=lambda i: natural_key(cameras[i].name))
 
 
+def limit_size(cameras: list[Camera], max_side: int) -> list[Camera]:
+    """The same views, scaled down where the longer side exceeds ``max_side`` pixels."""
+    return [
+        c.scaled(max_side / max(c.width, c.height)) if max(c.width, c.height) > max_side else c
+        for c in cameras
+    ]
+
+
 def sample_views(cameras: Sequence[Camera], fraction: float) -> list[int]:
     """Indices (ascending) of ``round(fraction * n)`` views (at least 1), evenly spaced over the
     cameras in name order."""

@@ -237,11 +237,10 @@ def _fmt(v) -> str:
 
 
 def _cameras_for(scene, cameras: Path | None, views: int, max_side: int):
-    from gspc.cameras import load_cameras, synthesize_views
-    from gspc.pipeline import _fit_side
+    from gspc.cameras import limit_size, load_cameras, synthesize_views
 
     cams = load_cameras(cameras) if cameras else synthesize_views(scene, views)
-    return _fit_side(cams, max_side)
+    return limit_size(cams, max_side)
 
 
 @app.command()

@@ -17,7 +17,7 @@ import numpy as np
 import torch
 
 from gspc import __version__
-from gspc.cameras import Camera, load_cameras, sample_views, synthesize_views
+from gspc.cameras import Camera, limit_size, load_cameras, sample_views, synthesize_views
 from gspc.codec import container, residuals
 from gspc.codec.attributes import decode_attributes, encode_attributes, search_lambda
 from gspc.errors import CodecError, DeviceError, InputError
@@ -99,13 +99,6 @@ class _Timer:
         self.sink[self.stage] = self.sink.get(self.stage, 0.0) + time.perf_counter() - self.t0
 
 
-def _fit_side(cameras: list[Camera], max_side: int) -> list[Camera]:
-    return [
-        c.scaled(max_side / max(c.width, c.height)) if max(c.width, c.height) > max_side else c
-        for c in cameras
-    ]
-
-
 @torch.no_grad()
 def render_images(
     scene: GaussianScene,
@@ -149,7 +142,7 @@ def encode(
     with rep.timed("read"):
         scene = read_scene(scene_path)
         cameras = load_cameras(cameras_path) if cameras_path else synthesize_views(scene, opts.synth_views)
-        cameras = _fit_side(cameras, opts.max_side)
+        cameras = limit_size(cameras, opts.max_side)
     rep.num_gaussians_in = scene.num_gaussians
     params = _codec_params(opts)
     restorer = load_restorer(opts.restorer)  # fails early on a name the package lacks

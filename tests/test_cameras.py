@@ -390,3 +390,13 @@ def test_lego_transforms(shared_data):
         assert v2 < v
     train, test = split_test_views(cams)
     assert (len(train), len(test)) == (87, 13)
+
+
+def test_limit_size_scales_only_large_views():
+    from gspc.cameras import limit_size
+
+    big = Camera(np.eye(4), [[800, 0, 400], [0, 800, 300], [0, 0, 1]], 800, 600, "big")
+    small = Camera(np.eye(4), [[100, 0, 50], [0, 100, 40], [0, 0, 1]], 100, 80, "small")
+    a, b = limit_size([big, small], 400)
+    assert (a.width, a.height) == (400, 300) and np.allclose(a.K[:2], big.K[:2] / 2)
+    assert b is small

@@ -51,7 +51,7 @@ class Setup:
     photos: list[torch.Tensor] | None = None  # held-out photos at eval_cams (lego)
 
 
-def lego_setup(folder: Path, tmp: Path) -> Setup:
+def lego_setup(folder: Path) -> Setup:
     cams = load_cameras(folder / "cameras.json")
     train, test = split_test_views(cams, every=8)
     photos = []
@@ -280,7 +280,7 @@ def main(
     out: Path = typer.Option(Path("bench/pipeline.md")),
 ) -> None:
     torch.set_num_threads(1)
-    setups = [lego_setup(p, Path()) for p in lego]
+    setups = [lego_setup(p) for p in lego]
     if donut:
         setups.append(synth_setup("donut", SHARED / "donut" / "fused.ply"))
     setups += [

@@ -28,10 +28,10 @@ import typer
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from train_restorer import load_view, read_manifest, validate  # noqa: E402
 
-from gspc.cameras import sample_views, synthesize_views  # noqa: E402
+from gspc.cameras import limit_size, sample_views, synthesize_views  # noqa: E402
 from gspc.io import read_scene  # noqa: E402
 from gspc.metrics import psnr, quantize8  # noqa: E402
-from gspc.pipeline import DecodeOptions, EncodeOptions, _fit_side, decode, encode, render_images  # noqa: E402
+from gspc.pipeline import DecodeOptions, EncodeOptions, decode, encode, render_images  # noqa: E402
 from gspc.restore.nafnet import count_parameters  # noqa: E402
 from gspc.restore.restorer import load_restorer  # noqa: E402
 
@@ -87,7 +87,7 @@ def inference_seconds(name: str, width: int = 400, height: int = 300, repeats: i
 def pipeline_rows(scene_path: Path, name: str, quality: str, iterations: int, every: int) -> list[str]:
     scene = read_scene(scene_path)
     opts = EncodeOptions(quality=quality, restorer=name)
-    cams = _fit_side(synthesize_views(scene, opts.synth_views), opts.max_side)
+    cams = limit_size(synthesize_views(scene, opts.synth_views), opts.max_side)
     sent = set(sample_views(cams, opts.views_fraction))
     eval_cams = [c for i, c in enumerate(cams) if i not in sent][::every]
     refs = [quantize8(im) for im in render_images(scene, eval_cams, opts.background)]

@@ -36,12 +36,12 @@ import torch
 import typer
 
 from gspc.atomic import atomic_write, atomic_write_bytes
-from gspc.cameras import load_cameras, sample_views, synthesize_views
+from gspc.cameras import limit_size, load_cameras, sample_views, synthesize_views
 from gspc.codec import residuals
 from gspc.codec.attributes import encode_attributes
 from gspc.errors import GspcError, InputError
 from gspc.io import read_scene
-from gspc.pipeline import EncodeOptions, _fit_side, render_images
+from gspc.pipeline import EncodeOptions, render_images
 from gspc.presets import QUALITY
 from gspc.visibility import visible_mask
 
@@ -148,7 +148,7 @@ def scene_cameras(spec: SceneSpec, scene, max_side: int) -> tuple[list, list]:
         cams = load_cameras(spec.cameras)
     else:
         cams = synthesize_views(scene, spec.views)
-    cams = _fit_side(cams, max_side)
+    cams = limit_size(cams, max_side)
     fraction = spec.fraction if spec.fraction is not None else (1.0 if spec.split == "train" else 0.4)
     return cams, ([cams[i] for i in sample_views(cams, fraction)] if fraction < 1 else cams)
 
