@@ -184,14 +184,17 @@ def info(path: Path = typer.Argument(..., help="a scene (PLY/SOG/compressed PLY)
         raise GspcError(f"{path}: no such file")
     if _is_gspc(path):
         from gspc.codec.container import describe, read
+        from gspc.codec.sideinfo import side_views
 
         d = describe(path)
-        header = read(path).header
+        c = read(path)
+        header = c.header
+        views, _ = side_views(header.get("side_info", {}), c.chunks)
         n = max(int(header.get("scene", {}).get("num_gaussians", 0)), 1)
         out.print(
             f"{path}: gspc format {d['version'][0]}.{d['version'][1]}, {d['file_size']:,} bytes, "
             f"{n:,} Gaussians, SH degree {header.get('scene', {}).get('sh_degree', '?')}, "
-            f"{len(header.get('side_info', {}).get('views', []))} side-information views"
+            f"{len(views)} side-information views"
         )
         t = Table(show_header=True)
         for col in ("part", "chunks", "bytes", "B/Gaussian", "share"):

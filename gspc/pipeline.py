@@ -12,7 +12,6 @@ from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-import msgpack
 import numpy as np
 import torch
 
@@ -20,6 +19,7 @@ from gspc import __version__
 from gspc.cameras import Camera, limit_size, load_cameras, sample_views, synthesize_views
 from gspc.codec import container, residuals
 from gspc.codec.attributes import decode_attributes, encode_attributes, search_lambda
+from gspc.codec.sideinfo import pack_side, side_views
 from gspc.errors import CodecError, DeviceError, InputError
 from gspc.io import read_scene, write_ply
 from gspc.metrics import psnr, quantize8
@@ -31,7 +31,7 @@ from gspc.scene import GaussianScene
 from gspc.visibility import visible_mask
 
 ATTRIBUTE_CHUNKS = ("POSN", "OPAC", "SCAL", "ROTN", "SHDC", "SHRS")
-RESIDUAL_CHUNK = "RESI"
+SIDE_CHUNK = "SIDE"  # all side-information views in one chunk (spec 10.9); 1.0's RESI form is still read
 DEFAULT_RESTORER = "none"  # nafnet-s16-v1 ships, but has not yet cleared its target gain (bench/restorer.md)
 DEFAULT_ITERATIONS = 300  # decoder refinement when the file names none
 CHUNK_ENTRY_BYTES = 48  # a chunk-table entry plus alignment padding, about (spec section 5)
@@ -194,8 +194,7 @@ def encode(
                 refined = _refined(enc.decoded, view_cams, targets, opts, progress)
                 after = _mean_psnr(render_images(refined, check_cams, opts.background), reference)
                 # The fair rival: the same total bytes spent on attributes alone.
-                extra = sum(len(p) + CHUNK_ENTRY_BYTES for p in res_chunks.values())
-                extra += len(msgpack.packb(view_records))
+                extra = len(pack_side(view_records, res_chunks)) + CHUNK_ENTRY_BYTES
                 alt = search_lambda(scene, enc.num_bytes + extra, params, visible=visible)
                 alt_psnr = _mean_psnr(render_images(alt.decoded, check_cams, opts.background), reference)
             rep.info["check"] = (
@@ -214,7 +213,8 @@ def encode(
                     rep.info["side info"] = "spent on attributes instead (measured better at equal bytes)"
                 else:
                     rep.info["side info"] = "dropped (refinement did not improve unsent views)"
-        chunks += [container.Chunk(RESIDUAL_CHUNK, res_chunks[k], index=k) for k in sorted(res_chunks)]
+        if view_records:
+            chunks.append(container.Chunk(SIDE_CHUNK, pack_side(view_records, res_chunks)))
 
     header = {
         "encoder": f"gspc {__version__}",
@@ -225,7 +225,6 @@ def encode(
         },
         "attributes": enc.meta,
         "side_info": {
-            "views": view_records,
             "background": list(opts.background),
             "restorer": opts.restorer,
             "refine_iterations": refine_iterations,
@@ -292,18 +291,13 @@ def decode(
         header = c.header
         try:
             attr_meta, side = header["attributes"], header["side_info"]
-            views = side["views"]
             background = tuple(float(v) for v in side["background"])
         except (KeyError, TypeError, ValueError):
             raise CodecError(
                 "the .gspc header lacks the attributes or side_info section gspc 1 writes"
             ) from None
         chunks = {ch.type: ch.payload for ch in c.chunks if ch.type in ATTRIBUTE_CHUNKS}
-        res_chunks = {ch.index: ch.payload for ch in c.chunks if ch.type == RESIDUAL_CHUNK}
-        with_res = {k for k, v in enumerate(views) if isinstance(v, dict) and "residual" in v}
-        if set(res_chunks) != with_res:
-            bad = sorted(set(res_chunks) ^ with_res)[0]
-            raise CodecError(f"side-information view {bad} has a RESI chunk or a residual record, not both")
+        views, res_chunks = side_views(side, c.chunks)
         restorer_name = opts.restorer if opts.restorer is not None else side.get("restorer", "none")
         restorer = load_restorer(restorer_name) if opts.restore else None
     rep.bytes = _byte_budget(Path(in_path))

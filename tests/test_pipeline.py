@@ -6,6 +6,7 @@ import pytest
 from scenes import random_scene
 
 from gspc.codec import container
+from gspc.codec.sideinfo import side_views
 from gspc.errors import CodecError
 from gspc.io import read_scene, write_ply
 from gspc.pipeline import DecodeOptions, EncodeOptions, decode, encode
@@ -31,12 +32,38 @@ def encoded(tmp_path_factory):
 def test_encode_report_and_views(encoded):
     _, out, rep = encoded
     c = container.read(out)
-    views = c.header["side_info"]["views"]
+    assert c.version == (1, 1) and "views" not in c.header["side_info"]
+    assert [ch.type for ch in c.chunks].count("SIDE") == 1 and c.find("RESI", 0) is None
+    views, images = side_views(c.header["side_info"], c.chunks)
     assert len(views) == 2  # 40% of 5 views
     assert rep.bytes["file"] == out.stat().st_size
-    n_res = sum(1 for ch in c.chunks if ch.type == "RESI")
-    assert n_res == sum("residual" in v for v in views) == rep.info["views with residual"]
-    assert n_res >= 1
+    assert len(images) == sum("residual" in v for v in views) == rep.info["views with residual"]
+    assert len(images) >= 1
+
+
+def as_format_1_0(c: container.Container) -> tuple[dict, list[container.Chunk]]:
+    """The same side information in format 1.0's layout: records in the header, one RESI chunk per view."""
+    views, images = side_views(c.header["side_info"], c.chunks)
+    header = {**c.header, "side_info": {**c.header["side_info"], "views": views}}
+    chunks = [ch for ch in c.chunks if ch.type != "SIDE"]
+    chunks += [container.Chunk("RESI", images[k], index=k) for k in sorted(images)]
+    return header, chunks
+
+
+def test_format_1_0_side_information_decodes_the_same(encoded, tmp_path):
+    _, out, _ = encoded
+    header, chunks = as_format_1_0(container.read(out))
+    old = tmp_path / "old.gspc"
+    container.write(old, header, chunks)
+    a, b = tmp_path / "a.ply", tmp_path / "b.ply"
+    decode(out, a, DecodeOptions(iterations=3))
+    decode(old, b, DecodeOptions(iterations=3))
+    assert np.array_equal(read_scene(a).means.numpy(), read_scene(b).means.numpy())
+    mixed = tmp_path / "mixed.gspc"
+    container.write(mixed, header, chunks + [container.read(out).find("SIDE", 0)])
+    with pytest.raises(CodecError, match="both"):
+        decode(mixed, tmp_path / "m.ply")
+    assert not (tmp_path / "m.ply").exists()
 
 
 def test_decoded_ply_is_inria_layout(encoded, tmp_path):
@@ -68,12 +95,12 @@ def test_refinement_changes_scene_only_with_side_info(encoded, tmp_path):
 
 def test_residual_without_record_is_refused(encoded, tmp_path):
     _, out, _ = encoded
-    c = container.read(out)
-    views = c.header["side_info"]["views"]
+    header, chunks = as_format_1_0(container.read(out))
+    views = header["side_info"]["views"]
     k = next(i for i, v in enumerate(views) if "residual" in v)
     del views[k]["residual"]
     bad = tmp_path / "bad.gspc"
-    container.write(bad, c.header, c.chunks)
+    container.write(bad, header, chunks)
     dst = tmp_path / "o.ply"
     with pytest.raises(CodecError, match=f"view {k}"):
         decode(bad, dst)
@@ -87,12 +114,12 @@ def test_encoder_check_keeps_side_info_only_if_refinement_pays(tmp_path):
     rep = encode(src, out, opts=EncodeOptions(lam=40, synth_views=6, max_side=40, check_iterations=20))
     before, after, alt = (float(x.rsplit(" ", 1)[-1]) for x in nums_text(rep.info["check"]))
     c = container.read(out)
-    n_res = sum(1 for ch in c.chunks if ch.type == "RESI")
+    views, images = side_views(c.header["side_info"], c.chunks)
     assert c.header["side_info"]["refine_iterations"] == 20
     if after >= max(before, alt) + EncodeOptions().check_margin_db:
-        assert n_res >= 1 and "side info" not in rep.info
+        assert len(images) >= 1 and "side info" not in rep.info
     else:
-        assert n_res == 0 and c.header["side_info"]["views"] == []
+        assert not images and not views and c.find("SIDE", 0) is None
         assert "instead" in rep.info["side info"] or "dropped" in rep.info["side info"]
 
 

@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import msgpack
+import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "spec" / "vectors"
@@ -148,7 +149,27 @@ CAMERAS = [
     }
     for i in range(2)
 ]
-REGISTRY = ["POSN", "OPAC", "SCAL", "ROTN", "SHDC", "SHRS", "RESI"]
+REGISTRY = ["POSN", "OPAC", "SCAL", "ROTN", "SHDC", "SHRS", "RESI"]  # the 1.0 types
+
+
+def side_payload() -> bytes:
+    """A SIDE payload (spec 10.9) for CAMERAS: view 1 carries a half-resolution 8-bit residual of 5 bytes."""
+    from gspc.cameras import Camera
+    from gspc.codec.sideinfo import pack_side
+
+    views = [
+        {"camera": Camera(np.array(c["world_to_cam"]), np.array(c["K"]), 64, 48).to_dict()} for c in CAMERAS
+    ]
+    views[1]["residual"] = {
+        "codec": "jxl",
+        "shape": [24, 32],
+        "bits": 8,
+        "gain": 64.0,
+        "offset": 128,
+        "scale": 2,
+        "full_shape": [48, 64],
+    }
+    return pack_side(views, {1: b"image"})
 
 
 def valid_vectors() -> list[Vector]:
@@ -168,6 +189,16 @@ def valid_vectors() -> list[Vector]:
             chunks = [(entry(t, data), data)]
             desc = f"one {t} chunk of {len(data)} bytes (padded to a multiple of 8)"
         vs.append(valid(f"valid_chunk_{t}", desc, {"codec": {"id": "test", "version": 1}}, chunks))
+    side = side_payload()
+    vs.append(
+        valid(
+            "valid_chunk_SIDE",
+            f"version 1.1: one SIDE chunk of {len(side)} bytes, two views (spec 10.9), one with a residual",
+            {"side_info": {"background": [1.0, 1.0, 1.0], "restorer": "none"}},
+            [(entry("SIDE", side), side)],
+            minor=1,
+        )
+    )
     full_meta = {
         "scene": {"count": 1000, "sh_degree": 3, "bbox": [[-1.5, -1.0, -0.5], [1.5, 1.0, 0.5]]},
         "codec": {

@@ -21,7 +21,7 @@ from gspc.errors import FormatError, InputError
 
 MAGIC = b"\x89GSPC\r\n\x1a"
 END_MARKER = b"GEND"
-VERSION = (1, 0)  # what this module writes; it reads every 1.x
+VERSION = (1, 1)  # what this module writes; it reads every 1.x
 PREAMBLE = struct.Struct("<8sHHII")  # magic, major, minor, header_length, header_crc
 TRAILER = struct.Struct("<4sI")  # end marker, file_crc
 ALIGN = 8
@@ -33,8 +33,8 @@ MAX_CHUNK_LENGTH = (1 << 48) - 1
 MAX_U32 = (1 << 32) - 1
 MAX_DEPTH = 32
 
-# The chunk types of gspc 1.0 (spec section "Chunk type registry"). Payload formats belong to the codecs.
-KNOWN_TYPES = frozenset({"POSN", "OPAC", "SCAL", "ROTN", "SHDC", "SHRS", "RESI"})
+# The chunk types of gspc 1.1 (spec section "Chunk type registry"). Payload formats belong to the codecs.
+KNOWN_TYPES = frozenset({"POSN", "OPAC", "SCAL", "ROTN", "SHDC", "SHRS", "RESI", "SIDE"})
 
 _TYPE_CHARS = frozenset(b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789")
 _ENTRY_KEYS = ("type", "flags", "index", "length", "crc")
@@ -172,7 +172,7 @@ def _check_value(obj: Any, path: str) -> None:
 
 
 def pack(header: dict, chunks: list[Chunk]) -> bytes:
-    """The bytes of a gspc 1.0 file holding `header` (the codecs' metadata) and `chunks`, in that order."""
+    """The bytes of a gspc file (format VERSION) holding `header` (the codecs' metadata) and `chunks`."""
     if not isinstance(header, dict):
         raise ValueError(f"header must be a dict, not {type(header).__name__}")
     _check_value({"meta": header}, "header")
