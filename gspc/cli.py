@@ -108,8 +108,10 @@ def encode(
     side_info: bool = typer.Option(True, help="store residual side information"),
     keep_invisible: bool = typer.Option(False, help="keep Gaussians no view sees"),
     restorer: str = typer.Option("none", help="restorer the decoder should use (see gspc/restore/weights)"),
-    check_iterations: int = typer.Option(
-        300, help="refinement iterations the encoder runs to check that side information pays (0: no check)"
+    check_iterations: int | None = typer.Option(
+        None,
+        help="refinement iterations the encoder runs to check that side information pays, and the decoder's "
+        "default (default: the preset's, low 1000, high 300; 0: no check)",
     ),
     background: tuple[float, float, float] = typer.Option(
         (0.0, 0.0, 0.0), help="render background RGB in [0, 1] (1 1 1 for scenes trained on white)"

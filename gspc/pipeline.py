@@ -56,7 +56,7 @@ class EncodeOptions:
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
     # The encoder runs the decoder's refinement for this many iterations and keeps the side information
     # only if it improves views that carry none (0: no check, keep it).
-    check_iterations: int = 300
+    check_iterations: int | None = None  # None: the preset's refine_iterations; 0: no check
     check_views: int = 8
     # Side information must beat its rivals by this much at the check views: a tie within the noise of
     # 8 sampled views lost 0.25 dB at 13 others on the lego fit (bench/pipeline_equal_bytes.md).
@@ -159,7 +159,11 @@ def encode(
     views = sample_views(cameras, opts.views_fraction) if opts.side_info else []
     view_records: list[dict] = []
     res_chunks: dict[int, bytes] = {}
-    refine_iterations = DEFAULT_ITERATIONS
+    preset_iterations = quality_preset(opts.quality).refine_iterations
+    check_iterations = preset_iterations if opts.check_iterations is None else opts.check_iterations
+    if check_iterations < 0:
+        raise InputError(f"--check-iterations must be >= 0, got {check_iterations}")
+    refine_iterations = check_iterations or preset_iterations  # unchecked files name the preset's
     if views:
         # Round-trip through the stored form so the encoder renders exactly the cameras the decoder reads.
         view_cams = [Camera.from_dict(cameras[i].to_dict()) for i in views]
@@ -182,7 +186,7 @@ def encode(
                 view_records.append(record)
         if not res_chunks:
             view_records = []  # nothing to correct anywhere: cameras alone would be dead weight
-        if res_chunks and opts.check_iterations > 0:
+        if res_chunks and check_iterations > 0:
             with rep.timed("check"):
                 sent = set(views)
                 others = [c for i, c in enumerate(cameras) if i not in sent] or view_cams
@@ -191,7 +195,7 @@ def encode(
                 reference = render_images(scene, check_cams, opts.background)
                 before = _mean_psnr(render_images(enc.decoded, check_cams, opts.background), reference)
                 targets = restored_targets(coded, view_records, res_chunks, restorer)
-                refined = _refined(enc.decoded, view_cams, targets, opts, progress)
+                refined = _refined(enc.decoded, view_cams, targets, refine_iterations, opts, progress)
                 after = _mean_psnr(render_images(refined, check_cams, opts.background), reference)
                 # The fair rival: the same total bytes spent on attributes alone.
                 extra = len(pack_side(view_records, res_chunks)) + CHUNK_ENTRY_BYTES
@@ -201,7 +205,6 @@ def encode(
                 f"at {len(check_cams)} unsent views: coded {before:.2f} dB, refined {after:.2f} dB, "
                 f"same bytes on attributes {alt_psnr:.2f} dB"
             )
-            refine_iterations = opts.check_iterations
             if after < max(before, alt_psnr) + opts.check_margin_db:
                 # Side information does not pay for its bytes: send none (the decoder will not refine), and
                 # spend the bytes on attributes when that measured better.
@@ -254,11 +257,11 @@ def _mean_psnr(a: list[torch.Tensor], b: list[torch.Tensor]) -> float:
     return float(np.mean([float(psnr(quantize8(x), quantize8(y))) for x, y in zip(a, b)]))
 
 
-def _refined(decoded, view_cams, targets, opts: EncodeOptions, progress) -> GaussianScene:
+def _refined(decoded, view_cams, targets, iterations: int, opts: EncodeOptions, progress) -> GaussianScene:
     """The decoder's refinement as the encoder predicts it (same targets, same iterations)."""
     bg = torch.tensor(opts.background, dtype=decoded.means.dtype)
-    cb = (lambda i, loss: progress("check refine", i + 1, opts.check_iterations)) if progress else None
-    return refine(decoded, view_cams, targets, iterations=opts.check_iterations, background=bg, progress=cb)
+    cb = (lambda i, loss: progress("check refine", i + 1, iterations)) if progress else None
+    return refine(decoded, view_cams, targets, iterations=iterations, background=bg, progress=cb)
 
 
 def _byte_budget(path: Path) -> dict[str, int]:
@@ -323,6 +326,7 @@ def decode(
         if opts.refine and iterations > 0 and not has_residual:
             rep.info["refine"] = "skipped (no view carries a residual)"
         if opts.refine and iterations > 0 and has_residual:
+            rep.info["refine"] = f"{iterations} iterations"
             with rep.timed("refine"):
                 cb = (lambda i, loss: progress("refine", i + 1, iterations)) if progress else None
                 bg = torch.tensor(background, dtype=scene.means.dtype, device=device)

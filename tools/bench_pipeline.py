@@ -97,16 +97,17 @@ def run_point(
     quality="low",
     lam=None,
     side_info=True,
-    iterations=300,
+    iterations=None,
     restorer="none",
     restore=True,
     refine=True,
+    check=True,
     tag="",
 ) -> dict:
     cams_file = tmp / f"{s.name.split()[0]}_train_cameras.json"
     if not cams_file.exists():
         save_cameras_json(s.train_cams, cams_file)
-    gfile = tmp / f"{s.name.split()[0]}_{quality}_{lam}_{side_info}.gspc"
+    gfile = tmp / f"{s.name.split()[0]}_{quality}_{lam}_{side_info}_{check}.gspc"
     max_side = max(max(c.width, c.height) for c in s.train_cams)
     t0 = time.perf_counter()
     if not gfile.exists():
@@ -115,7 +116,12 @@ def run_point(
             gfile,
             cams_file,
             EncodeOptions(
-                quality=quality, lam=lam, side_info=side_info, max_side=max_side, background=s.background
+                quality=quality,
+                lam=lam,
+                side_info=side_info,
+                max_side=max_side,
+                background=s.background,
+                check_iterations=None if check else 0,
             ),
         )
     enc_s = time.perf_counter() - t0
@@ -133,7 +139,8 @@ def run_point(
         n=rep.num_gaussians_out,
         encode_s=enc_s,
         decode_s=dec_s,
-        side=sum(v for k, v in rep.bytes.items() if k == "RESI"),
+        side=sum(v for k, v in rep.bytes.items() if k in ("RESI", "SIDE")),
+        refine=rep.info.get("refine", "none"),
     )
     return res
 
@@ -166,6 +173,7 @@ def bench_scene(
 ) -> None:
     scene = read_scene(s.scene_path)
     n_in = scene.num_gaussians
+    its_text = "the file's iterations" if iterations is None else f"{iterations} iterations"
     ref = render_images(scene, s.eval_cams, s.background)
     photos = s.photos is not None
     print(
@@ -195,40 +203,68 @@ def bench_scene(
         r = run_point(s, tmp, ref, quality=q, refine=False, restore=False, tag=f"{q}_plain")
         lines.append(fmt_row(f"{q}: G~ only", r, n_in, photos))
         r = run_point(s, tmp, ref, quality=q, iterations=iterations, tag=f"{q}_none")
-        lines.append(fmt_row(f"{q}: G~ refined on I~ + R~ ({iterations} it)", r, n_in, photos))
+        lines.append(fmt_row(f"{q}: G~ refined on I~ + R~ (refine: {r['refine']})", r, n_in, photos))
         for name in restorers:
             r = run_point(s, tmp, ref, quality=q, iterations=iterations, restorer=name, tag=f"{q}_{name}")
-            lines.append(fmt_row(f"{q}: G~ refined on restorer '{name}' ({iterations} it)", r, n_in, photos))
+            lines.append(
+                fmt_row(f"{q}: G~ refined on restorer '{name}' (refine: {r['refine']})", r, n_in, photos)
+            )
         print("\n".join(lines[-2 - len(restorers) :]), flush=True)
     lines.append("")
 
     if lams:
         lines += [
             "Rate-distortion at equal total bytes (PSNR vs the original's renders): the attribute codec "
-            "alone at each lambda, and gspc (same lambda, + side information, refined "
-            f"{iterations} it on I~ + R~). Gain = gspc minus the codec-alone curve interpolated (in log "
-            "bytes) at gspc's total bytes.",
+            "alone at each lambda, and gspc at the same lambda with the low preset's side information "
+            f"(the encoder's check decides whether it is sent; decode: {its_text}). Gain = PSNR minus the "
+            "codec-alone curve interpolated (in log bytes) at the same total bytes.",
             "",
-            "| lambda | codec bytes | codec PSNR | gspc bytes (side info) | gspc PSNR | gain, equal bytes |",
-            "|---|---|---|---|---|---|",
+            "Columns 'side info always' show the side-information path with the check off (what the check "
+            "weighed); where the check kept side information they equal gspc's.",
+            "",
+            "| lambda | codec bytes | codec PSNR | side info always: bytes (side info) | PSNR | gain "
+            "| gspc bytes (side info) | gspc PSNR | gain, equal bytes | gspc encode s | gspc decode s |",
+            "|---|---|---|---|---|---|---|---|---|---|---|",
         ]
-        base, full = [], []
+        base, full, forced = [], [], []
         for lam in lams:
             b = run_point(s, tmp, ref, lam=lam, side_info=False, refine=False, restore=False, tag=f"b{lam}")
             f = run_point(s, tmp, ref, lam=lam, iterations=iterations, tag=f"f{lam}")
+            a = (
+                f
+                if f["side"]
+                else run_point(s, tmp, ref, lam=lam, iterations=iterations, check=False, tag="a")
+            )
             base.append((b["bytes"], b["psnr"]))
-            full.append((f["bytes"], f["psnr"], f["side"]))
+            full.append((f["bytes"], f["psnr"], f["side"], f["encode_s"], f["decode_s"]))
+            forced.append((a["bytes"], a["psnr"], a["side"]))
+            print(
+                f"lambda {lam}: codec {b['bytes']} {b['psnr']:.2f}, gspc {f['bytes']} {f['psnr']:.2f}, "
+                f"forced {a['bytes']} {a['psnr']:.2f}",
+                flush=True,
+            )
         bx = np.log([p[0] for p in base])
         by = np.array([p[1] for p in base])
         order = np.argsort(bx)
-        for lam, (bb, bp), (fb, fp, side) in zip(lams, base, full):
-            lo, hi = bx[order][0], bx[order][-1]
-            x = np.log(fb)
-            gain = fp - float(np.interp(x, bx[order], by[order])) if lo <= x <= hi else float("nan")
-            g = f"{gain:+.2f} dB" if np.isfinite(gain) else "outside the codec's range"
-            lines.append(f"| {lam} | {bb:,} | {bp:.2f} | {fb:,} ({side:,}) | {fp:.2f} | {g} |")
+        lo, hi = bx[order][0], bx[order][-1]
+
+        def gain(nbytes: int, p: float) -> str:
+            x = np.log(nbytes)
+            if not lo <= x <= hi:
+                return "outside the codec's range"
+            return f"{p - float(np.interp(x, bx[order], by[order])):+.2f} dB"
+
+        for lam, (bb, bp), (fb, fp, side, es, ds), (ab, ap, aside) in zip(lams, base, full, forced):
+            lines.append(
+                f"| {lam} | {bb:,} | {bp:.2f} | {ab:,} ({aside:,}) | {ap:.2f} | {gain(ab, ap)} "
+                f"| {fb:,} ({side:,}) | {fp:.2f} | {gain(fb, fp)} | {es:.0f} | {ds:.0f} |"
+            )
         lines.append("")
-        curves[s.name] = {"codec alone": [(b, p) for b, p in base], "gspc": [(b, p) for b, p, _ in full]}
+        curves[s.name] = {
+            "codec alone": [(b, p) for b, p in base],
+            "side info always": [(b, p) for b, p, _ in forced],
+            "gspc": [(b, p) for b, p, *_ in full],
+        }
 
     if sweep:
         lines += [
@@ -270,7 +306,7 @@ def main(
     lego: list[Path] = typer.Option([], help="lego fit folders (tools/fit_scene.py output)"),
     donut: bool = typer.Option(True, help="include ../shared/data/donut/fused.ply"),
     statues: list[str] = typer.Option(["massa"], help="statue names from ../shared/data/statues"),
-    iterations: int = typer.Option(300, help="refinement iterations of the main rows"),
+    iterations: int | None = typer.Option(None, help="decode iterations (default: the file's)"),
     sweep: str = typer.Option(
         "0,100,300,1000,3000", help="decode iterations for the speed table ('' to skip)"
     ),
