@@ -126,3 +126,13 @@ def test_encoder_check_keeps_side_info_only_if_refinement_pays(tmp_path):
 def nums_text(check: str) -> list[str]:
     """'at N unsent views: coded A dB, refined B dB, same bytes on attributes C dB' -> the three numbers."""
     return [part.strip().removesuffix(" dB") for part in check.split(": ", 1)[1].split(",")]
+
+
+def test_long_check_runs_a_short_one_first(tmp_path):
+    src = tmp_path / "in.ply"
+    write_ply(scene(seed=5), src)
+    out = tmp_path / "c.gspc"
+    rep = encode(src, out, opts=EncodeOptions(lam=40, synth_views=5, max_side=32, check_iterations=500))
+    assert "check" in rep.info and container.read(out).header["side_info"]["refine_iterations"] == 500
+    if "short check" in rep.info:  # refinement hurt after 50 iterations: the long run was skipped
+        assert "50 iterations" in rep.info["short check"] and "side info" in rep.info

@@ -19,7 +19,15 @@ from gspc.scene import make_scene
 TOOLS = Path(__file__).resolve().parents[1] / "tools"
 sys.path.insert(0, str(TOOLS))
 
-from make_restorer_data import make_data, parse_rates, parse_scene, side_info_from_npz  # noqa: E402
+from make_restorer_data import (  # noqa: E402
+    make_data,
+    parse_rates,
+    parse_scene,
+    side_info_from_npz,
+    side_info_symbols,
+)
+
+from gspc.codec import residuals  # noqa: E402
 
 
 def _tiny_scene(path: Path, seed: int) -> None:
@@ -73,6 +81,11 @@ def test_data_files_mirror_the_encoder(data_dir):
         assert z["degraded"].shape == (40, 40, 3)
         assert z["degraded"].min() >= 0 and z["degraded"].max() <= 1  # clamped renders
         assert len(z["distances"]) == 2
+        assert int(z["scale_1"]) == e["scale"] == 2  # the low preset's half-resolution residuals
+        assert side_info_from_npz(z, 1).shape == (40, 40, 3)
+    # At full resolution (12:6) R~ is closer to R than zero is.
+    e = next(e for e in doc["entries"] if e["rate"] == "lam12_d6")
+    with np.load(data_dir / e["file"]) as z:
         r, rt = z["residual"].astype(np.float32), side_info_from_npz(z, 1)
         assert np.abs(rt).max() > 0 and np.abs(rt - r).mean() < np.abs(r).mean() + 1e-6
     # Resuming regenerates nothing: files keep their modification times.
@@ -80,6 +93,18 @@ def test_data_files_mirror_the_encoder(data_dir):
     specs = [parse_scene(s["path"] + ",views=4") for s in doc["settings"]["scenes"][:1]]
     make_data(data_dir, specs, parse_rates("low,12:6"), [2.0], max_side=40)
     assert all(p.stat().st_mtime_ns == t for p, t in before.items())
+
+
+@pytest.mark.parametrize("scale", [1, 2, 3])
+def test_stored_side_info_is_what_the_decoder_gets(scale):
+    r = np.random.default_rng(scale).normal(0, 0.05, (37, 29, 3)).astype(np.float32)
+    sym = side_info_symbols(r, 4.0, scale=scale)
+    z = {"residual": r, "q_0": sym["q"], "gain_0": sym["gain"], "offset_0": sym["offset"]}
+    if scale != 1:
+        z["scale_0"] = sym["scale"]
+    payload, meta = residuals.encode_residual(r, {"level": 4.0, "scale": scale})
+    assert np.array_equal(side_info_from_npz(z, 0), residuals.decode_residual(payload, meta))
+    assert parse_rates("low,12:8:2")[1].scale == 2 and parse_rates("low")[0].scale >= 1
 
 
 def test_train_resume_ship_and_ddp(data_dir, tmp_path):

@@ -314,6 +314,9 @@ def main(
     lams: str = typer.Option("3,6,12,24", help="lambdas of the rate-distortion comparison ('' to skip)"),
     rd_scenes: int = typer.Option(2, help="how many scenes (in order) get the rate-distortion comparison"),
     out: Path = typer.Option(Path("bench/pipeline.md")),
+    append: bool = typer.Option(
+        False, help="add these scenes to an existing OUT (scenes benched in two runs)"
+    ),
 ) -> None:
     torch.set_num_threads(1)
     setups = [lego_setup(p) for p in lego]
@@ -336,6 +339,14 @@ def main(
         "Bytes are whole .gspc files (attributes + side information + header); 'original' is the input file.",
         "",
     ]
+    png = f"{out.stem}_rd.png"
+    if append and out.is_file():
+        lines = out.read_text().rstrip("\n").split("\n") + [
+            "",
+            f"Appended by: `python {' '.join(sys.argv)}`",
+            "",
+        ]
+        png = f"{out.stem}_rd_more.png"
     curves: dict = {}
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as d:
@@ -351,10 +362,10 @@ def main(
                 curves,
             )
             out.write_text("\n".join(lines) + "\n")
-    lines.append(f"Total benchmark time: {time.perf_counter() - t0:.0f} s.")
+    lines.append(f"Benchmark time (this run): {time.perf_counter() - t0:.0f} s.")
     if curves:
-        plot(curves, out.with_name(out.stem + "_rd.png"))
-        lines += ["", f"![rate-distortion]({out.stem}_rd.png)"]
+        plot(curves, out.with_name(png))
+        lines += ["", f"![rate-distortion]({png})"]
     out.write_text("\n".join(lines) + "\n")
     print(f"wrote {out}")
 

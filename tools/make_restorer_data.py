@@ -9,7 +9,8 @@ For every scene and rate point (attribute lambda, base JPEG XL distance) the enc
 replayed exactly as gspc.pipeline.encode runs it: cameras (loaded, or synthesised as the encoder
 does), shrunk to at most 400 px, visibility mask, encode_attributes -> G~, clamped renders I and
 I~ on the scene's background, R = clamp(I) - clamp(I~), per-view distances from
-plan_residual_rates, residuals coded and decoded with encode_residual/decode_residual.
+plan_residual_rates, residuals coded (at the rate point's residual scale) and decoded with
+encode_residual/decode_residual.
 Each (scene, rate, view) becomes one ``.npz``: ``degraded`` (I~, float16), ``residual`` (R,
 float16) and the decoded side information R~ for the planned distance and a grid of further
 distances, stored losslessly as the codec's 8-bit symbols ``q_<k>`` with ``gain_<k>``/``offset_<k>``
@@ -67,6 +68,7 @@ class RatePoint:
     name: str
     lam: float
     distance: float  # base JPEG XL distance handed to plan_residual_rates
+    scale: int = 1  # residuals coded at 1/scale resolution, as the preset's residual_scale
 
 
 def _save_npz_atomic(path: Path, arrays: dict[str, np.ndarray]) -> None:
@@ -105,41 +107,52 @@ def parse_scene(spec: str) -> SceneSpec:
 
 
 def parse_rates(text: str) -> list[RatePoint]:
-    """``low,high,3:3`` -> rate points: preset names, or ``lambda:distance`` pairs."""
+    """``low,high,3:3,12:8:2`` -> rate points: preset names, or ``lambda:distance[:scale]``."""
     out = []
     for item in text.split(","):
         if item in QUALITY:
             q = QUALITY[item]
-            out.append(RatePoint(item, float(q.attributes.lam), float(q.residual_level)))
-        else:
-            lam, sep, dist = item.partition(":")
-            if not sep:
-                raise InputError(f"rate point {item!r} is neither a preset nor lambda:distance")
-            out.append(RatePoint(f"lam{float(lam):g}_d{float(dist):g}", float(lam), float(dist)))
+            out.append(RatePoint(item, float(q.attributes.lam), float(q.residual_level), q.residual_scale))
+            continue
+        parts = item.split(":")
+        if len(parts) not in (2, 3):
+            raise InputError(f"rate point {item!r} is neither a preset nor lambda:distance[:scale]")
+        lam, dist = float(parts[0]), float(parts[1])
+        scale = int(parts[2]) if len(parts) == 3 else 1
+        name = f"lam{lam:g}_d{dist:g}" + (f"_s{scale}" if scale != 1 else "")
+        out.append(RatePoint(name, lam, dist, scale))
     return out
 
 
-def side_info_symbols(r: np.ndarray, distance: float | None, codec: str = "jxl") -> dict[str, np.ndarray]:
-    """R~ for one residual at one distance, as the codec's symbols plus gain/offset (gain 0: not sent)."""
+def side_info_symbols(
+    r: np.ndarray, distance: float | None, codec: str = "jxl", scale: int = 1
+) -> dict[str, np.ndarray]:
+    """R~ for one residual at one distance, as the codec's symbols (at 1/scale resolution) plus
+    gain/offset/scale (gain 0: not sent)."""
     if distance is None:
         return {"q": np.zeros(r.shape, np.uint8), "gain": np.float32(0.0), "offset": np.float32(0.0)}
-    payload, meta = residuals.encode_residual(r, {"codec": codec, "level": float(distance)})
-    decoded = residuals.decode_residual(payload, meta)
+    payload, meta = residuals.encode_residual(r, {"codec": codec, "level": float(distance), "scale": scale})
+    decoded = residuals.decode_residual(payload, {**meta, "scale": 1})  # the symbols, before upsampling
     gain, offset = np.float32(meta["gain"]), np.float32(meta["offset"])
     # decode_residual returns (q - offset) / gain in float32; q comes back exactly by rounding.
     q = np.rint(decoded * gain + offset)
     if meta["bits"] != 8 or q.min() < 0 or q.max() > 255:
         raise GspcError("restorer data expects 8-bit residual symbols")
-    return {"q": q.astype(np.uint8), "gain": gain, "offset": offset, "bytes": np.int64(len(payload))}
+    out = {"q": q.astype(np.uint8), "gain": gain, "offset": offset, "bytes": np.int64(len(payload))}
+    if scale != 1:
+        out["scale"] = np.int64(scale)
+    return out
 
 
 def side_info_from_npz(data, k: int) -> np.ndarray:
     """Decoded R~ number ``k`` of a stored view (float32, exactly as decode_residual gives it)."""
     gain = np.float32(data[f"gain_{k}"])
-    q = data[f"q_{k}"]
+    h, w = data["residual"].shape[:2]
     if gain == 0:
-        return np.zeros(q.shape, np.float32)
-    return ((q.astype(np.float32) - np.float32(data[f"offset_{k}"])) / gain).astype(np.float32)
+        return np.zeros((h, w, 3), np.float32)
+    r = ((data[f"q_{k}"].astype(np.float32) - np.float32(data[f"offset_{k}"])) / gain).astype(np.float32)
+    scale = int(data[f"scale_{k}"]) if f"scale_{k}" in data else 1
+    return residuals.upsample(r, scale, h, w) if scale != 1 else r
 
 
 def scene_cameras(spec: SceneSpec, scene, max_side: int) -> tuple[list, list]:
@@ -187,13 +200,15 @@ def make_scene_rate(
             arrays = {"degraded": degr[i].astype(np.float16), "residual": res[i].astype(np.float16)}
             grid = [plan[i], *distances]
             for k, d in enumerate(grid):
-                sym = side_info_symbols(res[i], d)
+                sym = side_info_symbols(res[i], d, scale=rate.scale)
                 arrays[f"q_{k}"], arrays[f"gain_{k}"], arrays[f"offset_{k}"] = (
                     sym["q"],
                     sym["gain"],
                     sym["offset"],
                 )
                 arrays[f"bytes_{k}"] = sym.get("bytes", np.int64(0))
+                if "scale" in sym:
+                    arrays[f"scale_{k}"] = sym["scale"]
             arrays["distances"] = np.array([-1.0 if d is None else d for d in grid], np.float32)
             _save_npz_atomic(files[i], arrays)
             progress(f"{spec.name}/{rate.name} code", i + 1, len(cams))
@@ -209,6 +224,7 @@ def make_scene_rate(
                 "rate": rate.name,
                 "lam": rate.lam,
                 "base_distance": rate.distance,
+                "scale": rate.scale,
                 "view": i,
                 "camera": cam.name,
                 "height": cam.height,
@@ -273,7 +289,7 @@ def main(
     scene: list[str] = typer.Option(
         ..., "--scene", help="PATH[,name=..,cameras=..,bg=..,split=val,views=..]"
     ),
-    rates: str = typer.Option(DEFAULT_RATES, help="rate points: preset names or lambda:distance"),
+    rates: str = typer.Option(DEFAULT_RATES, help="rate points: preset names or lambda:distance[:scale]"),
     distances: str = typer.Option(DEFAULT_DISTANCES, help="extra JPEG XL distances stored per view"),
     max_side: int = typer.Option(EncodeOptions.max_side, help="views are shrunk to at most this many px"),
     quiet: bool = typer.Option(False, help="no progress bar"),
