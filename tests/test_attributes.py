@@ -158,3 +158,25 @@ def test_det_log_matches_log():
 
     x = np.concatenate([np.linspace(1e-6, 1, 10001), np.geomspace(1e-300, 1e300, 200)])
     assert np.allclose(det_log(x), np.log(x), rtol=1e-15, atol=1e-12)
+
+
+def test_geometry_steps_grow_as_sqrt_lambda_beyond_the_knee():
+    assert CodecParams(lam=8.0).geometry_lam == 8.0 and CodecParams(lam=4.0).geometry_lam == 4.0
+    assert CodecParams(lam=128.0).geometry_lam == pytest.approx(32.0)
+    assert CodecParams(lam=8.0001).geometry_lam == pytest.approx(8.0, abs=1e-3)  # continuous at the knee
+    # At a very coarse rate the log-scale error stays within half a (sqrt-grown) step: no inflated Gaussians.
+    rng = np.random.default_rng(3)
+    n = 500
+    scene = make_scene(
+        means=rng.uniform(-1, 1, (n, 3)),
+        quats=rng.normal(size=(n, 4)),
+        log_scales=rng.uniform(-4, 0, (n, 3)),
+        opacities=rng.uniform(0, 4, n),
+        sh_dc=rng.normal(0, 1, (n, 3)),
+        sh_rest=np.zeros((n, 0, 3)),
+    )
+    enc = encode_attributes(scene, CodecParams(lam=128.0))
+    assert enc.meta["scale_step"] == pytest.approx(0.021 * 32)
+    dec = enc.decoded
+    err = np.abs(np.sort(dec.log_scales.numpy().ravel()) - np.sort(scene.log_scales.numpy().ravel())).max()
+    assert err <= enc.meta["scale_step"] / 2 + 1e-5

@@ -173,8 +173,8 @@ def encode_attributes(
     opacity_levels = max(1, int(round(1.0 / (params.opacity_step * lam))))
     # Even levels make a zero component exact: axis-aligned Gaussians are common and odd levels cost
     # them half a step of rotation error (lego: +1.2 dB at equal bytes).
-    rot_levels = 2 * max(1, int(math.ceil(SQRT_HALF / (params.rotation_step * lam))))
-    scale_step = float(params.scale_step * lam)
+    rot_levels = 2 * max(1, int(math.ceil(SQRT_HALF / (params.rotation_step * params.geometry_lam))))
+    scale_step = float(params.scale_step * params.geometry_lam)
     dc_step = float(params.dc_step * lam)
     sh_steps = _sh_steps(params, scene.sh_degree)
     meta = {

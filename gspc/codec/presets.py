@@ -1,7 +1,8 @@
 """Codec parameters and the named rate points (like CompressAI's zoo table: one place, versioned).
 
-Every quantisation step is ``base_step * lam``: ``lam`` is the one continuous rate knob (larger is
-smaller and coarser). Position bits follow ``lam`` unless set: 14 at lam = 1, one bit less per
+Every quantisation step is ``base_step * lam`` (scales and rotations: ``geometry_lam`` beyond lam 8, SH
+rest: ``lam ** sh_lam_exponent``): ``lam`` is the one continuous rate knob (larger is smaller and coarser).
+Position bits follow ``lam`` unless set: 14 at lam = 1, one bit less per
 doubling of lam, within 11..16. The base steps and the bit schedule first equalised the marginal dB
 per byte of every group on donut (lam = 2, 6 views at 192 px); they were then retuned at the lego fit's
 SPZ-equal point (~40 dB, lam ~ 7): one bit fewer for positions, scale/rotation/DC steps x1.2-1.25
@@ -37,6 +38,19 @@ class CodecParams:
     # R-D choice): on the lego fit 40% of Gaussians are under 0.05 opaque and their view-dependent
     # colour is invisible, yet it cost a third of the SH rest bytes.
     sh_faint_alpha: float = 0.02
+    # Beyond lam = geometry_knee, scale and rotation steps grow as sqrt(lam) instead of lam: a log-scale
+    # step of 0.021 * lam inflates large Gaussians until the scene collapses (donut, lam 64: 22.8 dB, with
+    # exact scales 36.3). Measured at equal bytes: donut +0.7 dB at lam 12 to +2.4 at lam 64; the lego fit,
+    # which tolerates coarse geometry, -0.05 dB at lam 12-16 and -0.2 at lam 32-64.
+    geometry_knee: float = 8.0
+    geometry_lam_exponent: float = 0.5
+
+    @property
+    def geometry_lam(self) -> float:
+        """The multiplier of the scale and rotation base steps (``lam`` up to the knee)."""
+        if self.lam <= self.geometry_knee:
+            return self.lam
+        return self.geometry_knee * (self.lam / self.geometry_knee) ** self.geometry_lam_exponent
 
     @property
     def effective_position_bits(self) -> int:
