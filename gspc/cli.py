@@ -17,6 +17,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 from gspc.errors import GspcError
+from gspc.pipeline import DEFAULT_RESTORER
 
 app = typer.Typer(
     add_completion=False, no_args_is_help=True, help="gspc: a codec for 3D Gaussian Splatting scenes."
@@ -107,7 +108,9 @@ def encode(
     max_side: int = typer.Option(400, help="longest side of the side-information views, in pixels"),
     side_info: bool = typer.Option(True, help="store residual side information"),
     keep_invisible: bool = typer.Option(False, help="keep Gaussians no view sees"),
-    restorer: str = typer.Option("none", help="restorer the decoder should use (see gspc/restore/weights)"),
+    restorer: str = typer.Option(
+        DEFAULT_RESTORER, help="restorer the decoder should use ('none': I~ + R~; see gspc/restore/weights)"
+    ),
     check_iterations: int | None = typer.Option(
         None,
         help="refinement iterations the encoder runs to check that side information pays, and the decoder's "

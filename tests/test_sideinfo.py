@@ -128,14 +128,8 @@ def test_conformance_vector_payload():
     assert c.version == (1, 1)
     views, images = unpack_side(c.find("SIDE", 0).payload)
     assert len(views) == 2 and images == {1: b"image"} and "residual" not in views[0]
-    assert views[1]["residual"] == {
-        "codec": "jxl",
-        "shape": [24, 32],
-        "bits": 8,
-        "gain": 64.0,
-        "offset": 128,
-        "scale": 2,
-        "full_shape": [48, 64],
-    }
+    r = views[1]["residual"]
+    assert (r["codec"], r["bits"], r["offset"], r["gain"]) == ("jxl", 8, 128, 64.0)
+    assert (r["shape"], r["full_shape"], r["scale"]) == ([24, 32], [48, 64], 2)
     cam = Camera.from_dict(views[1]["camera"])
     assert (cam.width, cam.height) == (64, 48) and cam.world_to_cam[0, 3] == np.float32(0.1)
