@@ -8,5 +8,5 @@ gspc info "$here/lego/point_cloud.ply"
 gspc encode "$here/lego/point_cloud.ply" --cameras "$here/lego/cameras.json" --background 1 1 1 -o "$out/lego.gspc"
 gspc info "$out/lego.gspc"
 gspc decode "$out/lego.gspc" -o "$out/lego_decoded.ply"
-gspc eval "$here/lego/point_cloud.ply" "$out/lego_decoded.ply" --cameras "$here/lego/cameras.json"
+gspc eval "$here/lego/point_cloud.ply" "$out/lego_decoded.ply" --cameras "$here/lego/cameras.json" --background 1 1 1
 echo "outputs in $out"

@@ -287,6 +287,9 @@ def evaluate(
     cameras: Path | None = typer.Option(None, help="camera file; default: synthesised views"),
     views: int = typer.Option(16, help="views to synthesise when no cameras are given"),
     max_side: int = typer.Option(400, help="longest image side in pixels"),
+    background: tuple[float, float, float] = typer.Option(
+        (0.0, 0.0, 0.0), help="render background RGB in [0, 1] (use the one the scene was encoded with)"
+    ),
 ) -> None:
     """PSNR and SSIM of one scene's renders against another's (8-bit, 3DGS convention)."""
     from gspc.io import read_scene
@@ -296,8 +299,8 @@ def evaluate(
     ref, tst = read_scene(reference), read_scene(test)
     cams = _cameras_for(ref, cameras, views, max_side)
     with _progress_bars() as cb:
-        a = render_images(ref, cams, (0.0, 0.0, 0.0), cb, "render reference")
-        b = render_images(tst, cams, (0.0, 0.0, 0.0), cb, "render test")
+        a = render_images(ref, cams, background, cb, "render reference")
+        b = render_images(tst, cams, background, cb, "render test")
     p = sum(float(psnr(quantize8(x), quantize8(y))) for x, y in zip(a, b)) / len(cams)
     s = sum(float(ssim(quantize8(x), quantize8(y))) for x, y in zip(a, b)) / len(cams)
     out.print(f"views: {len(cams)}  PSNR: {p:.3f} dB  SSIM: {s:.4f}")
