@@ -78,6 +78,8 @@ def test_encoder_side_mismatches_are_bugs():
         pack_side(views, {0: b"a", 1: b"b"})
     with pytest.raises(ValueError, match="image"):
         pack_side(views[:1], {})
+    with pytest.raises(ValueError, match="empty"):
+        pack_side(views[:1], {0: b""})
     with pytest.raises(ValueError, match="whole image"):
         pack_side([{"camera": camera(0), "residual": residual_meta(w=20)}], {0: b"a"})
 

@@ -44,6 +44,8 @@ def pack_side(views: list[dict], images: dict[int, bytes]) -> bytes:
         raise ValueError(f"a SIDE chunk holds 1..{MAX_VIEWS} views, got {len(views)}")
     if set(images) != {k for k, v in enumerate(views) if "residual" in v}:
         raise ValueError("every view with a residual record needs an image, and only those")
+    if not all(images.values()):
+        raise ValueError("a residual image is empty (length 0 means 'no residual')")
     metas = [v["residual"] for v in views if "residual" in v]
     first = metas[0] if metas else {"codec": "jxl", "bits": 8}
     codec, bits, scale = first["codec"], int(first["bits"]), int(first.get("scale", 1))
