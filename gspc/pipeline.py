@@ -56,9 +56,10 @@ class EncodeOptions:
     restorer: str = DEFAULT_RESTORER
     keep_invisible: bool = False
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    # The encoder runs the decoder's refinement for this many iterations and keeps the side information
-    # only if it improves views that carry none (0: no check, keep it).
-    check_iterations: int | None = None  # None: the preset's refine_iterations; 0: no check
+    # The encoder runs the decoder's refinement for this many iterations (None: the preset's) and keeps the
+    # side information only if it beats, at views that carry none, the same bytes spent on attributes
+    # (0: no check, keep it).
+    check_iterations: int | None = None
     check_views: int = 8
     # Side information must beat its rivals by this much at the check views: a tie within the noise of
     # 8 sampled views lost 0.25 dB at 13 others on the lego fit (bench/pipeline_equal_bytes.md).
@@ -161,6 +162,7 @@ def encode(
     views = sample_views(cameras, opts.views_fraction) if opts.side_info else []
     view_records: list[dict] = []
     res_chunks: dict[int, bytes] = {}
+    side_payload: bytes | None = None  # the SIDE chunk, when side information is sent
     preset_iterations = quality_preset(opts.quality).refine_iterations
     check_iterations = preset_iterations if opts.check_iterations is None else opts.check_iterations
     if check_iterations < 0:
@@ -186,9 +188,9 @@ def encode(
                     res_chunks[k] = payload
                     record["residual"] = meta
                 view_records.append(record)
-        if not res_chunks:
-            view_records = []  # nothing to correct anywhere: cameras alone would be dead weight
-        if res_chunks and check_iterations > 0:
+        # No residual anywhere: no chunk at all (cameras alone would be dead weight).
+        side_payload = pack_side(view_records, res_chunks) if res_chunks else None
+        if side_payload is not None and check_iterations > 0:
             with rep.timed("check"):
                 sent = set(views)
                 others = [c for i, c in enumerate(cameras) if i not in sent] or view_cams
@@ -210,7 +212,7 @@ def encode(
                     refined = _refined(enc.decoded, view_cams, targets, refine_iterations, opts, progress)
                     after = _mean_psnr(render_images(refined, check_cams, opts.background), reference)
                 # The fair rival: the same total bytes spent on attributes alone.
-                extra = len(pack_side(view_records, res_chunks)) + CHUNK_ENTRY_BYTES
+                extra = len(side_payload) + CHUNK_ENTRY_BYTES
                 alt = search_lambda(scene, enc.num_bytes + extra, params, visible=visible)
                 alt_psnr = _mean_psnr(render_images(alt.decoded, check_cams, opts.background), reference)
             rep.info["check"] = (
@@ -220,7 +222,7 @@ def encode(
             if after < max(before, alt_psnr) + opts.check_margin_db:
                 # Side information does not pay for its bytes: send none (the decoder will not refine), and
                 # spend the bytes on attributes when that measured better.
-                res_chunks, view_records = {}, []
+                side_payload = None
                 if alt_psnr > before:
                     enc = alt
                     chunks = [container.Chunk(n, enc.chunks[n]) for n in ATTRIBUTE_CHUNKS if n in enc.chunks]
@@ -228,8 +230,8 @@ def encode(
                     rep.info["side info"] = "spent on attributes instead (measured better at equal bytes)"
                 else:
                     rep.info["side info"] = "dropped (refinement did not improve unsent views)"
-        if view_records:
-            chunks.append(container.Chunk(SIDE_CHUNK, pack_side(view_records, res_chunks)))
+        if side_payload is not None:
+            chunks.append(container.Chunk(SIDE_CHUNK, side_payload))
 
     header = {
         "encoder": f"gspc {__version__}",
@@ -248,8 +250,9 @@ def encode(
     with rep.timed("write"):
         container.write(out_path, header, chunks)
     rep.bytes = _byte_budget(Path(out_path))
-    rep.info["views"] = len(view_records)
-    rep.info["views with residual"] = sum("residual" in v for v in view_records)
+    stored = view_records if side_payload is not None else []
+    rep.info["views"] = len(stored)
+    rep.info["views with residual"] = sum("residual" in v for v in stored)
     return rep
 
 
