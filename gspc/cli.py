@@ -155,6 +155,7 @@ def decode(
     restorer: str | None = typer.Option(
         None, help="restorer to use (default: the one the file names; 'none')"
     ),
+    cells: bool = typer.Option(True, help="keep refined attributes inside their quantisation cells"),
     device: str = typer.Option("cpu", help="cpu or cuda"),
 ) -> None:
     """Decode a .gspc file into a standard 3DGS PLY."""
@@ -164,7 +165,12 @@ def decode(
     if iterations is not None and iterations < 0:
         raise GspcError(f"--iterations must be >= 0, got {iterations}")
     opts = DecodeOptions(
-        iterations=iterations, restore=restore, refine=refine, restorer=restorer, device=device
+        iterations=iterations,
+        restore=restore,
+        refine=refine,
+        restorer=restorer,
+        device=device,
+        in_cells=cells,
     )
     with _progress_bars() as cb:
         rep = run(source, output, opts, progress=cb)

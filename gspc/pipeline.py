@@ -19,6 +19,7 @@ from gspc import __version__
 from gspc.cameras import Camera, limit_size, load_cameras, sample_views, synthesize_views
 from gspc.codec import container, residuals
 from gspc.codec.attributes import decode_attributes, encode_attributes, search_lambda
+from gspc.codec.cells import quantisation_cells
 from gspc.codec.sideinfo import pack_side, side_views
 from gspc.errors import CodecError, DeviceError, InputError
 from gspc.io import read_scene, write_ply
@@ -75,6 +76,8 @@ class DecodeOptions:
     device: str = "cpu"
     seed: int = 0
     lr_scale: float = 1.0  # multiplies every refinement learning rate
+    # Keep refined attributes inside their quantisation cells (gspc/codec/cells.py).
+    in_cells: bool = True
 
 
 @dataclass
@@ -199,17 +202,15 @@ def encode(
                 reference = render_images(scene, check_cams, opts.background)
                 before = _mean_psnr(render_images(enc.decoded, check_cams, opts.background), reference)
                 targets = restored_targets(coded, view_records, res_chunks, restorer)
-                # A run a tenth as long first: where refinement makes the coded scene worse (near-lossless
-                # scenes, e.g. a statue: 47.4 -> 43.5 dB), the long run is not worth its minutes.
-                short = refine_iterations // 10 if refine_iterations >= 500 else 0
-                after = -np.inf
-                if short:
-                    refined = _refined(enc.decoded, view_cams, targets, short, opts, progress)
-                    after = _mean_psnr(render_images(refined, check_cams, opts.background), reference)
-                    if after < before:
-                        rep.info["short check"] = f"{short} iterations: {after:.2f} dB, worse than coded"
-                if not short or after >= before:
-                    refined = _refined(enc.decoded, view_cams, targets, refine_iterations, opts, progress)
+                # A run a tenth as long first: where refinement makes the coded scene worse, the long run is
+                # not worth its minutes.
+                short = _short_length(refine_iterations)
+                refined = _refined(enc, view_cams, targets, short, opts, progress)
+                after = _mean_psnr(render_images(refined, check_cams, opts.background), reference)
+                if after < before:
+                    rep.info["short check"] = f"{short} iterations: {after:.2f} dB, worse than coded"
+                elif short < refine_iterations:
+                    refined = _refined(enc, view_cams, targets, refine_iterations, opts, progress)
                     after = _mean_psnr(render_images(refined, check_cams, opts.background), reference)
                 # The fair rival: the same total bytes spent on attributes alone.
                 extra = len(side_payload) + CHUNK_ENTRY_BYTES
@@ -272,11 +273,25 @@ def _mean_psnr(a: list[torch.Tensor], b: list[torch.Tensor]) -> float:
     return float(np.mean([float(psnr(quantize8(x), quantize8(y))) for x, y in zip(a, b)]))
 
 
-def _refined(decoded, view_cams, targets, iterations: int, opts: EncodeOptions, progress) -> GaussianScene:
-    """The decoder's refinement as the encoder predicts it (same targets, same iterations)."""
+def _refined(enc, view_cams, targets, iterations: int, opts: EncodeOptions, progress) -> GaussianScene:
+    """The decoder's refinement as the encoder predicts it (same targets, iterations and cells)."""
+    decoded = enc.decoded
     bg = torch.tensor(opts.background, dtype=decoded.means.dtype)
     cb = (lambda i, loss: progress("check refine", i + 1, iterations)) if progress else None
-    return refine(decoded, view_cams, targets, iterations=iterations, background=bg, progress=cb)
+    return refine(
+        decoded,
+        view_cams,
+        targets,
+        iterations=iterations,
+        background=bg,
+        progress=cb,
+        cells=quantisation_cells(decoded, enc.meta),
+    )
+
+
+def _short_length(iterations: int) -> int:
+    """The check's trial runs: a tenth of a long refinement, the whole of a short one."""
+    return iterations // 10 if iterations >= 500 else iterations
 
 
 def _byte_budget(path: Path) -> dict[str, int]:
@@ -285,6 +300,14 @@ def _byte_budget(path: Path) -> dict[str, int]:
     budget.update({k: int(v) for k, v in d["bytes_per_type"].items()})
     budget["header+framing"] = budget["file"] - sum(v for k, v in budget.items() if k != "file")
     return budget
+
+
+def _side_iterations(side: dict) -> int:
+    """The header's optional side_info.refine_iterations (spec: an int >= 0)."""
+    v = side.get("refine_iterations", DEFAULT_ITERATIONS)
+    if not isinstance(v, int) or isinstance(v, bool) or v < 0:
+        raise CodecError(f"the .gspc header's side_info.refine_iterations is {v!r}, not an int >= 0")
+    return v
 
 
 def _check_device(device: str) -> torch.device:
@@ -333,15 +356,11 @@ def decode(
         # With no residual anywhere every target equals the render: the gradients are only round-off, and
         # Adam would turn them into full-size steps (measured: 50.7 -> 41.7 dB on a statue), so skip.
         has_residual = any("residual" in v for v in views) and opts.restore
-        iterations = (
-            opts.iterations
-            if opts.iterations is not None
-            else side.get("refine_iterations", DEFAULT_ITERATIONS)
-        )
+        iterations = opts.iterations if opts.iterations is not None else _side_iterations(side)
         if opts.refine and iterations > 0 and not has_residual:
             rep.info["refine"] = "skipped (no view carries a residual)"
         if opts.refine and iterations > 0 and has_residual:
-            rep.info["refine"] = f"{iterations} iterations"
+            rep.info["refine"] = f"{iterations} iterations" + ("" if opts.in_cells else ", cells off")
             with rep.timed("refine"):
                 cb = (lambda i, loss: progress("refine", i + 1, iterations)) if progress else None
                 bg = torch.tensor(background, dtype=scene.means.dtype, device=device)
@@ -354,6 +373,7 @@ def decode(
                     seed=opts.seed,
                     lr_scale=opts.lr_scale,
                     progress=cb,
+                    cells=quantisation_cells(scene, attr_meta) if opts.in_cells else None,
                 )
     rep.info["restorer"] = restorer_name if opts.restore else "off"
     rep.info["views"] = len(cams)

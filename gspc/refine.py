@@ -14,6 +14,7 @@ import torch
 import torch.nn.functional as F
 
 from gspc.cameras import Camera
+from gspc.codec.cells import project
 from gspc.errors import InputError
 from gspc.scene import ATTRIBUTE_NAMES, GaussianScene
 
@@ -63,12 +64,14 @@ def refine(
     background: torch.Tensor | None = None,
     seed: int = 0,
     progress: Callable[[int, float], None] | None = None,
+    cells: dict[str, tuple[torch.Tensor, torch.Tensor]] | None = None,
 ) -> GaussianScene:
     """Optimise ``attributes`` of ``scene`` so its renders at ``cameras`` match ``targets`` (H, W, 3).
 
     ``resolution_scale`` < 1 renders and compares at reduced size (targets are area-downsampled),
-    the CPU speed knob. ``progress(iteration, loss)`` is called after every step. Returns a new,
-    detached scene; the input is left unchanged.
+    the CPU speed knob. ``progress(iteration, loss)`` is called after every step. ``cells`` (from
+    :func:`gspc.codec.cells.quantisation_cells`) keeps every attribute inside its quantisation cell after
+    each step. Returns a new, detached scene; the input is left unchanged.
     """
     from gspc.metrics import ssim  # imported here: refinement is the only user on the decode path
     from gspc.render import render
@@ -122,6 +125,11 @@ def refine(
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()
+        if cells is not None:
+            with torch.no_grad():
+                for g in opt.param_groups:
+                    if g["name"] in cells:
+                        project(g["name"], g["params"][0], cells[g["name"]])
         if progress is not None:
             progress(it, float(loss.detach()))
     return out.detach()

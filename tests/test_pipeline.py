@@ -3,6 +3,7 @@
 import numpy as np
 import plyfile
 import pytest
+import torch
 from scenes import random_scene
 
 from gspc.codec import container
@@ -136,3 +137,35 @@ def test_long_check_runs_a_short_one_first(tmp_path):
     assert "check" in rep.info and container.read(out).header["side_info"]["refine_iterations"] == 500
     if "short check" in rep.info:  # refinement hurt after 50 iterations: the long run was skipped
         assert "50 iterations" in rep.info["short check"] and "side info" in rep.info
+
+
+def test_decoder_refines_inside_the_quantisation_cells(encoded, tmp_path):
+    from gspc.codec.attributes import decode_attributes
+    from gspc.codec.cells import quantisation_cells
+
+    _, out, _ = encoded
+    c = container.read(out)
+    coded = decode_attributes({ch.type: ch.payload for ch in c.chunks}, c.header["attributes"])
+    cells = quantisation_cells(coded, c.header["attributes"])
+    inside, free = tmp_path / "a.ply", tmp_path / "b.ply"
+    rep = decode(out, inside, DecodeOptions(iterations=5))
+    assert rep.info["refine"] == "5 iterations"
+    decode(out, free, DecodeOptions(iterations=5, in_cells=False))
+    a, b = read_scene(inside), read_scene(free)
+    for name in ("means", "log_scales", "sh_dc"):
+        lo, hi = cells[name]
+        assert ((getattr(a, name) >= lo - 1e-6) & (getattr(a, name) <= hi + 1e-6)).all(), name
+    assert not torch.equal(a.means, b.means)
+
+
+@pytest.mark.parametrize("value", [-1, 2.5, "many", True])
+def test_bad_refine_iterations_are_refused(encoded, tmp_path, value):
+    _, out, _ = encoded
+    c = container.read(out)
+    bad = tmp_path / "bad.gspc"
+    side = {**c.header["side_info"], "refine_iterations": value}
+    container.write(bad, {**c.header, "side_info": side}, c.chunks)
+    dst = tmp_path / "o.ply"
+    with pytest.raises(CodecError, match="refine_iterations"):
+        decode(bad, dst)
+    assert not dst.exists()
