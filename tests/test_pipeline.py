@@ -117,8 +117,13 @@ def test_encoder_check_keeps_side_info_only_if_refinement_pays(tmp_path):
     c = container.read(out)
     views, images = side_views(c.header["side_info"], c.chunks)
     assert c.header["side_info"]["refine_iterations"] == 20
+    # Two resolutions weighed (the preset's 1/2 and 1/4), one refined.
+    choice = rep.info["side info resolution"]
+    assert choice.startswith("1/2: ") and "; 1/4: " in choice
+    chosen = int(choice.rsplit("chose 1/", 1)[1])
     if after >= max(before, alt) + EncodeOptions().check_margin_db:
         assert len(images) >= 1 and "side info" not in rep.info
+        assert all(v["residual"]["scale"] == chosen for v in views if "residual" in v)
     else:
         assert not images and not views and c.find("SIDE", 0) is None
         assert "instead" in rep.info["side info"] or "dropped" in rep.info["side info"]

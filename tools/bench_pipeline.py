@@ -33,6 +33,8 @@ from gspc.cameras import (
     split_test_views,
     synthesize_views,
 )
+from gspc.codec import container
+from gspc.codec.sideinfo import side_views
 from gspc.io import read_scene
 from gspc.metrics import psnr, quantize8, ssim
 from gspc.pipeline import DecodeOptions, EncodeOptions, decode, encode, render_images
@@ -102,6 +104,7 @@ def run_point(
     restore=True,
     refine=True,
     check=True,
+    cells=True,
     tag="",
 ) -> dict:
     cams_file = tmp / f"{s.name.split()[0]}_train_cameras.json"
@@ -130,7 +133,9 @@ def run_point(
     rep = decode(
         gfile,
         out_ply,
-        DecodeOptions(iterations=iterations, restorer=restorer, restore=restore, refine=refine),
+        DecodeOptions(
+            iterations=iterations, restorer=restorer, restore=restore, refine=refine, in_cells=cells
+        ),
     )
     dec_s = time.perf_counter() - t0
     res = score(out_ply, s, ref)
@@ -141,8 +146,17 @@ def run_point(
         decode_s=dec_s,
         side=sum(v for k, v in rep.bytes.items() if k in ("RESI", "SIDE")),
         refine=rep.info.get("refine", "none"),
+        scale=_residual_scale(gfile),
     )
     return res
+
+
+def _residual_scale(path: Path) -> int | None:
+    """The resolution divisor of the file's residuals (None: no side information)."""
+    c = container.read(path)
+    views, _ = side_views(c.header["side_info"], c.chunks)
+    scales = {v["residual"].get("scale", 1) for v in views if "residual" in v}
+    return scales.pop() if len(scales) == 1 else None
 
 
 def fmt_row(label: str, r: dict, n_in: int, photos: bool) -> str:
@@ -204,6 +218,9 @@ def bench_scene(
         lines.append(fmt_row(f"{q}: G~ only", r, n_in, photos))
         r = run_point(s, tmp, ref, quality=q, iterations=iterations, tag=f"{q}_none")
         lines.append(fmt_row(f"{q}: G~ refined on I~ + R~ (refine: {r['refine']})", r, n_in, photos))
+        if q == "low" and r["side"]:  # the quantisation cells' share of the gain
+            r = run_point(s, tmp, ref, quality=q, iterations=iterations, cells=False, tag=f"{q}_free")
+            lines.append(fmt_row(f"{q}: G~ refined on I~ + R~ (refine: {r['refine']})", r, n_in, photos))
         for name in restorers:
             r = run_point(s, tmp, ref, quality=q, iterations=iterations, restorer=name, tag=f"{q}_{name}")
             lines.append(
@@ -219,8 +236,10 @@ def bench_scene(
             f"(the encoder's check decides whether it is sent; decode: {its_text}). Gain = PSNR minus the "
             "codec-alone curve interpolated (in log bytes) at the same total bytes.",
             "",
-            "Columns 'side info always' show the side-information path with the check off (what the check "
-            "weighed); where the check kept side information they equal gspc's.",
+            "Columns 'side info always' show the side-information path with the check off (the preset's "
+            "residuals at 1/2 resolution); where the check kept those they equal gspc's. 1/k: the resolution "
+            "of the residuals gspc sent. The codec-alone curve is also sampled halfway (geometric mean) "
+            "between consecutive lambdas, for the interpolation and the plot.",
             "",
             "| lambda | codec bytes | codec PSNR | side info always: bytes (side info) | PSNR | gain "
             "| gspc bytes (side info) | gspc PSNR | gain, equal bytes | gspc encode s | gspc decode s |",
@@ -236,15 +255,20 @@ def bench_scene(
                 else run_point(s, tmp, ref, lam=lam, iterations=iterations, check=False, tag="a")
             )
             base.append((b["bytes"], b["psnr"]))
-            full.append((f["bytes"], f["psnr"], f["side"], f["encode_s"], f["decode_s"]))
+            full.append((f["bytes"], f["psnr"], f["side"], f["encode_s"], f["decode_s"], f["scale"]))
             forced.append((a["bytes"], a["psnr"], a["side"]))
             print(
                 f"lambda {lam}: codec {b['bytes']} {b['psnr']:.2f}, gspc {f['bytes']} {f['psnr']:.2f}, "
                 f"forced {a['bytes']} {a['psnr']:.2f}",
                 flush=True,
             )
-        bx = np.log([p[0] for p in base])
-        by = np.array([p[1] for p in base])
+        mids = [float(np.sqrt(a * b)) for a, b in zip(lams[:-1], lams[1:])]
+        curve = list(base)
+        for lam in mids:
+            m = run_point(s, tmp, ref, lam=lam, side_info=False, refine=False, restore=False, tag=f"m{lam}")
+            curve.append((m["bytes"], m["psnr"]))
+        bx = np.log([p[0] for p in curve])
+        by = np.array([p[1] for p in curve])
         order = np.argsort(bx)
         lo, hi = bx[order][0], bx[order][-1]
 
@@ -254,14 +278,15 @@ def bench_scene(
                 return "outside the codec's range"
             return f"{p - float(np.interp(x, bx[order], by[order])):+.2f} dB"
 
-        for lam, (bb, bp), (fb, fp, side, es, ds), (ab, ap, aside) in zip(lams, base, full, forced):
+        for lam, (bb, bp), (fb, fp, side, es, ds, sc), (ab, ap, aside) in zip(lams, base, full, forced):
+            sent = f"{side:,}, 1/{sc}" if side else "0"
             lines.append(
                 f"| {lam} | {bb:,} | {bp:.2f} | {ab:,} ({aside:,}) | {ap:.2f} | {gain(ab, ap)} "
-                f"| {fb:,} ({side:,}) | {fp:.2f} | {gain(fb, fp)} | {es:.0f} | {ds:.0f} |"
+                f"| {fb:,} ({sent}) | {fp:.2f} | {gain(fb, fp)} | {es:.0f} | {ds:.0f} |"
             )
         lines.append("")
         curves[s.name] = {
-            "codec alone": [(b, p) for b, p in base],
+            "codec alone": sorted(curve),
             "side info always": [(b, p) for b, p, _ in forced],
             "gspc": [(b, p) for b, p, *_ in full],
         }
@@ -313,6 +338,7 @@ def main(
     sweep_scenes: int = typer.Option(1, help="how many scenes (in order) get the iteration sweep"),
     lams: str = typer.Option("3,6,12,24", help="lambdas of the rate-distortion comparison ('' to skip)"),
     rd_scenes: int = typer.Option(2, help="how many scenes (in order) get the rate-distortion comparison"),
+    restorers: str = typer.Option("", help="restorers of the rows table, comma-separated (default: all)"),
     out: Path = typer.Option(Path("bench/pipeline.md")),
     append: bool = typer.Option(
         False, help="add these scenes to an existing OUT (scenes benched in two runs)"
@@ -327,7 +353,7 @@ def main(
         for n in statues
         if n
     ]
-    restorers = [r for r in available_restorers() if r != "none"]
+    restorers_l = [r for r in restorers.split(",") if r] or [r for r in available_restorers() if r != "none"]
     sweep_l = [int(x) for x in sweep.split(",") if x]
     lams_l = [float(x) for x in lams.split(",") if x]
     lines = [
@@ -357,7 +383,7 @@ def main(
                 iterations,
                 sweep_l if k < sweep_scenes else [],
                 lams_l if k < rd_scenes else [],
-                restorers,
+                restorers_l,
                 lines,
                 curves,
             )
