@@ -51,6 +51,8 @@ def test_encode_decode_end_to_end(tmp_path, scene_file):
     assert all(torch.isfinite(t).all() for t in dec.tensors().values())
     res = run("eval", scene_file, out, "--views", 2, "--max-side", 32)
     assert res.exit_code == 0 and "PSNR" in res.output, res.output
+    res = run("decode", gspc_file, "-o", tmp_path / "free.ply", "--iterations", 2, "--no-cells")
+    assert res.exit_code == 0, res.output
 
 
 def test_info_and_render_scene(tmp_path, scene_file):

@@ -203,7 +203,7 @@ def test_float32_agrees_with_reference():
     ref, ref_grads = run(render_reference, scene, camera(), background=[0.3, 0.3, 0.3])
     assert out.image.dtype == torch.float32
     for name in ("image", "alpha", "depth"):
-        err = (getattr(out, name).double() - getattr(ref, name)).abs()
+        err = (getattr(out, name).double() - getattr(ref, name)).abs().detach()
         assert float(err.mean()) < 1e-6 and float(err.max()) < 1e-4, name
     for name in ATTRIBUTE_NAMES:
         a, b = grads[name].double(), ref_grads[name]
