@@ -33,7 +33,7 @@ from gspc.visibility import visible_mask
 
 ATTRIBUTE_CHUNKS = ("POSN", "OPAC", "SCAL", "ROTN", "SHDC", "SHRS")
 SIDE_CHUNK = "SIDE"  # all side-information views in one chunk (spec 10.9); 1.0's RESI form is still read
-# Held-out lego fit, low preset: +0.31 dB per restored view over I~ + R~, +0.22 dB after refinement
+# Held-out lego fit, low preset: +0.31 dB per restored view over I~ + R~, +0.35 dB after refinement
 # (bench/restorer.md). "none" is the paper's side-information-only mode.
 DEFAULT_RESTORER = "nafnet-s16-v2"
 DEFAULT_ITERATIONS = 300  # decoder refinement when the file names none

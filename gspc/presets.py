@@ -25,9 +25,10 @@ class Preset:
 # Side information measured on the lego fit (tools/bench_pipeline.py): at the low preset, residuals at half
 # resolution and distance 8 (~24 KB for 35 views) beat spending those bytes on attributes; at the high preset
 # residuals mostly fall under the skip threshold and cost nothing.
-# Refinement at the low preset: on the lego fit 300 iterations gain 1.6 dB over the coded scene, 1000 gain 2.2
-# and 3000 gain 2.4 (bench/pipeline.md); 1000 is where side information clearly beats spending its bytes on
-# attributes, at about 0.15 s per iteration for 20k Gaussians on one CPU core.
+# Refinement at the low preset (inside the quantisation cells): on the lego fit 300 iterations gain 2.3 dB
+# over the coded scene, 1000 gain 3.1 and 3000 gain 3.3 (bench/pipeline.md); 1000 is where side information
+# clearly beats spending its bytes on attributes, at about 0.16 s per iteration for 20k Gaussians on one core.
+# The encoder also weighs residuals at half this resolution (pipeline.REFINE_TRANSFER).
 LOW_ITERATIONS = 1000
 QUALITY: dict[str, Preset] = {
     "low": Preset(ATTRIBUTE_PRESETS["low"], "jxl", 8.0, 2, LOW_ITERATIONS),

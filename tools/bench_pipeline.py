@@ -237,9 +237,9 @@ def bench_scene(
             "codec-alone curve interpolated (in log bytes) at the same total bytes.",
             "",
             "Columns 'side info always' show the side-information path with the check off (the preset's "
-            "residuals at 1/2 resolution); where the check kept those they equal gspc's. 1/k: the resolution "
-            "of the residuals gspc sent. The codec-alone curve is also sampled halfway (geometric mean) "
-            "between consecutive lambdas, for the interpolation and the plot.",
+            "residuals at 1/2 resolution); where the check kept side information they repeat gspc's. "
+            "1/k: the resolution of the residuals gspc sent. The codec-alone curve is also sampled halfway "
+            "(geometric mean) between consecutive lambdas, for the interpolation and the plot.",
             "",
             "| lambda | codec bytes | codec PSNR | side info always: bytes (side info) | PSNR | gain "
             "| gspc bytes (side info) | gspc PSNR | gain, equal bytes | gspc encode s | gspc decode s |",
