@@ -188,10 +188,10 @@ def encode(
             level = opts.residual_distance if opts.residual_distance is not None else q.residual_level
             codec = opts.residual_codec or q.residual_codec
             plan = residuals.plan_residual_rates(res, level)
-            # The preset's resolution, and half of it as a cheaper candidate the check may prefer.
-            scales = (
-                [opts.residual_scale] if opts.residual_scale else [q.residual_scale, 2 * q.residual_scale]
-            )
+            # The preset's resolution, and half of it as a cheaper candidate for the check to weigh.
+            scales = [opts.residual_scale or q.residual_scale]
+            if not opts.residual_scale and check_iterations > 0:
+                scales.append(2 * q.residual_scale)
             candidates = [_side_info(view_cams, res, plan, codec, sc) for sc in scales]
         # No residual anywhere: no chunk at all (cameras alone would be dead weight).
         side = candidates[0] if candidates[0].payload is not None else None

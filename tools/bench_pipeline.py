@@ -105,12 +105,16 @@ def run_point(
     refine=True,
     check=True,
     cells=True,
+    residual_scale=None,
+    target_size=None,
     tag="",
 ) -> dict:
     cams_file = tmp / f"{s.name.split()[0]}_train_cameras.json"
     if not cams_file.exists():
         save_cameras_json(s.train_cams, cams_file)
-    gfile = tmp / f"{s.name.split()[0]}_{quality}_{lam}_{side_info}_{check}.gspc"
+    gfile = (
+        tmp / f"{s.name.split()[0]}_{quality}_{lam}_{side_info}_{check}_{residual_scale}_{target_size}.gspc"
+    )
     max_side = max(max(c.width, c.height) for c in s.train_cams)
     t0 = time.perf_counter()
     if not gfile.exists():
@@ -125,6 +129,8 @@ def run_point(
                 max_side=max_side,
                 background=s.background,
                 check_iterations=None if check else 0,
+                residual_scale=residual_scale,
+                target_size=target_size,
             ),
         )
     enc_s = time.perf_counter() - t0
