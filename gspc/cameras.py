@@ -532,6 +532,45 @@ def _colmap_images_bin(buf: bytes) -> list:
     return out
 
 
+def load_colmap_points(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
+    """The sparse points of a COLMAP model (a folder holding points3D.bin or .txt, or its parent with
+    sparse/0): positions (P, 3) float64 and colours (P, 3) uint8. Fitting tools start from them."""
+    path = Path(path)
+    for d in (path, path / "sparse" / "0", path / "sparse"):
+        for ext in (".bin", ".txt"):
+            f = d / f"points3D{ext}"
+            if f.is_file():
+                try:
+                    if ext == ".bin":
+                        return _colmap_points_bin(f.read_bytes())
+                    return _colmap_points_txt(f.read_text(encoding="utf-8"))
+                except (struct.error, ValueError, IndexError, UnicodeDecodeError) as e:
+                    raise InputError(f"COLMAP points in {f} do not parse: {e}") from None
+    raise InputError(f"{path} holds no COLMAP points3D.bin or points3D.txt")
+
+
+def _colmap_points_bin(buf: bytes) -> tuple[np.ndarray, np.ndarray]:
+    (n,), off = struct.unpack_from("<Q", buf, 0), 8
+    if n > len(buf) // 51:  # each point takes at least 51 bytes: refuse before allocating
+        raise InputError(f"COLMAP points3D.bin declares {n} points in {len(buf)} bytes")
+    xyz, rgb = np.empty((n, 3)), np.empty((n, 3), dtype=np.uint8)
+    for i in range(n):
+        # id, x, y, z, r, g, b, reprojection error, track length; then the track (image id, point2D id).
+        vals = struct.unpack_from("<Q3d3BdQ", buf, off)
+        xyz[i], rgb[i] = vals[1:4], vals[4:7]
+        off += 51 + 8 * vals[8]
+    if off > len(buf):
+        raise InputError("COLMAP points3D.bin is truncated")
+    return xyz, rgb
+
+
+def _colmap_points_txt(text: str) -> tuple[np.ndarray, np.ndarray]:
+    rows = [ln.split() for ln in _data_lines(text) if ln]
+    xyz = np.array([[float(v) for v in r[1:4]] for r in rows], dtype=np.float64).reshape(-1, 3)
+    rgb = np.array([[int(v) for v in r[4:7]] for r in rows], dtype=np.uint8).reshape(-1, 3)
+    return xyz, rgb
+
+
 # ---------------------------------------------------------------------------
 # Views for scenes that come without cameras; sampling and splits
 # ---------------------------------------------------------------------------

@@ -2,9 +2,17 @@
 
     python tools/fit_scene.py ../shared/data/lego/transforms_train.json -o out/lego \
         --resolution 200 --gaussians 20000 --iterations 3000
+    python tools/fit_scene.py ../shared/data/bird -o out/bird --downscale 4 --gaussians 120000 \
+        --iterations 10000
 
-Fixed budget of Gaussians: initialised inside the visual hull carved from the photos' alpha masks,
-trained with Adam on 0.8 L1 + 0.2 (1 - SSIM); every few hundred iterations the Gaussians that
+Two kinds of input:
+- a NeRF-synthetic ``transforms*.json`` (RGBA photos): a fixed budget of Gaussians initialised inside
+  the visual hull carved from the alpha masks;
+- a COLMAP capture (a folder with ``sparse/0`` and ``images/``; txt or bin; JPEG or PNG; any aspect
+  ratio; no alpha, the background is part of the scene): initialised from the COLMAP points plus a
+  sparse shell of points around the cameras (the far field the points miss: walls, sky), then grown
+  to the budget by cloning strong Gaussians (the "add" step of 3DGS-MCMC) until half-way.
+Both train with Adam on 0.8 L1 + 0.2 (1 - SSIM); every few hundred iterations the Gaussians that
 faded out are moved next to strong ones (a relocation step in the spirit of 3DGS-MCMC), which
 replaces densification at a fixed count. Every 8th view (sorted by name) is held out.
 
@@ -27,7 +35,7 @@ import torch
 import torch.nn.functional as F
 import typer
 
-from gspc.cameras import Camera, load_cameras, save_cameras_json, split_test_views
+from gspc.cameras import Camera, load_cameras, load_colmap_points, save_cameras_json, split_test_views
 from gspc.io import write_ply
 from gspc.metrics import psnr, quantize8, ssim
 from gspc.render import render
@@ -101,6 +109,119 @@ def init_scene(points: np.ndarray, sh_degree: int) -> GaussianScene:
     )
 
 
+def find_image(root: Path, name: str) -> Path:
+    """The photo of camera ``name`` under ``root``: the name as given, or its stem with a known suffix."""
+    for p in (root / name, *(root / f"{name}{ext}" for ext in (".png", ".jpg", ".jpeg", ".JPG", ".PNG"))):
+        if p.is_file():
+            return p
+    for ext in (".png", ".jpg", ".jpeg", ".JPG", ".PNG"):
+        hit = next(iter(sorted(root.rglob(f"{name}{ext}"))), None)
+        if hit is not None:
+            return hit
+    raise SystemExit(f"image for camera {name!r} not found under {root}")
+
+
+def load_photos(cameras: list[Camera], root: Path) -> list[torch.Tensor]:
+    """Opaque photos (JPEG or PNG) resized to each camera's size (area filter), as (H, W, 3) in [0, 1]."""
+    images = []
+    for cam in cameras:
+        path = find_image(root, cam.name)
+        data = path.read_bytes()
+        a = imagecodecs.png_decode(data) if path.suffix.lower() == ".png" else imagecodecs.jpeg_decode(data)
+        if a.ndim == 2:
+            a = np.repeat(a[..., None], 3, axis=2)
+        a = a[..., :3].astype(np.float32) / (65535.0 if a.dtype == np.uint16 else 255.0)
+        t = torch.from_numpy(a).permute(2, 0, 1)[None]
+        images.append(F.interpolate(t, size=(cam.height, cam.width), mode="area")[0].permute(1, 2, 0))
+    return images
+
+
+def cameras_focus(cameras: list[Camera]) -> tuple[np.ndarray, float]:
+    """The point nearest to every camera's optical axis (least squares) and the cameras' mean distance
+    from it: the centre and radius of a capture's region of interest."""
+    A, b = np.zeros((3, 3)), np.zeros(3)
+    for c in cameras:
+        f = c.world_to_cam[2, :3]
+        M = np.eye(3) - np.outer(f, f)
+        A += M
+        b += M @ c.center
+    centers = np.stack([c.center for c in cameras])
+    try:
+        focus = np.linalg.solve(A, b)
+    except np.linalg.LinAlgError:  # parallel axes (a forward-facing capture): use the centres' mean
+        focus = centers.mean(0)
+    return focus, float(np.linalg.norm(centers - focus, axis=1).mean())
+
+
+def shell_points(centre: np.ndarray, radius: float, n: int, seed: int) -> np.ndarray:
+    """n points in a thick shell, 1.5-8 camera radii from the capture's centre (log-uniform in radius):
+    the far field (walls, sky) that the COLMAP points cover only sparsely."""
+    rng = np.random.default_rng(seed)
+    d = rng.normal(size=(n, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    r = radius * np.exp(rng.uniform(math.log(1.5), math.log(8.0), size=(n, 1)))
+    return centre + d * r
+
+
+def nn_spacing(points: np.ndarray, k: int = 3) -> np.ndarray:
+    """Mean distance of each point to its k nearest neighbours (chunked brute force)."""
+    p = torch.tensor(points, dtype=torch.float32)
+    out = torch.empty(len(p))
+    for i in range(0, len(p), 2048):
+        d = torch.cdist(p[i : i + 2048], p)
+        out[i : i + 2048] = d.topk(k + 1, largest=False).values[:, 1:].mean(1)
+    return out.clamp_min(1e-7).numpy()
+
+
+def init_from_points(points: np.ndarray, colours: np.ndarray, sh_degree: int) -> GaussianScene:
+    """Isotropic Gaussians at the points, sized by their neighbours' spacing, opacity 0.1 (as 3DGS)."""
+    n = len(points)
+    return GaussianScene(
+        means=torch.tensor(points, dtype=torch.float32),
+        quats=torch.tensor([[1.0, 0, 0, 0]]).repeat(n, 1),
+        log_scales=torch.tensor(np.log(nn_spacing(points)), dtype=torch.float32)[:, None].repeat(1, 3),
+        opacities=torch.full((n,), math.log(0.1 / 0.9)),
+        sh_dc=torch.tensor((colours / 255.0 - 0.5) / C0, dtype=torch.float32),
+        sh_rest=torch.zeros(n, num_sh_rest(sh_degree), 3),
+        sh_degree=sh_degree,
+    )
+
+
+def grow(
+    params: dict[str, torch.Tensor], optim: torch.optim.Adam, count: int, gen: torch.Generator
+) -> tuple[dict[str, torch.Tensor], torch.optim.Adam]:
+    """Add ``count`` Gaussians cloned from strong ones (sampled by opacity); each pair splits the
+    source's opacity as relocation does. Returns new leaf parameters and an Adam that keeps the old
+    Gaussians' moments (zero for the new ones)."""
+    with torch.no_grad():
+        op = torch.sigmoid(params["opacities"])
+        src = torch.multinomial(op.clamp_min(1e-6), count, replacement=True, generator=gen)
+        new_op = (1 - torch.sqrt((1 - op[src]).clamp_min(1e-6))).clamp(1e-4, 1 - 1e-4)
+        logit = torch.log(new_op / (1 - new_op))
+        jitter = torch.randn(count, 3, generator=gen) * torch.exp(params["log_scales"][src]) * 0.5
+        added = {k: v[src].clone() for k, v in params.items()}
+        added["means"] += jitter
+        added["opacities"] = logit
+        old_op = params["opacities"].clone()
+        old_op[src] = logit
+        merged = {k: torch.cat([v if k != "opacities" else old_op, added[k]]) for k, v in params.items()}
+    new_params = {k: v.requires_grad_(True) for k, v in merged.items()}
+    new_optim = torch.optim.Adam(
+        [{"params": [new_params[g["name"]]], "lr": g["lr"], "name": g["name"]} for g in optim.param_groups],
+        eps=1e-15,
+    )
+    for g_old, g_new in zip(optim.param_groups, new_optim.param_groups, strict=True):
+        st = optim.state.get(g_old["params"][0])
+        if st:
+            pad = lambda t: torch.cat([t, torch.zeros((count, *t.shape[1:]), dtype=t.dtype)])  # noqa: E731
+            new_optim.state[g_new["params"][0]] = {
+                "step": st["step"].clone(),
+                "exp_avg": pad(st["exp_avg"]),
+                "exp_avg_sq": pad(st["exp_avg_sq"]),
+            }
+    return new_params, new_optim
+
+
 def relocate(
     params: dict[str, torch.Tensor], optim: torch.optim.Adam, threshold: float, gen: torch.Generator
 ) -> int:
@@ -128,8 +249,14 @@ def relocate(
         return len(dead)
 
 
+def is_colmap_capture(source: Path) -> bool:
+    return source.is_dir() and any(
+        (d / f"points3D{e}").is_file() for d in (source, source / "sparse" / "0") for e in (".bin", ".txt")
+    )
+
+
 def fit(
-    transforms: Path,
+    source: Path,
     out: Path,
     resolution: int,
     gaussians: int,
@@ -137,21 +264,45 @@ def fit(
     sh_degree: int,
     background: float,
     seed: int,
+    downscale: int = 4,
     log_every: int = 100,
 ) -> dict:
     torch.manual_seed(seed)
     gen = torch.Generator().manual_seed(seed)
-    cams_full = load_cameras(transforms)
-    cams = [c.scaled(resolution / c.width) for c in cams_full]
+    cams_full = load_cameras(source)
+    colmap = is_colmap_capture(source)
+    if colmap:
+        # Real captures: every camera at 1/downscale of its own size (any aspect ratio), the photos opaque.
+        cams = [c.scaled(1.0 / downscale) for c in cams_full]
+        root = next((d for d in (source / "images", source) if d.is_dir()), source)
+        images = load_photos(cams, root)
+    else:
+        cams = [c.scaled(resolution / c.width) for c in cams_full]
+        images, masks = load_images(cams, source.parent, resolution, background)
     train_idx, test_idx = split_test_views(cams, every=8)
-    images, masks = load_images(cams, transforms.parent, resolution, background)
     t0 = time.perf_counter()
-    pts = visual_hull_points([cams[i] for i in train_idx], [masks[i] for i in train_idx], gaussians, seed)
-    scene = init_scene(pts, sh_degree)
-    extent = float(np.linalg.norm(pts.max(0) - pts.min(0)))
+    grow_steps: list[int] = []
+    if colmap:
+        xyz, rgb = load_colmap_points(source)
+        focus, cam_radius = cameras_focus([cams[i] for i in train_idx])
+        n_shell = max(1000, gaussians // 20)
+        pts = np.concatenate([xyz, shell_points(focus, cam_radius, n_shell, seed)])
+        cols = np.concatenate([rgb, np.full((n_shell, 3), 128, dtype=np.uint8)])
+        scene = init_from_points(pts, cols, sh_degree)
+        # 3DGS's spatial learning rate scales with the cameras' extent, not the Gaussians' (far ones).
+        extent = 1.1 * cam_radius
+        mean_lr = 1.6e-4 * extent
+        # Grow geometrically from the initial count to the budget every 100 iterations until half-way.
+        grow_steps = list(range(500, max(501, iterations // 2), 100))
+    else:
+        pts = visual_hull_points([cams[i] for i in train_idx], [masks[i] for i in train_idx], gaussians, seed)
+        scene = init_scene(pts, sh_degree)
+        extent = float(np.linalg.norm(pts.max(0) - pts.min(0)))
+        mean_lr = 1.6e-4 * extent * 10
+    n_start = scene.num_gaussians
     params = {k: v.clone().requires_grad_(True) for k, v in scene.tensors().items()}
     lrs = {
-        "means": 1.6e-4 * extent * 10,
+        "means": mean_lr,
         "quats": 1e-3,
         "log_scales": 5e-3,
         "opacities": 5e-2,
@@ -182,10 +333,16 @@ def fit(
             moved = relocate(params, optim, 0.01, gen)
         else:
             moved = 0
+        if it in grow_steps:
+            n = params["means"].shape[0]
+            left = len(grow_steps) - grow_steps.index(it)
+            target = round(n * (gaussians / n) ** (1.0 / left)) if n < gaussians else n
+            if target > n:
+                params, optim = grow(params, optim, target - n, gen)
         if it % log_every == 0:
             print(
                 f"it {it:5d}  loss {loss.item():.4f}  deg {deg}  moved {moved}  "
-                f"{time.perf_counter() - t0:.0f}s",
+                f"n {params['means'].shape[0]}  {time.perf_counter() - t0:.0f}s",
                 flush=True,
             )
     fit_seconds = time.perf_counter() - t0
@@ -205,8 +362,10 @@ def fit(
     write_ply(final, out / "point_cloud.ply")
     save_cameras_json(cams, out / "cameras.json")
     report = {
-        "resolution": resolution,
-        "gaussians": gaussians,
+        "source": "colmap" if colmap else "nerf-synthetic",
+        "resolution": f"{cams[0].width}x{cams[0].height}" if colmap else resolution,
+        "gaussians": final.num_gaussians,
+        "initial_gaussians": n_start,
         "iterations": iterations,
         "sh_degree": sh_degree,
         "background": background,
@@ -225,17 +384,24 @@ def fit(
 
 
 def main(
-    transforms: Path = typer.Argument(..., help="transforms_train.json of a NeRF-synthetic scene"),
+    source: Path = typer.Argument(
+        ...,
+        help="transforms_train.json of a NeRF-synthetic scene, or a COLMAP capture (sparse/0, images/)",
+    ),
     out: Path = typer.Option(..., "-o", "--out", help="output folder"),
-    resolution: int = typer.Option(200, help="square image side used for fitting"),
-    gaussians: int = typer.Option(20000, help="fixed budget of Gaussians"),
+    resolution: int = typer.Option(200, help="square image side used for fitting (NeRF-synthetic)"),
+    downscale: int = typer.Option(4, help="photos fitted at 1/downscale of their size (COLMAP captures)"),
+    gaussians: int = typer.Option(20000, help="budget of Gaussians (fixed; a COLMAP fit grows to it)"),
     iterations: int = typer.Option(3000),
     sh_degree: int = typer.Option(3),
-    background: float = typer.Option(1.0, help="background grey level the photos are composited on"),
+    background: float = typer.Option(
+        1.0,
+        help="background grey level the photos are composited on (0 suits captures: their photos are opaque)",
+    ),
     seed: int = typer.Option(0),
 ) -> None:
     torch.set_num_threads(1)
-    rep = fit(transforms, out, resolution, gaussians, iterations, sh_degree, background, seed)
+    rep = fit(source, out, resolution, gaussians, iterations, sh_degree, background, seed, downscale)
     print(json.dumps({k: v for k, v in rep.items() if k != "test_names"}, indent=1))
 
 
