@@ -1,13 +1,31 @@
-"""gspc: a codec for 3D Gaussian Splatting scenes."""
+"""gspc: a codec for 3D Gaussian Splatting scenes.
+
+The public names below are imported on first use (PEP 562), so ``import gspc.codec.container`` and the
+command line's ``--help`` and ``info FILE.gspc`` do not pay for torch (bench/startup.md).
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING
 
 __version__ = "0.1.0"
 
-from gspc.cameras import Camera, load_cameras, synthesize_views  # noqa: E402
-from gspc.errors import GspcError  # noqa: E402
-from gspc.io import read_scene, write_ply  # noqa: E402
-from gspc.pipeline import DecodeOptions, EncodeOptions, decode, encode  # noqa: E402
-from gspc.render import render  # noqa: E402
-from gspc.scene import GaussianScene  # noqa: E402
+# public name -> the module that holds it
+_LAZY = {
+    "Camera": "gspc.cameras",
+    "load_cameras": "gspc.cameras",
+    "synthesize_views": "gspc.cameras",
+    "GspcError": "gspc.errors",
+    "read_scene": "gspc.io",
+    "write_ply": "gspc.io",
+    "DecodeOptions": "gspc.pipeline",
+    "EncodeOptions": "gspc.pipeline",
+    "decode": "gspc.pipeline",
+    "encode": "gspc.pipeline",
+    "render": "gspc.render",
+    "GaussianScene": "gspc.scene",
+}
 
 __all__ = [
     "Camera",
@@ -24,3 +42,24 @@ __all__ = [
     "synthesize_views",
     "write_ply",
 ]
+
+if TYPE_CHECKING:  # static checkers see the names directly
+    from gspc.cameras import Camera, load_cameras, synthesize_views
+    from gspc.errors import GspcError
+    from gspc.io import read_scene, write_ply
+    from gspc.pipeline import DecodeOptions, EncodeOptions, decode, encode
+    from gspc.render import render
+    from gspc.scene import GaussianScene
+
+
+def __getattr__(name: str):
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module 'gspc' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value  # later lookups skip this function
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_LAZY))

@@ -1,6 +1,8 @@
 """The `gspc` command line: encode, decode, info, render, eval, convert.
 
 Every user-caused failure ends as one line on stderr and exit status 1; set GSPC_DEBUG=1 for tracebacks.
+Heavy modules (torch, the pipeline) are imported inside the commands that need them, so ``--help`` and
+``info FILE.gspc`` start fast (bench/startup.md).
 """
 
 from __future__ import annotations
@@ -17,7 +19,8 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 from gspc.errors import GspcError
-from gspc.pipeline import DEFAULT_RESTORER
+from gspc.presets import DEFAULT_RESTORER
+from gspc.progress import ProgressLines
 
 app = typer.Typer(
     add_completion=False, no_args_is_help=True, help="gspc: a codec for 3D Gaussian Splatting scenes."
@@ -32,9 +35,6 @@ def _one_line_errors(fn):
     @functools.wraps(fn)
     def wrapper(*args, **kwargs):
         try:
-            import torch
-
-            torch.set_num_threads(int(os.environ.get("GSPC_THREADS", "1")))
             return fn(*args, **kwargs)
         except GspcError as e:
             msg = str(e)
@@ -52,9 +52,24 @@ def _one_line_errors(fn):
     return wrapper
 
 
+def _use_threads() -> None:
+    """Set torch's thread count (GSPC_THREADS, default 1): called by the commands that compute."""
+    import torch
+
+    torch.set_num_threads(int(os.environ.get("GSPC_THREADS", "1")))
+
+
+def _log_line(line: str) -> None:
+    print(f"gspc: {line}", file=sys.stderr, flush=True)
+
+
 @contextmanager
 def _progress_bars():
-    """A callback(stage, done, total) that draws one rich bar per stage."""
+    """A callback(stage, done, total): one rich bar per stage on a terminal, with each long stage's expected
+    time announced above the bars; timed plain lines on stderr otherwise (logs, job queues, CI)."""
+    if not err.is_terminal:
+        yield ProgressLines(_log_line)
+        return
     with Progress(
         TextColumn("{task.description:<16}"),
         BarColumn(),
@@ -65,11 +80,13 @@ def _progress_bars():
         disable=not err.is_terminal,
     ) as bars:
         tasks: dict[str, int] = {}
+        announce = ProgressLines(lambda line: bars.console.print(line, highlight=False), lines=False)
 
         def update(stage: str, done: int, total: int) -> None:
             if stage not in tasks:
                 tasks[stage] = bars.add_task(stage, total=total)
-            bars.update(tasks[stage], completed=done)
+            bars.update(tasks[stage], completed=done, total=total)
+            announce(stage, done, total)
 
         yield update
 
@@ -121,6 +138,7 @@ def encode(
     ),
 ) -> None:
     """Compress a 3DGS scene into a .gspc file."""
+    _use_threads()
     from gspc.pipeline import EncodeOptions
     from gspc.pipeline import encode as run
 
@@ -159,6 +177,7 @@ def decode(
     device: str = typer.Option("cpu", help="cpu or cuda"),
 ) -> None:
     """Decode a .gspc file into a standard 3DGS PLY."""
+    _use_threads()
     from gspc.pipeline import DecodeOptions
     from gspc.pipeline import decode as run
 
@@ -225,6 +244,8 @@ def info(path: Path = typer.Argument(..., help="a scene (PLY/SOG/compressed PLY)
     from gspc.io import read_scene
     from gspc.stats import scene_stats
 
+    _use_threads()
+
     st = scene_stats(read_scene(path))
     t = Table(title=str(path), show_header=True)
     t.add_column("statistic")
@@ -267,6 +288,7 @@ def render(
     max_side: int = typer.Option(800, help="longest image side in pixels"),
 ) -> None:
     """Render a scene to PNGs."""
+    _use_threads()
     import imagecodecs
 
     from gspc.io import read_scene
@@ -298,6 +320,7 @@ def evaluate(
     ),
 ) -> None:
     """PSNR and SSIM of one scene's renders against another's (8-bit, 3DGS convention)."""
+    _use_threads()
     from gspc.io import read_scene
     from gspc.metrics import psnr, quantize8, ssim
     from gspc.pipeline import render_images
@@ -319,6 +342,7 @@ def convert(
     output: Path = typer.Option(..., "-o", "--output", help="output PLY (INRIA layout)"),
 ) -> None:
     """Convert any readable scene to a standard INRIA 3DGS PLY."""
+    _use_threads()
     from gspc.io import read_scene, write_ply
 
     sc = read_scene(scene)

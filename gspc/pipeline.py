@@ -8,7 +8,7 @@ decode:  container -> G~ -> render at stored views -> restore (I~ (+) R~) -> ref
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -24,7 +24,8 @@ from gspc.codec.sideinfo import pack_side, side_views
 from gspc.errors import CodecError, DeviceError, InputError
 from gspc.io import read_scene, write_ply
 from gspc.metrics import psnr, quantize8
-from gspc.presets import quality_preset
+from gspc.presets import DEFAULT_RESTORER, quality_preset
+from gspc.progress import Progress
 from gspc.refine import refine
 from gspc.render import render
 from gspc.restore.restorer import load_restorer
@@ -33,9 +34,6 @@ from gspc.visibility import visible_mask
 
 ATTRIBUTE_CHUNKS = ("POSN", "OPAC", "SCAL", "ROTN", "SHDC", "SHRS")
 SIDE_CHUNK = "SIDE"  # all side-information views in one chunk (spec 10.9); 1.0's RESI form is still read
-# Held-out lego fit, low preset: +0.31 dB per restored view over I~ + R~, +0.35 dB after refinement
-# (bench/restorer.md). "none" is the paper's side-information-only mode.
-DEFAULT_RESTORER = "nafnet-s16-v2"
 DEFAULT_ITERATIONS = 300  # decoder refinement when the file names none
 # Held-out PSNR gain after refinement per dB that the residuals add to their own views' renders (I~ + R~ over
 # I~), measured with 1000 iterations inside the cells: lego fit lambda 8, 0.86 (residuals at 1/2 resolution)
@@ -45,8 +43,6 @@ REFINE_TRANSFER = 0.85
 # on a curve as steep as the donut's (5 dB per 10% of bytes), a handicap that would favour side information.
 RIVAL_TOLERANCE = 0.005
 CHUNK_ENTRY_BYTES = 48  # a chunk-table entry plus alignment padding, about (spec section 5)
-
-Progress = Callable[[str, int, int], None]  # (stage, done, total)
 
 
 @dataclass
@@ -101,6 +97,17 @@ class Report:
         return _Timer(self.seconds, stage)
 
 
+@contextmanager
+def _stage(rep: Report, progress: Progress | None, name: str):
+    """A timed stage of one step, reported as opened and closed (for progress lines in logs)."""
+    if progress:
+        progress(name, 0, 1)
+    with rep.timed(name):
+        yield
+    if progress:
+        progress(name, 1, 1)
+
+
 class _Timer:
     def __init__(self, sink: dict[str, float], stage: str):
         self.sink, self.stage = sink, stage
@@ -123,6 +130,8 @@ def render_images(
     """Clamped renders, one per camera (what a viewer displays)."""
     bg = torch.tensor(background, dtype=scene.means.dtype, device=scene.means.device)
     out = []
+    if progress:
+        progress(stage, 0, len(cameras))
     for i, cam in enumerate(cameras):
         out.append(render(scene, cam, background=bg).image.clamp(0, 1))
         if progress:
@@ -152,7 +161,7 @@ def encode(
     rep = Report()
     if not 0 < opts.views_fraction <= 1:
         raise InputError(f"--views-fraction must be in (0, 1], got {opts.views_fraction}")
-    with rep.timed("read"):
+    with _stage(rep, progress, "read"):
         scene = read_scene(scene_path)
         cameras = load_cameras(cameras_path) if cameras_path else synthesize_views(scene, opts.synth_views)
         cameras = limit_size(cameras, opts.max_side)
@@ -160,7 +169,7 @@ def encode(
     params = _codec_params(opts)
     restorer = load_restorer(opts.restorer)  # fails early on a name the package lacks
 
-    with rep.timed("attributes"):
+    with _stage(rep, progress, "attributes"):
         visible = visible_mask(scene.means.numpy(), scene.log_scales.numpy(), cameras)
         if opts.target_size is not None:
             enc = search_lambda(scene, opts.target_size, params, visible=visible)
@@ -182,7 +191,7 @@ def encode(
         with rep.timed("render"):
             original = render_images(scene, view_cams, opts.background, progress, "render original")
             coded = render_images(enc.decoded, view_cams, opts.background, progress, "render coded")
-        with rep.timed("side info"):
+        with _stage(rep, progress, "side info"):
             res = [(a - b).numpy().astype(np.float32) for a, b in zip(original, coded)]
             q = quality_preset(opts.quality)
             level = opts.residual_distance if opts.residual_distance is not None else q.residual_level
@@ -196,7 +205,7 @@ def encode(
         # No residual anywhere: no chunk at all (cameras alone would be dead weight).
         side = candidates[0] if candidates[0].payload is not None else None
         if side is not None and check_iterations > 0:
-            with rep.timed("check"):
+            with _stage(rep, progress, "check"):
                 side, enc = _check_side_info(
                     scene,
                     enc,
@@ -232,7 +241,7 @@ def encode(
             "refine_iterations": refine_iterations,
         },
     }
-    with rep.timed("write"):
+    with _stage(rep, progress, "write"):
         container.write(out_path, header, chunks)
     rep.bytes = _byte_budget(Path(out_path))
     stored = side.records if side is not None else []
@@ -331,11 +340,11 @@ def _check_side_info(
     # A run a tenth as long first: where refinement makes the coded scene worse, the long run is not worth
     # its minutes.
     short = _short_length(iterations)
-    after = score(_refined(enc, view_cams, targets, short, opts, progress))
+    after = score(_refined(enc, view_cams, targets, short, opts, progress, "check refine (short)"))
     if after < before:
         rep.info["short check"] = f"{short} iterations: {after:.2f} dB, worse than coded"
     elif short < iterations:
-        after = score(_refined(enc, view_cams, targets, iterations, opts, progress))
+        after = score(_refined(enc, view_cams, targets, iterations, opts, progress, "check refine"))
     rep.info["check"] = (
         f"at {len(check_cams)} unsent views: coded {before:.2f} dB, refined {after:.2f} dB, "
         f"same bytes on attributes {alt_psnr:.2f} dB"
@@ -367,11 +376,13 @@ def _mean_psnr(a: list[torch.Tensor], b: list[torch.Tensor]) -> float:
     return float(np.mean([float(psnr(quantize8(x), quantize8(y))) for x, y in zip(a, b)]))
 
 
-def _refined(enc, view_cams, targets, iterations: int, opts: EncodeOptions, progress) -> GaussianScene:
+def _refined(
+    enc, view_cams, targets, iterations: int, opts: EncodeOptions, progress: Progress | None, stage: str
+) -> GaussianScene:
     """The decoder's refinement as the encoder predicts it (same targets, iterations and cells)."""
     decoded = enc.decoded
     bg = torch.tensor(opts.background, dtype=decoded.means.dtype)
-    cb = (lambda i, loss: progress("check refine", i + 1, iterations)) if progress else None
+    cb = _refine_progress(progress, stage, iterations)
     return refine(
         decoded,
         view_cams,
@@ -381,6 +392,14 @@ def _refined(enc, view_cams, targets, iterations: int, opts: EncodeOptions, prog
         progress=cb,
         cells=quantisation_cells(decoded, enc.meta),
     )
+
+
+def _refine_progress(progress: Progress | None, stage: str, iterations: int):
+    """refine()'s per-iteration callback reporting to ``progress`` under ``stage`` (opened here)."""
+    if progress is None:
+        return None
+    progress(stage, 0, iterations)
+    return lambda i, loss: progress(stage, i + 1, iterations)
 
 
 def _short_length(iterations: int) -> int:
@@ -421,7 +440,7 @@ def decode(
     opts = opts or DecodeOptions()
     rep = Report()
     device = _check_device(opts.device)
-    with rep.timed("read"):
+    with _stage(rep, progress, "read"):
         c = container.read(in_path)
         header = c.header
         try:
@@ -436,7 +455,7 @@ def decode(
         restorer_name = opts.restorer if opts.restorer is not None else side.get("restorer", "none")
         restorer = load_restorer(restorer_name) if opts.restore else None
     rep.bytes = _byte_budget(Path(in_path))
-    with rep.timed("attributes"):
+    with _stage(rep, progress, "attributes"):
         scene = decode_attributes(chunks, attr_meta)
     rep.num_gaussians_in = rep.num_gaussians_out = scene.num_gaussians
     scene = scene.to(device)
@@ -445,7 +464,7 @@ def decode(
     if cams and (opts.restore or opts.refine):
         with rep.timed("render"):
             degraded = render_images(scene, cams, background, progress, "render coded")
-        with rep.timed("restore"):
+        with _stage(rep, progress, "restore"):
             targets = restored_targets(degraded, views, res_chunks, restorer)
         # With no residual anywhere every target equals the render: the gradients are only round-off, and
         # Adam would turn them into full-size steps (measured: 50.7 -> 41.7 dB on a statue), so skip.
@@ -456,7 +475,7 @@ def decode(
         if opts.refine and iterations > 0 and has_residual:
             rep.info["refine"] = f"{iterations} iterations" + ("" if opts.in_cells else ", cells off")
             with rep.timed("refine"):
-                cb = (lambda i, loss: progress("refine", i + 1, iterations)) if progress else None
+                cb = _refine_progress(progress, "refine", iterations)
                 bg = torch.tensor(background, dtype=scene.means.dtype, device=device)
                 scene = refine(
                     scene,
@@ -471,6 +490,6 @@ def decode(
                 )
     rep.info["restorer"] = restorer_name if opts.restore else "off"
     rep.info["views"] = len(cams)
-    with rep.timed("write"):
+    with _stage(rep, progress, "write"):
         write_ply(scene.to("cpu"), out_path)
     return rep

@@ -58,6 +58,7 @@ HARD = {
 
 
 @pytest.mark.parametrize("case", list(HARD))
+@pytest.mark.slow
 def test_hard_cases(case):
     over = dict(HARD[case])
     n = over.pop("n", None) or len(next(iter(over.values())))
@@ -89,6 +90,7 @@ def test_rotation_error_bound():
     assert rotation_error_bound(354) < math.radians(2)
 
 
+@pytest.mark.slow
 def test_pruning():
     n = 400
     op = np.where(np.arange(n) % 4 == 0, -10.0, 2.0)  # alpha 4.5e-5 vs 0.88
@@ -103,6 +105,7 @@ def test_pruning():
         encode_attributes(_scene(n=10, opacities=np.full(10, -20.0)), CodecParams())
 
 
+@pytest.mark.slow
 def test_no_sh_path_costs_little():
     quiet = _scene(n=3000, sh_rest=np.zeros((3000, 15, 3)))
     loud = _scene(n=3000)
@@ -111,6 +114,7 @@ def test_no_sh_path_costs_little():
     assert len(a) < 200 < len(b)
 
 
+@pytest.mark.slow
 def test_faint_gaussians_drop_sh_rest_and_zero_rotation_is_exact():
     n = 500
     quats = np.tile([1.0, 0.0, 0.0, 0.0], (n, 1))
@@ -144,6 +148,7 @@ def test_corrupt_chunk_raises():
         decode_attributes({k: v for k, v in enc.chunks.items() if k != "ROTN"}, enc.meta)
 
 
+@pytest.mark.slow
 def test_shared_scenes(shared_data):
     from gspc.io import read_scene
 

@@ -49,6 +49,7 @@ def test_projection_moves_only_what_is_outside():
     assert q.tolist() == [[1.0, 0.0, 0.0, 0.0]]
 
 
+@pytest.mark.slow
 def test_refinement_stays_in_cells():
     from gspc.render import render
 

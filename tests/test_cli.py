@@ -20,11 +20,13 @@ def run(*args):
 
 
 def assert_one_line_error(res, needle):
+    """Exit 1 and one error line, last; anything before it is a progress line (stderr is not a terminal)."""
     assert res.exit_code == 1, res.output
-    text = res.output.strip()
-    assert "Traceback" not in text
-    assert text.startswith("error:"), text
-    assert needle.lower() in text.lower(), text
+    *before, last = res.output.strip().splitlines()
+    assert "Traceback" not in res.output
+    assert last.startswith("error:"), res.output
+    assert all(line.startswith("gspc: ") for line in before), res.output
+    assert needle.lower() in last.lower(), res.output
 
 
 @pytest.fixture

@@ -150,6 +150,7 @@ def table_file(n_chunks: int) -> bytes:
     return mv.build({}, entries)
 
 
+@pytest.mark.slow
 def test_chunk_count_limit() -> None:
     assert len(unpack(table_file(container.MAX_CHUNKS)).chunks) == container.MAX_CHUNKS
     with pytest.raises(container.LimitExceeded, match="65536 entries"):

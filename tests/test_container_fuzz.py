@@ -11,6 +11,7 @@ import tracemalloc
 import zlib
 from pathlib import Path
 
+import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -107,6 +108,7 @@ def apply(data: bytes, edits: list) -> bytes:
 
 @settings(max_examples=300, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.too_slow])
 @given(st.sampled_from(SEEDS), st.lists(edit, min_size=1, max_size=4), st.booleans())
+@pytest.mark.slow
 def test_mutated_files_fail_cleanly(seed: bytes, edits: list, fix_checksums: bool) -> None:
     data = apply(seed, edits)
     if fix_checksums:

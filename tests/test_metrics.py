@@ -95,6 +95,7 @@ def test_lpips_needs_weights(monkeypatch, tmp_path):
         lpips(a, a)
 
 
+@pytest.mark.slow
 def test_lpips_random_weights_smoke(monkeypatch, tmp_path):
     torch.manual_seed(0)
     model = LPIPS()

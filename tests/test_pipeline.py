@@ -108,6 +108,7 @@ def test_residual_without_record_is_refused(encoded, tmp_path):
     assert not dst.exists()
 
 
+@pytest.mark.slow
 def test_encoder_check_keeps_side_info_only_if_refinement_pays(tmp_path):
     src = tmp_path / "in.ply"
     write_ply(scene(seed=4), src)
@@ -134,6 +135,7 @@ def nums_text(check: str) -> list[str]:
     return [part.strip().removesuffix(" dB") for part in check.split(": ", 1)[1].split(",")]
 
 
+@pytest.mark.slow
 def test_long_check_runs_a_short_one_first(tmp_path):
     src = tmp_path / "in.ply"
     write_ply(scene(seed=5), src)

@@ -107,6 +107,7 @@ def test_stored_side_info_is_what_the_decoder_gets(scale):
     assert parse_rates("low,12:8:2")[1].scale == 2 and parse_rates("low")[0].scale >= 1
 
 
+@pytest.mark.slow
 def test_train_resume_ship_and_ddp(data_dir, tmp_path):
     straight, split = tmp_path / "a", tmp_path / "b"
     res = _train(data_dir, straight, "--steps", "4", "--ship", "tiny", "--weights-dir", str(tmp_path / "w"))

@@ -148,16 +148,9 @@ def load_restorer(
     if _sha256(path) != entry["sha256"]:
         raise CodecError(f"restorer {name!r}: weights file {path} does not match its SHA-256 in the manifest")
     try:
-        if path.suffix == ".safetensors":
-            from safetensors.torch import load_file  # optional; not a gspc dependency
-
-            state = load_file(str(path), device="cpu")
-        else:
-            state = torch.load(path, map_location="cpu", weights_only=True)
+        state = torch.load(path, map_location="cpu", weights_only=True)
         model = NAFNet(**entry.get("config", {}))
         model.load_state_dict(state)
-    except ImportError:
-        raise CodecError(f"restorer {name!r}: reading {path.name} needs the safetensors package") from None
     except Exception as e:  # unpickling, shape or key mismatches: all mean unusable weights
         raise CodecError(f"restorer {name!r}: weights in {path.name} do not load: {e}") from None
     return Restorer(name, model.to(device), tile, overlap)
