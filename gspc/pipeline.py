@@ -307,7 +307,7 @@ def _check_side_info(
     others = [c for i, c in enumerate(cameras) if i not in sent] or view_cams
     pick = np.linspace(0, len(others) - 1, min(opts.check_views, len(others))).round().astype(int)
     check_cams = [Camera.from_dict(others[i].to_dict()) for i in pick]
-    reference = render_images(scene, check_cams, opts.background)
+    reference = render_images(scene, check_cams, opts.background, progress, "check render original")
 
     def score(s: GaussianScene) -> float:
         return _mean_psnr(render_images(s, check_cams, opts.background), reference)
@@ -319,7 +319,13 @@ def _check_side_info(
         return alt, score(alt.decoded)
 
     before = score(enc.decoded)
-    rivals = [rival(c) for c in candidates]
+    rivals = []
+    for k, c in enumerate(candidates):
+        if progress:
+            progress("check rivals", k, len(candidates))
+        rivals.append(rival(c))
+    if progress:
+        progress("check rivals", len(candidates), len(candidates))
     side, (alt, alt_psnr) = candidates[0], rivals[0]
     if len(candidates) > 1:
         # Predict each candidate's refined PSNR from how much its residuals improve the renders they were
@@ -360,15 +366,25 @@ def _check_side_info(
     return None, enc
 
 
-def restored_targets(degraded: list[torch.Tensor], views: list[dict], res_chunks: dict[int, bytes], restorer):
+def restored_targets(
+    degraded: list[torch.Tensor],
+    views: list[dict],
+    res_chunks: dict[int, bytes],
+    restorer,
+    progress: Progress | None = None,
+):
     """The decoder's refinement targets: renders restored with their decoded residuals where one was sent."""
     out = []
+    if progress:
+        progress("restore", 0, len(degraded))
     for k, (img, v) in enumerate(zip(degraded, views)):
         if k in res_chunks and restorer is not None:
             r = torch.from_numpy(residuals.decode_residual(res_chunks[k], v["residual"])).to(img)
             img = restorer.restore(img, r)
         # A view without a residual keeps its render: the restorer alone measured no gain (bench/restorer.md).
         out.append(img.clamp(0, 1))
+        if progress:
+            progress("restore", k + 1, len(degraded))
     return out
 
 
@@ -464,8 +480,8 @@ def decode(
     if cams and (opts.restore or opts.refine):
         with rep.timed("render"):
             degraded = render_images(scene, cams, background, progress, "render coded")
-        with _stage(rep, progress, "restore"):
-            targets = restored_targets(degraded, views, res_chunks, restorer)
+        with rep.timed("restore"):
+            targets = restored_targets(degraded, views, res_chunks, restorer, progress)
         # With no residual anywhere every target equals the render: the gradients are only round-off, and
         # Adam would turn them into full-size steps (measured: 50.7 -> 41.7 dB on a statue), so skip.
         has_residual = any("residual" in v for v in views) and opts.restore
