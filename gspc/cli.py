@@ -114,7 +114,7 @@ def _summary(title: str, rep) -> None:
 @app.command()
 @_one_line_errors
 def encode(
-    scene: Path = typer.Argument(..., help="input scene: INRIA PLY, PlayCanvas SOG or compressed PLY"),
+    scene: Path = typer.Argument(..., help="input scene: INRIA PLY, PlayCanvas SOG or compressed PLY, SPZ"),
     output: Path = typer.Option(..., "-o", "--output", help="output .gspc file"),
     cameras: Path | None = typer.Option(None, help="cameras.json, transforms.json or COLMAP sparse folder"),
     quality: str = typer.Option("low", help="rate preset: low or high"),
@@ -208,7 +208,9 @@ def _is_gspc(path: Path) -> bool:
 
 @app.command()
 @_one_line_errors
-def info(path: Path = typer.Argument(..., help="a scene (PLY/SOG/compressed PLY) or a .gspc file")) -> None:
+def info(
+    path: Path = typer.Argument(..., help="a scene (PLY/SOG/compressed PLY/SPZ) or a .gspc file"),
+) -> None:
     """Print what a file holds: counts, bounds, statistics, or a .gspc file's byte budget."""
     if not path.exists():
         raise GspcError(f"{path}: no such file")
@@ -281,7 +283,7 @@ def _cameras_for(scene, cameras: Path | None, views: int, max_side: int):
 @app.command()
 @_one_line_errors
 def render(
-    scene: Path = typer.Argument(..., help="scene file (PLY/SOG/compressed PLY)"),
+    scene: Path = typer.Argument(..., help="scene file (PLY/SOG/compressed PLY/SPZ)"),
     output: Path = typer.Option(..., "-o", "--output", help="folder for the PNGs"),
     cameras: Path | None = typer.Option(None, help="camera file; default: synthesised views"),
     views: int = typer.Option(8, help="views to synthesise when no cameras are given"),
@@ -310,7 +312,7 @@ def render(
 @app.command(name="eval")
 @_one_line_errors
 def evaluate(
-    reference: Path = typer.Argument(..., help="reference scene"),
+    reference: Path = typer.Argument(..., help="reference scene (PLY/SOG/compressed PLY/SPZ)"),
     test: Path = typer.Argument(..., help="scene to score against the reference's renders"),
     cameras: Path | None = typer.Option(None, help="camera file; default: synthesised views"),
     views: int = typer.Option(16, help="views to synthesise when no cameras are given"),
@@ -338,7 +340,7 @@ def evaluate(
 @app.command()
 @_one_line_errors
 def convert(
-    scene: Path = typer.Argument(..., help="scene file (PLY/SOG/compressed PLY)"),
+    scene: Path = typer.Argument(..., help="scene file (PLY/SOG/compressed PLY/SPZ)"),
     output: Path = typer.Option(..., "-o", "--output", help="output PLY (INRIA layout)"),
 ) -> None:
     """Convert any readable scene to a standard INRIA 3DGS PLY."""

@@ -92,9 +92,11 @@ class GaussianScene:
             if not torch.isfinite(t).all():
                 bad = int((~torch.isfinite(t)).reshape(n, -1).any(1).sum())
                 raise InputError(f"attribute {name} has NaN or Inf values in {bad} Gaussian(s)")
-        qn = self.quats.norm(dim=1)
-        if (qn == 0).any():
-            raise InputError(f"{int((qn == 0).sum())} Gaussian(s) have an all-zero rotation quaternion")
+        # Exactly zero, not a zero norm: a tiny quaternion's float32 norm underflows to 0 though its
+        # direction is defined (readers normalise those, gspc/io/interop.py).
+        zero = (self.quats == 0).all(dim=1)
+        if zero.any():
+            raise InputError(f"{int(zero.sum())} Gaussian(s) have an all-zero rotation quaternion")
         return self
 
 

@@ -1,6 +1,7 @@
 import io
 import json
 import math
+import warnings
 import zipfile
 from pathlib import Path
 
@@ -107,8 +108,8 @@ def test_ply_write_is_atomic(tmp_path):
         write_ply(good, tmp_path / "no" / "s.ply")
 
 
-def _write_vertex(path: Path, columns: dict[str, np.ndarray]) -> None:
-    arr = np.empty(len(next(iter(columns.values()))), dtype=[(k, "<f4") for k in columns])
+def _write_vertex(path: Path, columns: dict[str, np.ndarray], dtype: str = "<f4") -> None:
+    arr = np.empty(len(next(iter(columns.values()))), dtype=[(k, dtype) for k in columns])
     for k, v in columns.items():
         arr[k] = v
     PlyData([PlyElement.describe(arr, "vertex")]).write(str(path))
@@ -172,6 +173,64 @@ def test_ply_nan_and_inf(tmp_path):
     _write_vertex(tmp_path / "inf.ply", cols)
     with pytest.raises(InputError, match="means has NaN or Inf values in 2 Gaussian"):
         read_scene(tmp_path / "inf.ply")
+
+
+def test_ply_infinite_opacity_logits_mean_alpha_one_and_zero(tmp_path):
+    """splat-transform's compressed-PLY reader and spz-js write +-inf logits for alpha 1 and 0."""
+    cols = _inria_columns(n=3)
+    cols["opacity"][:2] = [np.inf, -np.inf]
+    _write_vertex(tmp_path / "inf.ply", cols)
+    scene = read_scene(tmp_path / "inf.ply")
+    alpha = torch.sigmoid(scene.opacities)
+    assert torch.isfinite(scene.opacities).all()
+    assert alpha[0] == 1.0 and 1.0 - alpha[1] == 1.0  # exactly, in float32
+    assert scene.opacities[2] == 0.5  # finite logits untouched
+    cols["opacity"][2] = np.nan
+    _write_vertex(tmp_path / "nan.ply", cols)
+    with pytest.raises(InputError, match="attribute opacities has NaN"):
+        read_scene(tmp_path / "nan.ply")
+
+
+@pytest.mark.parametrize("tiny", [1e-30, 1e-40])  # 1e-40 is subnormal in float32
+def test_ply_tiny_quaternion_is_normalised(tmp_path, tiny):
+    cols = _inria_columns(n=2)
+    cols["rot_0"][0], cols["rot_1"][0], cols["rot_2"][0], cols["rot_3"][0] = tiny, 2 * tiny, 0.0, -2 * tiny
+    _write_vertex(tmp_path / "tiny.ply", cols)
+    scene = read_scene(tmp_path / "tiny.ply")
+    stored = np.array([tiny, 2 * tiny, 0.0, -2 * tiny], np.float32).astype(np.float64)  # subnormals round
+    np.testing.assert_allclose(scene.quats[0].numpy(), stored / np.linalg.norm(stored), rtol=1e-6)
+    np.testing.assert_allclose(scene.quats[0].numpy(), [1 / 3, 2 / 3, 0, -2 / 3], rtol=1e-4)
+    assert torch.equal(scene.quats[1], torch.full((4,), 0.5))  # ordinary rows keep their bits
+
+
+def test_ply_zero_and_non_finite_quaternions_are_refused(tmp_path):
+    cols = _inria_columns(n=3)
+    for name in ("rot_0", "rot_1", "rot_2", "rot_3"):
+        cols[name][1] = 0.0
+    _write_vertex(tmp_path / "zero.ply", cols)
+    with pytest.raises(InputError, match="1 Gaussian\\(s\\) have an all-zero rotation quaternion"):
+        read_scene(tmp_path / "zero.ply")
+    cols = _inria_columns(n=3)
+    cols["rot_2"][0] = np.inf
+    _write_vertex(tmp_path / "inf.ply", cols)
+    with pytest.raises(InputError, match="attribute quats has NaN or Inf"):
+        read_scene(tmp_path / "inf.ply")
+
+
+def test_ply_doubles_beyond_float32_are_named(tmp_path):
+    cols = {k: v.astype(np.float64) for k, v in _inria_columns(n=3).items()}
+    _write_vertex(tmp_path / "ok.ply", cols, "<f8")
+    assert read_scene(tmp_path / "ok.ply").means[0, 0] == 0.5
+    cols["scale_1"][2] = -1e300
+    cols["opacity"][0] = np.inf  # an infinite double is still the alpha-1 logit, not an overflow
+    _write_vertex(tmp_path / "big.ply", cols, "<f8")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a clear error, not numpy's overflow warning
+        with pytest.raises(InputError, match="property 'scale_1' has 1 value\\(s\\) beyond float32's range"):
+            read_scene(tmp_path / "big.ply")
+    cols["scale_1"][2] = 0.5
+    _write_vertex(tmp_path / "inf.ply", cols, "<f8")
+    assert torch.sigmoid(read_scene(tmp_path / "inf.ply").opacities[0]) == 1.0
 
 
 def test_ply_zero_gaussians(tmp_path):

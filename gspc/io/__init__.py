@@ -1,7 +1,8 @@
-"""Scene files in and out: INRIA PLY (read and write), PlayCanvas SOG and compressed PLY (read).
+"""Scene files in and out: INRIA PLY (read and write), PlayCanvas SOG and compressed PLY, Niantic SPZ (read).
 
-``read_scene`` picks the reader from the file's content, not its name: a zip is SOG, a PLY with a
-``chunk`` element is PlayCanvas compressed PLY, any other PLY is the INRIA layout.
+``read_scene`` picks the reader from the file's content, not its name: a zip is SOG, a gzip stream or an
+``NGSP`` header is SPZ, a PLY with a ``chunk`` element is PlayCanvas compressed PLY, any other PLY is the
+INRIA layout.
 """
 
 from __future__ import annotations
@@ -13,11 +14,12 @@ from gspc.errors import InputError
 from gspc.io.compressed_ply import is_compressed, read_compressed_ply, scene_from_compressed
 from gspc.io.ply import load_plydata, read_ply, scene_from_plydata, write_ply
 from gspc.io.sog import read_sog
+from gspc.io.spz import is_spz, read_spz
 from gspc.scene import GaussianScene
 
 ZIP_MAGIC = (b"PK\x03\x04", b"PK\x05\x06")
 
-__all__ = ["read_compressed_ply", "read_ply", "read_scene", "read_sog", "write_ply"]
+__all__ = ["read_compressed_ply", "read_ply", "read_scene", "read_sog", "read_spz", "write_ply"]
 
 
 def read_scene(path: str | os.PathLike) -> GaussianScene:
@@ -33,6 +35,8 @@ def read_scene(path: str | os.PathLike) -> GaussianScene:
         head = f.read(4)
     if head in ZIP_MAGIC or path.name == "meta.json":
         return read_sog(path)
+    if is_spz(head) or path.suffix.lower() == ".spz":
+        return read_spz(path)
     if head[:3] == b"ply":
         ply = load_plydata(path)
         if is_compressed(ply):
@@ -40,4 +44,4 @@ def read_scene(path: str | os.PathLike) -> GaussianScene:
         return scene_from_plydata(ply, source=str(path))
     if not head:
         raise InputError(f"{path}: file is empty")
-    raise InputError(f"{path}: unrecognised scene file (expected a PLY or a SOG zip)")
+    raise InputError(f"{path}: unrecognised scene file (expected a PLY, a SOG zip or an SPZ file)")

@@ -3,7 +3,8 @@
 One ``vertex`` element with float properties ``x y z``, optional normals ``nx ny nz``, ``f_dc_0..2``,
 ``f_rest_0..3K-1`` (channel-major: the K red coefficients, then green, then blue), ``opacity`` (logit),
 ``scale_0..2`` (log) and ``rot_0..3`` (w, x, y, z, unnormalised). Any other vertex property is kept in
-``scene.extra`` and written back unchanged.
+``scene.extra`` and written back unchanged. Infinite opacity logits and tiny quaternions, which other tools
+write, are mapped to what they mean (gspc/io/interop.py); double values beyond float32 are refused by name.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from plyfile import PlyData, PlyElement
 
 from gspc.atomic import atomic_write
 from gspc.errors import InputError
+from gspc.io.interop import finite_opacity_logits, float32_column, normalise_tiny_quaternions
 from gspc.scene import GaussianScene, num_sh_rest, sh_degree_from_rest
 
 POSITION = ("x", "y", "z")
@@ -58,10 +60,6 @@ def load_plydata(path: str | os.PathLike) -> PlyData:
             raise InputError(f"{path}: unreadable or truncated PLY ({_one_line(err)})") from err
 
 
-def _column(data: np.ndarray, name: str) -> np.ndarray:
-    return np.asarray(data[name], dtype=np.float32)
-
-
 def scene_from_plydata(ply: PlyData, source: str = "PLY") -> GaussianScene:
     """Build a validated scene from a parsed INRIA-layout PLY."""
     names = [e.name for e in ply.elements]
@@ -88,11 +86,14 @@ def scene_from_plydata(ply: PlyData, source: str = "PLY") -> GaussianScene:
     if missing:
         raise InputError(f"{source}: missing vertex properties: {', '.join(missing)}")
 
+    def column(name: str) -> np.ndarray:
+        return float32_column(data[name], name, source)
+
     def stack(cols) -> torch.Tensor:
-        return torch.from_numpy(np.stack([_column(data, c) for c in cols], axis=1))
+        return torch.from_numpy(np.stack([column(c) for c in cols], axis=1))
 
     if k:
-        rest = np.stack([_column(data, c) for c in rest_names(k)], axis=1)  # (N, 3K) channel-major
+        rest = np.stack([column(c) for c in rest_names(k)], axis=1)  # (N, 3K) channel-major
         sh_rest = torch.from_numpy(np.ascontiguousarray(rest.reshape(n, 3, k).transpose(0, 2, 1)))
     else:
         sh_rest = torch.zeros(n, 0, 3)
@@ -100,9 +101,9 @@ def scene_from_plydata(ply: PlyData, source: str = "PLY") -> GaussianScene:
     extra = {p: np.array(data[p]) for p in props if p not in known}
     scene = GaussianScene(
         means=stack(POSITION),
-        quats=stack(ROTATION),
+        quats=torch.from_numpy(normalise_tiny_quaternions(stack(ROTATION).numpy())),
         log_scales=stack(SCALES),
-        opacities=torch.from_numpy(_column(data, OPACITY).copy()),
+        opacities=torch.from_numpy(finite_opacity_logits(column(OPACITY))),
         sh_dc=stack(DC),
         sh_rest=sh_rest,
         sh_degree=deg,
