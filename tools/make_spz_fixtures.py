@@ -35,11 +35,10 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from gspc.io import read_ply, write_ply
+from gspc.scene import make_scene
 
-from gspc.io import read_ply, write_ply  # noqa: E402
-from gspc.scene import make_scene  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 NPM_PACKAGES = ("@playcanvas/splat-transform@3.7.0", "spz-js@1.2.5")
 PY_PACKAGE = "gsply[spz]==0.4.6"
