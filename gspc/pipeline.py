@@ -18,7 +18,13 @@ import torch
 from gspc import __version__
 from gspc.cameras import Camera, limit_size, load_cameras, sample_views, synthesize_views
 from gspc.codec import container, residuals
-from gspc.codec.attributes import EncodedAttributes, decode_attributes, encode_attributes, search_lambda
+from gspc.codec.attributes import (
+    EncodedAttributes,
+    attribute_chunks,
+    decode_attributes,
+    encode_attributes,
+    search_lambda,
+)
 from gspc.codec.cells import quantisation_cells
 from gspc.codec.sideinfo import pack_side, side_views
 from gspc.errors import CodecError, DeviceError, InputError
@@ -466,7 +472,7 @@ def decode(
             raise CodecError(
                 "the .gspc header lacks the attributes or side_info section gspc 1 writes"
             ) from None
-        chunks = {ch.type: ch.payload for ch in c.chunks if ch.type in ATTRIBUTE_CHUNKS}
+        chunks = attribute_chunks(c.chunks)
         views, res_chunks = side_views(side, c.chunks)
         restorer_name = opts.restorer if opts.restorer is not None else side.get("restorer", "none")
         restorer = load_restorer(restorer_name) if opts.restore else None

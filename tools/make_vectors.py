@@ -5,7 +5,9 @@
 
 Files are assembled here byte by byte from spec/gspc-format.md, not with gspc.codec.container, so the vectors
 and the reader are two independent readings of the spec. The expected outcome of each vector is stated here;
-generation fails if the reader disagrees with it.
+generation fails if the reader disagrees with it. The codec vectors (codec_*) hold payloads from gspc's
+encoder; their expected decoded values come from gspc's decoder, and tests/test_conformance.py requires the
+same of tests/spec_reader.py, a decoder written from the spec alone.
 """
 
 from __future__ import annotations
@@ -92,6 +94,7 @@ class Vector:
     meta: dict | None = None
     kept: list[tuple[dict, bytes]] = field(default_factory=list)  # chunks a 1.0 reader returns, in file order
     skipped: list[tuple[dict, bytes]] = field(default_factory=list)  # unknown optional chunks
+    codec: dict | None = None  # codec vectors: decoded attribute digests, or the codec error
 
     def manifest(self) -> dict:
         out = {
@@ -119,10 +122,12 @@ class Vector:
         out.update(
             expect="ok",
             version=list(self.version),
-            header=to_json(self.meta),
+            meta=to_json(self.meta),
             chunks=chunk_list(self.kept),
             skipped=chunk_list(self.skipped),
         )
+        if self.codec is not None:
+            out["codec"] = self.codec
         return out
 
 
@@ -645,8 +650,434 @@ def invalid_vectors() -> list[Vector]:
     return vs
 
 
+# ------------------------------------------------------------------ codec vectors (spec section 10)
+#
+# Tiny real encodes by gspc's encoder (gspc.codec), framed here by build(); the expected decoded attributes
+# are digests of gspc's reference decoder, which tests/test_conformance.py also requires of the separate
+# spec-following reader tests/spec_reader.py. Invalid ones take a valid file and break one rule of section 10
+# each; their containers stay valid.
+
+ATTRS = ("means", "quats", "log_scales", "opacities", "sh_dc", "sh_rest")
+BACKGROUND = [1.0, 1.0, 1.0]
+
+
+def tiny_scene(n: int, degree: int, seed: int, rest_fraction: float = 0.5):
+    """A blob of n Gaussians; about rest_fraction of them with view-dependent colour."""
+    from gspc.scene import make_scene
+
+    g = np.random.default_rng(seed)
+    k = (degree + 1) ** 2 - 1
+    rest = g.normal(0, 0.08, (n, k, 3)) * (g.uniform(size=(n, 1, 1)) < rest_fraction)
+    return make_scene(
+        g.normal(0, 0.5, (n, 3)),
+        g.normal(0, 1, (n, 4)),
+        g.normal(-3, 0.4, (n, 3)),
+        g.normal(1.5, 1.0, n),
+        g.normal(0, 0.4, (n, 3)),
+        rest,
+        degree,
+    )
+
+
+def encode_scene(scene) -> tuple[dict, dict[str, bytes]]:
+    """(meta["attributes"], attribute payloads) from gspc's attribute encoder at the low preset."""
+    from gspc.codec.attributes import encode_attributes
+    from gspc.codec.presets import PRESETS
+
+    enc = encode_attributes(scene, PRESETS["low"])
+    return enc.meta, enc.chunks
+
+
+def scene_meta(attributes: dict, side_info: dict | None = None) -> dict:
+    """meta as gspc encode writes it (spec 10.8)."""
+    return {
+        "encoder": "gspc make_vectors",
+        "scene": {
+            "num_gaussians": attributes["n"],
+            "sh_degree": attributes["sh_degree"],
+            "source_gaussians": attributes["n"],
+        },
+        "attributes": attributes,
+        "side_info": side_info or {"background": BACKGROUND, "restorer": "none"},
+    }
+
+
+def attribute_entries(chunks: dict[str, bytes], **index) -> list[tuple[dict, bytes]]:
+    order = ["POSN", "OPAC", "SCAL", "ROTN", "SHDC", "SHRS"]
+    return [(entry(t, chunks[t], index=index.get(t, 0)), chunks[t]) for t in order if t in chunks]
+
+
+def camera(i: int, w: int, h: int) -> dict:
+    from gspc.cameras import Camera
+
+    angle = 0.4 * i
+    rot = np.array([[np.cos(angle), 0, -np.sin(angle)], [0, 1, 0], [np.sin(angle), 0, np.cos(angle)]])
+    w2c = np.eye(4)
+    w2c[:3, :3] = rot
+    w2c[:3, 3] = [0.0, 0.0, 3.0]
+    K = np.array([[1.2 * w, 0, w / 2], [0, 1.2 * w, h / 2], [0, 0, 1]])
+    return Camera(w2c, K, w, h, f"v{i}").to_dict()
+
+
+def residual_image(h: int, w: int, seed: int, codec: str) -> tuple[bytes, float]:
+    """A smooth signed residual quantised as 10.7 says and coded losslessly, so every conforming image
+    decoder returns the same samples: (image bytes, gain)."""
+    import imagecodecs
+
+    g = np.random.default_rng(seed)
+    yy, xx = np.mgrid[0:h, 0:w]
+    r = np.stack([np.sin(xx / 3.0 + c) * np.cos(yy / 4.0) * 0.05 for c in range(3)], -1)
+    r = r + g.normal(0, 0.005, r.shape)
+    gain = float(np.float32(127 / np.abs(r).max()))
+    q = np.clip(np.rint(r * gain + 128), 0, 255).astype(np.uint8)
+    if codec == "jxl":
+        return imagecodecs.jpegxl_encode(q, lossless=True, effort=3), gain
+    return imagecodecs.webp_encode(q, lossless=True), gain
+
+
+def side_chunk(scale: int = 2) -> bytes:
+    """SIDE (10.9): two 24x20 views with one shared camera size; view 1 carries a JPEG XL residual."""
+    from gspc.codec.sideinfo import pack_side
+
+    w, h = 24, 20
+    views = [{"camera": camera(i, w, h)} for i in range(2)]
+    cams = [v["camera"] for v in views]
+    for c in cams[1:]:
+        c["intrinsics"] = cams[0]["intrinsics"]
+    image, gain = residual_image(-(-h // scale), -(-w // scale), 7, "jxl")
+    views[1]["residual"] = {
+        "codec": "jxl",
+        "shape": [-(-h // scale), -(-w // scale)],
+        "bits": 8,
+        "gain": gain,
+        "offset": 128,
+        "scale": scale,
+        "full_shape": [h, w],
+    }
+    return pack_side(views, {1: image})
+
+
+def digest(a: np.ndarray) -> dict:
+    a = np.ascontiguousarray(a, dtype="<f4")
+    first = a.reshape(a.shape[0], -1)[0] if a.size else a.reshape(-1)
+    return {
+        "shape": list(a.shape),
+        "sha256": hashlib.sha256(a.tobytes()).hexdigest(),
+        "first": [float(x) for x in first],
+    }
+
+
+def reference_decode(data: bytes) -> tuple[dict[str, np.ndarray], list[dict]]:
+    """gspc's decoder up to the decoded attributes and residuals (what gspc decode does before rendering)."""
+    sys.path.insert(0, str(ROOT))
+    from gspc.codec import container
+    from gspc.codec.attributes import attribute_chunks, decode_attributes
+    from gspc.codec.residuals import decode_residual
+    from gspc.codec.sideinfo import side_views
+    from gspc.errors import CodecError
+
+    c = container.unpack(data)
+    if not isinstance(c.header.get("attributes"), dict) or not isinstance(c.header.get("side_info"), dict):
+        raise CodecError("meta lacks attributes or side_info")
+    views, images = side_views(c.header["side_info"], c.chunks)
+    scene = decode_attributes(attribute_chunks(c.chunks), c.header["attributes"])
+    attrs = {name: getattr(scene, name).numpy() for name in ATTRS}
+    out = []
+    for k, v in enumerate(views):
+        view = {"width": v["camera"]["width"], "height": v["camera"]["height"]}
+        if k in images:
+            view["residual"] = decode_residual(images[k], v["residual"])
+        out.append(view)
+    return attrs, out
+
+
+def codec_expectation(data: bytes) -> dict:
+    attrs, views = reference_decode(data)
+    out = {"expect": "ok", "attributes": {k: digest(v) for k, v in attrs.items()}, "views": []}
+    for v in views:
+        rec = {"width": v["width"], "height": v["height"]}
+        if "residual" in v:
+            rec["residual"] = digest(v["residual"])
+        out["views"].append(rec)
+    return out
+
+
+def ecm_parts(payload: bytes) -> tuple[int, int, list, bytes]:
+    import zstandard
+
+    m, c, packed, words = msgpack.unpackb(payload)
+    return m, c, msgpack.unpackb(zstandard.ZstdDecompressor().decompress(packed)), words
+
+
+def ecm(m: int, c: int, models, words: bytes, raw_models: bytes | None = None) -> bytes:
+    import zstandard
+
+    packed = (
+        raw_models
+        if raw_models is not None
+        else zstandard.ZstdCompressor(level=19).compress(msgpack.packb(models))
+    )
+    return msgpack.packb([m, c, packed, words], use_bin_type=True)
+
+
+def with_model(payload: bytes, column: int, bucket: int, spec: list | None = None, mode: int | None = None):
+    """The ECM with one model spec or one column's mode replaced; the words are kept."""
+    m, c, models, words = ecm_parts(payload)
+    if spec is not None:
+        models[column][1][bucket] = spec
+    if mode is not None:
+        models[column][0] = mode
+    return ecm(m, c, models, words)
+
+
+def codec_vectors() -> list[Vector]:
+    vs: list[Vector] = []
+
+    def ok(name: str, desc: str, meta: dict, chunks, minor: int = 1) -> Vector:
+        v = valid(name, desc, meta, chunks, minor=minor)
+        v.codec = codec_expectation(v.data)
+        vs.append(v)
+        return v
+
+    a0, c0 = encode_scene(tiny_scene(40, 0, 1))
+    ok(
+        "codec_sh0",
+        "40 Gaussians, SH degree 0: POSN, OPAC, SCAL, ROTN, SHDC",
+        scene_meta(a0),
+        attribute_entries(c0),
+    )
+    a3, c3 = encode_scene(tiny_scene(100, 3, 2))
+    ok(
+        "codec_sh3",
+        "100 Gaussians, SH degree 3, about half with SH rest (SHRS flags and values)",
+        scene_meta(a3),
+        attribute_entries(c3),
+    )
+    a1, c1 = encode_scene(tiny_scene(30, 1, 3, rest_fraction=0.0))
+    ok(
+        "codec_sh1_no_rest",
+        "30 Gaussians, SH degree 1, none with SH rest: SHRS values is the empty ECM",
+        scene_meta(a1),
+        attribute_entries(c1),
+    )
+    a2, c2 = encode_scene(tiny_scene(50, 1, 4))
+    side = side_chunk()
+    ok(
+        "codec_side_jxl",
+        "50 Gaussians, SH degree 1, SIDE with two 24x20 views, one with a lossless JPEG XL "
+        "residual at half resolution",
+        scene_meta(a2),
+        [*attribute_entries(c2), (entry("SIDE", side), side)],
+    )
+    image, gain = residual_image(20, 24, 8, "webp")
+    views10 = [
+        {
+            "camera": camera(0, 24, 20),
+            "residual": {"codec": "webp", "shape": [20, 24], "bits": 8, "gain": gain, "offset": 128},
+        },
+        {"camera": camera(1, 24, 20)},
+    ]
+    meta10 = scene_meta(a0, {"views": views10, "background": BACKGROUND, "restorer": "none"})
+    ok(
+        "codec_resi_1_0",
+        "format 1.0 side information: views in meta, one RESI chunk with a lossless WebP "
+        "residual at full resolution",
+        meta10,
+        [*attribute_entries(c0), (entry("RESI", image), image)],
+        minor=0,
+    )
+
+    def bad_codec(name: str, desc: str, meta: dict, chunks, *contains: str) -> None:
+        v = valid(name, desc, meta, chunks, minor=1)
+        v.codec = {"expect": "error", "error": "CodecError", "message_contains": list(contains)}
+        vs.append(v)
+
+    def broken(name: str, desc: str, *contains: str, meta=None, **payloads) -> None:
+        chunks = {**c0, **payloads}
+        bad_codec(name, desc, meta or scene_meta(a0), attribute_entries(chunks), *contains)
+
+    n0 = a0["n"]
+    broken(
+        "codec_invalid_mode_column0",
+        "OPAC column 0 with prediction mode 2",
+        "prediction mode",
+        OPAC=with_model(c0["OPAC"], 0, 0, mode=2),
+    )
+    broken(
+        "codec_invalid_mode_4",
+        "SCAL column 1 with prediction mode 4",
+        "prediction mode",
+        SCAL=with_model(c0["SCAL"], 1, 0, mode=4),
+    )
+    broken(
+        "codec_invalid_negative_u",
+        "a geometric model with ratio index u = -1 (no index from the end)",
+        "ratio",
+        OPAC=with_model(c0["OPAC"], 0, 0, [2, 0, 9, 4, -1, 3]),
+    )
+    broken(
+        "codec_invalid_big_u",
+        "a geometric model with ratio index u = 131",
+        "ratio",
+        OPAC=with_model(c0["OPAC"], 0, 0, [2, 0, 9, 4, 131, 3]),
+    )
+    broken(
+        "codec_invalid_far_centre",
+        "a geometric model centred at 2^40 over the window 0..9",
+        "centre",
+        OPAC=with_model(c0["OPAC"], 0, 0, [2, 0, 9, 2**40, 5, 3]),
+    )
+    broken(
+        "codec_invalid_model_kind",
+        "a model of kind 7",
+        "kind",
+        OPAC=with_model(c0["OPAC"], 0, 0, [7, 0, 9, 4, 5, 3]),
+    )
+    broken(
+        "codec_invalid_kind3_count",
+        "an explicit model over 0..3 with 2 weights",
+        "weights",
+        OPAC=with_model(c0["OPAC"], 0, 0, [3, 0, 3, 1, 2]),
+    )
+    broken(
+        "codec_invalid_spec_integer",
+        "a constant model whose value is 2^63",
+        "2^48",
+        OPAC=with_model(c0["OPAC"], 0, 0, [1, 2**63]),
+    )
+    broken(
+        "codec_invalid_window",
+        "an explicit model over 1 symbol",
+        "window",
+        OPAC=with_model(c0["OPAC"], 0, 0, [3, 5, 5, 1]),
+    )
+    m, c, models, words = ecm_parts(c0["OPAC"])
+    import zstandard
+
+    frame = zstandard.ZstdCompressor(level=19).compress(msgpack.packb(models))
+    broken(
+        "codec_invalid_zstd_trailing",
+        "one zero byte after the models' zstd frame",
+        "unused data",
+        OPAC=ecm(m, c, models, words, frame + b"\x00"),
+    )
+    broken(
+        "codec_invalid_words_length",
+        "range coder words one byte longer than whole words",
+        "multiple of 4",
+        OPAC=ecm(m, c, models, words + b"\x00"),
+    )
+    broken(
+        "codec_invalid_shape",
+        f"OPAC matrix of {n0 + 1} rows for {n0} Gaussians",
+        "expected",
+        OPAC=ecm(n0 + 1, 1, models, words),
+    )
+    const = [[1, [[1, 2**48]] * 15]]
+    broken(
+        "codec_invalid_value_range",
+        "OPAC values that grow past 2^48 (constant residual 2^48, mode 1)",
+        "2^48",
+        OPAC=ecm(n0, 1, const, b""),
+    )
+    invalid_stream = [[0, [[3, 0, 1, 1, 1]] * 15]]
+    broken(
+        "codec_invalid_range_quantile",
+        "range coder words ff ff ff ff ff ff ff ff: quantile 2^24 at the first symbol",
+        "corrupt",
+        OPAC=ecm(n0, 1, invalid_stream, b"\xff" * 8),
+    )
+    # POSN: gaps 2^(3 bits - 1) each: the second code reaches 2^(3 bits).
+    from gspc.codec.entropy import encode_matrix, pack_bits
+
+    bits = a0["position"]["bits"]
+    lengths = np.full(n0, 3 * bits, np.int64)
+    classes = encode_matrix(lengths[:, None])
+    raw = pack_bits(np.full(n0, 1 << (3 * bits - 1), np.uint64), lengths - 1)
+    broken(
+        "codec_invalid_morton_overflow",
+        f"position codes past 3 x {bits} bits",
+        "past",
+        POSN=msgpack.packb([classes, raw], use_bin_type=True),
+    )
+    classes, raw = msgpack.unpackb(c0["POSN"])
+    broken(
+        "codec_invalid_raw_extra_byte",
+        "one byte more raw bits than the classes need",
+        "raw-bit",
+        POSN=msgpack.packb([classes, raw + b"\x00"], use_bin_type=True),
+    )
+    flags, values = msgpack.unpackb(c1["SHRS"])
+    assert msgpack.unpackb(values)[0] == 0, "codec_sh1_no_rest must flag no Gaussian"
+    empty_words = msgpack.packb([0, msgpack.unpackb(values)[1], b"", b"\x00\x00\x00\x00"], use_bin_type=True)
+    bad_codec(
+        "codec_invalid_empty_matrix_words",
+        "SHRS values: an ECM of 0 rows with a range coder word",
+        scene_meta(a1),
+        attribute_entries({**c1, "SHRS": msgpack.packb([flags, empty_words], use_bin_type=True)}),
+        "0 rows",
+    )
+    bad_codec(
+        "codec_invalid_chunk_index",
+        "OPAC with index 1",
+        scene_meta(a0),
+        attribute_entries(c0, OPAC=1),
+        "index 1",
+    )
+    bad_codec(
+        "codec_invalid_shrs_in_sh0",
+        "an SHRS chunk in a file of SH degree 0",
+        scene_meta(a0),
+        attribute_entries({**c0, "SHRS": c3["SHRS"]}),
+        "degree 0",
+    )
+    bad_codec(
+        "codec_invalid_float_count",
+        "attributes.n written as a float",
+        scene_meta(dict(a0, n=float(n0))),
+        attribute_entries(c0),
+        "not an integer",
+    )
+    bad_codec(
+        "codec_invalid_count_vs_payload",
+        "300000 Gaussians declared in a file of about 2 KB",
+        scene_meta(dict(a0, n=300000)),
+        attribute_entries(c0),
+        "per byte",
+    )
+    head = struct.calcsize("<IBBBB") + struct.calcsize("<II16s")
+    first_gain = head + struct.calcsize("<48sI")  # view 0 has no image
+    gain_at = first_gain + struct.calcsize("<48sI")
+    assert struct.unpack_from("<I", side, gain_at - 4)[0] > 0
+    for gname, g in [("zero", 0.0), ("nan", float("nan"))]:
+        bad_side = side[:gain_at] + struct.pack("<f", g) + side[gain_at + 4 :]
+        bad_codec(
+            f"codec_invalid_side_gain_{gname}",
+            f"SIDE view 1 with gain {g} (refused even with --no-restore)",
+            scene_meta(a2),
+            [*attribute_entries(c2), (entry("SIDE", bad_side), bad_side)],
+            "gain",
+        )
+    big = side[:8] + struct.pack("<II", 65536, 65536) + side[16:]
+    bad_codec(
+        "codec_invalid_side_pixels",
+        "SIDE views of 65536 x 65536 pixels",
+        scene_meta(a2),
+        [*attribute_entries(c2), (entry("SIDE", big), big)],
+        "pixels",
+    )
+    bad_codec(
+        "codec_invalid_side_index",
+        "SIDE with index 1",
+        scene_meta(a2),
+        [*attribute_entries(c2), (entry("SIDE", side, index=1), side)],
+        "index 1",
+    )
+    return vs
+
+
 def all_vectors() -> list[Vector]:
-    vs = valid_vectors() + invalid_vectors()
+    vs = valid_vectors() + invalid_vectors() + codec_vectors()
     names = [v.name for v in vs]
     assert len(names) == len(set(names)), "vector names must be unique"
     return vs
@@ -656,10 +1087,13 @@ def manifest(vs: list[Vector]) -> dict:
     return {
         "about": (
             "gspc conformance vectors (spec/gspc-format.md, section 13). expect 'ok': a reader returns "
-            "this version, header (msgpack bin shown as {'$bin': hex}) and these chunks in file order, "
-            "unknown "
-            "optional ones under 'skipped'. expect 'error': a reader refuses the file; 'error' names the "
-            "FormatError subclass of the reference reader and 'message_contains' words its message holds."
+            "this version, meta (msgpack bin shown as {'$bin': hex}) and these chunks in file order, "
+            "unknown optional ones under 'skipped'. expect 'error': a reader refuses the file; 'error' "
+            "names the FormatError subclass of the reference reader and 'message_contains' words its "
+            "message holds. 'codec' (codec_* files, section 10): expect 'ok': the decoded attributes "
+            "(binary32 little-endian arrays in curve order: shape, SHA-256 of the bytes, row 0's values) "
+            "and per side-information view its size and decoded residual R (H x W x 3, after upsampling); "
+            "expect 'error': a decoder refuses the payloads (the reference raises CodecError)."
         ),
         "generated_by": "python tools/make_vectors.py",
         "vectors": [v.manifest() for v in vs],
@@ -672,13 +1106,18 @@ def readme(vs: list[Vector]) -> str:
         "",
         "Made by `python tools/make_vectors.py`; checked by `tests/test_conformance.py`. Each file",
         "exercises one feature or one kind of damage; MANIFEST.json holds the exact expected outcome",
-        "(decoded header, chunk hashes, or the error). The format is described in `../gspc-format.md`.",
+        "(decoded meta, chunk hashes, or the error). The format is described in `../gspc-format.md`.",
+        "`codec_*` files are real encodes (valid containers): 'decodes' ones list their decoded attributes'",
+        "digests in MANIFEST.json, the others must be refused by a decoder (spec section 10.11).",
         "",
         "| file | bytes | expected | what it holds |",
         "|---|---:|---|---|",
     ]
     for v in vs:
-        lines.append(f"| `{v.name}.gspc` | {len(v.data)} | {v.error or 'ok'} | {v.description} |")
+        expected = v.error or "ok"
+        if v.codec is not None:
+            expected = "decodes" if v.codec["expect"] == "ok" else "ok; codec: CodecError"
+        lines.append(f"| `{v.name}.gspc` | {len(v.data)} | {expected} | {v.description} |")
     return "\n".join(lines) + "\n"
 
 
@@ -705,6 +1144,15 @@ def check_with_reader(vs: list[Vector]) -> list[str]:
             (e["type"], e["index"], p) for e, p in v.kept
         ]:
             problems.append(f"{v.name}: reader decoded different content")
+        elif v.codec is not None and v.codec["expect"] == "error":
+            from gspc.errors import CodecError
+
+            try:
+                reference_decode(v.data)
+                problems.append(f"{v.name}: expected CodecError, the reference decoder accepted it")
+            except CodecError as e:
+                if missing := [s for s in v.codec["message_contains"] if s not in str(e)]:
+                    problems.append(f"{v.name}: codec message {str(e)!r} lacks {missing}")
     return problems
 
 

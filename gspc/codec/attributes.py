@@ -210,32 +210,71 @@ def encode_attributes(
     return EncodedAttributes(chunks=chunks, meta=meta, decoded=decoded, kept=kept)
 
 
+ATTRIBUTE_TYPES = ("POSN", "OPAC", "SCAL", "ROTN", "SHDC", "SHRS")
+MAX_GAUSSIANS = 1 << 26
+# A Gaussian whose every symbol has a one-value model costs no bits, so the count alone could ask for any
+# allocation from a tiny file; spec 10.0 caps it at 64 per payload byte (real files: under 1 per byte).
+GAUSSIANS_PER_BYTE = 64
+
+
+def attribute_chunks(chunks: list) -> dict[str, bytes]:
+    """The attribute payloads of a container's chunks by type; each type occurs once, with index 0."""
+    out = {}
+    for ch in chunks:
+        if ch.type in ATTRIBUTE_TYPES:
+            if ch.index != 0:
+                raise CodecError(f"chunk {ch.type} has index {ch.index}; attribute chunks have index 0")
+            out[ch.type] = ch.payload
+    return out
+
+
 def _matrix(chunks: dict[str, bytes], name: str, n: int, c: int) -> np.ndarray:
     if name not in chunks:
         raise CodecError(f"chunk {name} is missing")
-    q = decode_matrix(chunks[name])
-    if q.shape != (n, c):
-        raise CodecError(f"chunk {name} holds a {q.shape} matrix, expected {(n, c)}")
-    return q
+    return decode_matrix(chunks[name], (n, c))
+
+
+def _is_int(x: object) -> bool:
+    return isinstance(x, int) and not isinstance(x, bool)
+
+
+def _is_step(x: object) -> bool:
+    return isinstance(x, float) and math.isfinite(x) and x > 0
 
 
 def decode_attributes(chunks: dict[str, bytes], meta: dict) -> GaussianScene:
     """Decode chunks to a float32 scene in curve order; identical on every machine."""
     try:
-        if meta["version"] != FORMAT_VERSION:
+        if not _is_int(meta["version"]) or meta["version"] != FORMAT_VERSION:
             raise CodecError(f"attribute codec version {meta['version']} is not supported")
-        n, degree = int(meta["n"]), int(meta["sh_degree"])
+        n, degree = meta["n"], meta["sh_degree"]
         grid = meta["position"]
-        bits = int(grid["bits"])
-        opacity_levels, rot_levels = int(meta["opacity_levels"]), int(meta["rotation_levels"])
-        scale_step, dc_step = float(meta["scale_step"]), float(meta["dc_step"])
-        sh_steps = [float(s) for s in meta["sh_steps"]]
+        bits, lo, step = grid["bits"], list(grid["lo"]), list(grid["step"])
+        opacity_levels, rot_levels = meta["opacity_levels"], meta["rotation_levels"]
+        scale_step, dc_step = meta["scale_step"], meta["dc_step"]
+        sh_steps = list(meta["sh_steps"])
     except (KeyError, TypeError, ValueError) as err:
         raise CodecError(f"attribute codec header is malformed ({err})") from None
-    if n <= 0 or not 0 <= degree <= 3 or len(sh_steps) != num_sh_rest(degree):
+    # Integers are msgpack integers and steps msgpack floats (spec 10.0): 300.0 Gaussians is refused.
+    if not all(_is_int(v) for v in (n, degree, bits, opacity_levels, rot_levels)):
+        raise CodecError(
+            "attribute codec header has a count, degree, bit depth or level that is not an integer"
+        )
+    if not 1 <= n <= MAX_GAUSSIANS or not 0 <= degree <= 3 or len(sh_steps) != num_sh_rest(degree):
         raise CodecError("attribute codec header has an impossible count, SH degree or step list")
     if opacity_levels < 1 or rot_levels < 1 or not 1 <= bits <= pos.MAX_BITS:
         raise CodecError("attribute codec header has impossible quantiser levels")
+    if not all(_is_step(v) for v in (scale_step, dc_step, *sh_steps, *step)) or len(step) != 3:
+        raise CodecError("attribute codec header has a step that is not a positive finite float")
+    if len(lo) != 3 or not all(isinstance(v, float) and math.isfinite(v) for v in lo):
+        raise CodecError("attribute codec header has a grid origin that is not 3 finite floats")
+    if degree == 0 and "SHRS" in chunks:
+        raise CodecError("chunk SHRS in a file of SH degree 0")
+    payload_bytes = sum(len(chunks.get(t, b"")) for t in ATTRIBUTE_TYPES)
+    if n > GAUSSIANS_PER_BYTE * payload_bytes:
+        raise CodecError(
+            f"{n} Gaussians from {payload_bytes} payload bytes (at most {GAUSSIANS_PER_BYTE} per byte)"
+        )
     if "POSN" not in chunks:
         raise CodecError("chunk POSN is missing")
     voxels = pos.decode_positions(chunks["POSN"], bits, n)
@@ -253,13 +292,13 @@ def decode_attributes(chunks: dict[str, bytes], meta: dict) -> GaussianScene:
             flag_payload, rest_payload = msgpack.unpackb(chunks["SHRS"], raw=False)
         except Exception:
             raise CodecError("chunk SHRS is malformed") from None
-        flags = decode_matrix(flag_payload)
-        if flags.shape != (n, 1) or ((flags != 0) & (flags != 1)).any():
+        if not (isinstance(flag_payload, bytes) and isinstance(rest_payload, bytes)):
+            raise CodecError("chunk SHRS is not a pair of msgpack bins")
+        flags = decode_matrix(flag_payload, (n, 1))
+        if ((flags != 0) & (flags != 1)).any():
             raise CodecError("chunk SHRS has a malformed flag matrix")
         flags = flags[:, 0].astype(bool)
-        q = decode_matrix(rest_payload)
-        if q.shape != (int(flags.sum()), 3 * k):
-            raise CodecError("chunk SHRS holds the wrong number of coefficients")
+        q = decode_matrix(rest_payload, (int(flags.sum()), 3 * k))
         vals = q.reshape(-1, k, 3).astype(np.float64) * np.asarray(sh_steps)[None, :, None]
         rest[flags] = vals.astype(np.float32)
     t = torch.from_numpy

@@ -38,6 +38,10 @@ _EMPIRICAL_SCALE = 1023
 _WEIGHT_SCALE = float(1 << 30)
 PRECISION = 24  # constriction's default range coder: 32-bit words, 64-bit state, 24-bit probabilities
 MAX_WINDOW = 1 << 22  # symbols per model (constriction needs fewer than 2^24 - 1)
+# Model integers and decoded entries lie in -2^48..2^48 (spec 10.0), so every prediction (at most three
+# such terms) fits in int64 and every value converts to float64 exactly: no wrap-around to define.
+INT_LIMIT = 1 << 48
+MAX_MODELS_BYTES = 1 << 26  # decompressed size of an ECM's model list (spec 10.0)
 
 
 def _thetas() -> np.ndarray:
@@ -122,6 +126,34 @@ def fit_model(sym: np.ndarray) -> tuple[list[int], float]:
     if best_bits is None:
         best_bits = float(cost[u, b]) + 64
     return best, best_bits
+
+
+def _is_int(x: object) -> bool:
+    return isinstance(x, int) and not isinstance(x, bool)
+
+
+def check_spec(spec: object) -> None:
+    """CodecError unless ``spec`` is a model spec of spec 10.0, checked before any table is built: a
+    kind-2 centre far outside its window would otherwise make :func:`model_weights` allocate without bound."""
+    if not isinstance(spec, list) or not spec or not all(_is_int(v) for v in spec):
+        raise CodecError(f"entropy model spec {spec!r:.60} is not a list of integers")
+    if not all(-INT_LIMIT <= v <= INT_LIMIT for v in spec):
+        raise CodecError("entropy model spec holds an integer outside -2^48..2^48")
+    kind = spec[0]
+    sizes = {0: 1, 1: 2, 2: 6}
+    if kind not in (0, 1, 2, 3) or len(spec) != sizes.get(kind, max(len(spec), 3)):
+        raise CodecError(f"entropy model spec of kind {kind} has {len(spec)} integers")
+    if kind < 2:
+        return
+    lo, hi = spec[1], spec[2]
+    if not 2 <= hi - lo + 1 <= MAX_WINDOW:
+        raise CodecError(f"entropy model window {lo}..{hi} is outside 2..{MAX_WINDOW} symbols")
+    if kind == 2:
+        c, u, b = spec[3:]
+        if not (lo <= c <= hi and 0 <= u < THETAS.size and 0 <= b < BOOSTS.size):
+            raise CodecError(f"geometric model centre {c}, ratio {u} or boost {b} out of range")
+    elif len(spec) != 3 + hi - lo + 1:
+        raise CodecError(f"explicit model over {hi - lo + 1} symbols lists {len(spec) - 3} weights")
 
 
 def fixed_point_table(spec: list[int]) -> np.ndarray:
@@ -266,16 +298,42 @@ def encode_matrix(q: np.ndarray) -> bytes:
     return msgpack.packb([m, nc, packed, words], use_bin_type=True)
 
 
-def decode_matrix(payload: bytes) -> np.ndarray:
-    """Inverse of :func:`encode_matrix`."""
+def _unpack_models(packed: bytes) -> list:
+    # One zstd frame, nothing after it; a frame that declares more than the limit is refused before
+    # zstandard allocates the declared size (it ignores max_output_size for declared sizes).
+    size = zstandard.frame_content_size(packed)
+    if size > MAX_MODELS_BYTES:
+        raise CodecError(f"entropy models declare {size} bytes (limit {MAX_MODELS_BYTES})")
+    raw = zstandard.ZstdDecompressor().decompress(
+        packed, max_output_size=MAX_MODELS_BYTES, allow_extra_data=False
+    )
+    return msgpack.unpackb(raw, raw=False)
+
+
+def decode_matrix(payload: bytes, shape: tuple[int, int] | None = None) -> np.ndarray:
+    """Inverse of :func:`encode_matrix`. With ``shape``, a matrix of another shape is refused before
+    anything of its size is allocated (spec 10.0: the caller knows the shape)."""
     try:
-        m, nc, packed, words = msgpack.unpackb(payload, raw=False, strict_map_key=False)
-        dec = constriction.stream.queue.RangeDecoder(np.frombuffer(words, dtype="<u4").copy())
+        ecm = msgpack.unpackb(payload, raw=False, strict_map_key=False)
+        if not (isinstance(ecm, list) and len(ecm) == 4):
+            raise CodecError("entropy-coded matrix is not an array of 4 elements")
+        m, nc, packed, words = ecm
+        if not (_is_int(m) and _is_int(nc) and isinstance(packed, bytes) and isinstance(words, bytes)):
+            raise CodecError("entropy-coded matrix has fields of the wrong types")
+        if shape is not None and (m, nc) != tuple(shape):
+            raise CodecError(f"entropy-coded matrix is {m}x{nc}, expected {shape[0]}x{shape[1]}")
+        if m < 0 or nc < 0:
+            raise CodecError(f"entropy-coded matrix has a negative shape {m}x{nc}")
         if m == 0:
+            if packed or words:
+                raise CodecError("an entropy-coded matrix of 0 rows has models or words")
             return np.zeros((0, nc), np.int64)
-        header = msgpack.unpackb(
-            zstandard.ZstdDecompressor().decompress(packed, max_output_size=1 << 26), raw=False
-        )
+        if len(words) % 4:
+            raise CodecError(f"range coder words take {len(words)} bytes, not a multiple of 4")
+        dec = constriction.stream.queue.RangeDecoder(np.frombuffer(words, dtype="<u4").copy())
+        header = _unpack_models(packed)
+        if not isinstance(header, list) or len(header) != nc:
+            raise CodecError(f"entropy models list {len(header)} columns, the matrix has {nc}")
         levels = hierarchy(m)
         q = np.zeros((m, nc), np.int64)
         prev_q = np.zeros(m, np.int64)
@@ -283,6 +341,13 @@ def decode_matrix(payload: bytes) -> np.ndarray:
         prev_res = np.zeros(m, np.int64)
         for ch in range(nc):
             mode, specs = header[ch]
+            # Column 0 has no previous column: modes 2 and 3 would predict from zeros (spec 10.0).
+            if not _is_int(mode) or not 0 <= mode < (NUM_MODES if ch > 0 else 2):
+                raise CodecError(f"column {ch} has prediction mode {mode!r}")
+            if not isinstance(specs, list) or len(specs) != NUM_BUCKETS:
+                raise CodecError(f"column {ch} lists {len(specs)} models, not {NUM_BUCKETS}")
+            for s in specs:
+                check_spec(s)
             models = [_categorical(s) if s[0] >= 2 else None for s in specs]
             col = np.zeros(m, np.int64)
             nb_all = np.zeros(m, np.int64)
@@ -297,6 +362,8 @@ def decode_matrix(payload: bytes) -> np.ndarray:
                     if count:
                         res[sel] = decode_symbols(dec, count, specs[bk], models[bk])
                 col[rows] = res + _prediction(mode, nb, prev_q[rows], prev_nb[rows])
+                if rows.size and np.abs(col[rows]).max() > INT_LIMIT:
+                    raise CodecError(f"column {ch} decodes to a value outside -2^48..2^48")
                 nb_all[rows], res_all[rows] = nb, res
             q[:, ch] = col
             prev_q, prev_nb, prev_res = col, nb_all, res_all
@@ -329,10 +396,15 @@ def unpack_bits(data: bytes, lengths: np.ndarray) -> np.ndarray:
     total = int(lengths.sum())
     out = np.zeros(lengths.size, np.uint64)
     if total == 0:
+        if data:
+            raise CodecError(f"raw-bit section has {len(data)} bytes, its lengths need none")
         return out
+    # Exactly ceil(total / 8) bytes with zero padding bits (spec 10.0 "Raw bits"): every payload has one form.
+    if len(data) != (total + 7) // 8:
+        raise CodecError(f"raw-bit section has {len(data)} bytes, its lengths need {(total + 7) // 8}")
     bits = np.unpackbits(np.frombuffer(data, np.uint8))
-    if bits.size < total:
-        raise CodecError("raw-bit section is shorter than its lengths say")
+    if bits[total:].any():
+        raise CodecError("raw-bit section has non-zero padding bits")
     bits = bits[:total].astype(np.uint64)
     owner = np.repeat(np.arange(lengths.size), lengths)
     starts = np.cumsum(lengths) - lengths

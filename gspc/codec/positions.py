@@ -89,11 +89,16 @@ def decode_positions(payload: bytes, bits: int, n: int) -> np.ndarray:
         classes, raw = msgpack.unpackb(payload, raw=False)
     except Exception as err:
         raise CodecError(f"corrupt position payload ({type(err).__name__})") from None
-    lengths = decode_matrix(classes)[:, 0]
-    if lengths.size != n or (lengths > 3 * bits).any() or (lengths < 0).any():
-        raise CodecError("position payload does not match the header's count or bit depth")
+    if not (isinstance(classes, bytes) and isinstance(raw, bytes)):
+        raise CodecError("position payload is not a pair of msgpack bins")
+    lengths = decode_matrix(classes, (n, 1))[:, 0]
+    if (lengths > 3 * bits).any() or (lengths < 0).any():
+        raise CodecError("position payload does not match the header's bit depth")
     mantissa_len = np.maximum(lengths - 1, 0)
     low = unpack_bits(raw, mantissa_len).astype(np.int64)
     lead = np.where(lengths > 0, np.left_shift(1, mantissa_len), 0)
     code = np.cumsum(lead | low)
+    # Gaps are below 2^51, so a sum that would wrap int64 passes through [2^(3 bits), 2^63) first.
+    if (code >= 1 << (3 * bits)).any():
+        raise CodecError(f"position codes run past 3 x {bits} bits")
     return morton_decode(code, bits)

@@ -28,6 +28,11 @@ _CAMERA = struct.Struct("<II16s")  # width, height, intrinsics (4 x binary32: fx
 _VIEW = struct.Struct("<48sI")  # pose (12 x binary32), image length
 _GAIN = struct.Struct("<f")
 MAX_VIEWS = 1 << 20
+MAX_SIDE = 1 << 16  # width and height of a view
+# The decoder renders every view and keeps its target for refinement: memory grows with the pixels, which a
+# view without residual names in 24-52 bytes. Spec 10.8 bounds them, checked before anything is rendered.
+MAX_VIEW_PIXELS = 1 << 24
+MAX_TOTAL_PIXELS = 1 << 28
 
 
 def _camera_key(camera: dict) -> tuple[int, int, bytes]:
@@ -114,6 +119,10 @@ def unpack_side(payload: bytes) -> tuple[list[dict], dict[int, bytes]]:
         record: dict = {"camera": cam}
         if length:
             (gain,) = take(_GAIN)
+            # Refused here, not only when the image is decoded: decoding with --no-restore must not
+            # accept a file that a restoring decoder refuses (spec 10.9).
+            if not (math.isfinite(gain) and gain > 0):
+                raise CodecError(f"SIDE chunk view {len(views)} has gain {gain}, not positive and finite")
             meta = {
                 "codec": CODEC_NAMES[codec_id],
                 "shape": _coded_shape(h, w, scale),
@@ -126,6 +135,7 @@ def unpack_side(payload: bytes) -> tuple[list[dict], dict[int, bytes]]:
             record["residual"] = meta
         views.append(record)
         lengths.append(length)
+    _check_views(views)
     if pos + sum(lengths) != len(buf):
         raise CodecError(
             f"SIDE chunk images need {sum(lengths)} bytes after the view table, found {len(buf) - pos}"
@@ -136,6 +146,46 @@ def unpack_side(payload: bytes) -> tuple[list[dict], dict[int, bytes]]:
             images[k] = bytes(buf[pos : pos + length])
             pos += length
     return views, images
+
+
+def _check_residual_record(k: int, m: object, h: int, w: int) -> None:
+    """A residual record (spec 10.7) that covers its camera's image, with a positive finite gain."""
+    try:
+        scale = m.get("scale", 1)
+        ok = (
+            m["codec"] in CODEC_IDS
+            and m["bits"] in (8, 16)
+            and m["offset"] == 1 << (m["bits"] - 1)
+            and isinstance(scale, int)
+            and 1 <= scale <= 16
+            and list(m.get("full_shape", m["shape"])) == [h, w]
+            and list(m["shape"]) == _coded_shape(h, w, scale)
+        )
+        gain = m["gain"]
+    except (AttributeError, KeyError, TypeError):
+        ok, gain = False, None
+    if not ok:
+        raise CodecError(f"side-information view {k} has a residual record that does not fit its camera")
+    if not (isinstance(gain, float) and math.isfinite(gain) and gain > 0):
+        raise CodecError(f"side-information view {k} has gain {gain!r}, not a positive finite float")
+
+
+def _check_views(views: list[dict]) -> None:
+    """Camera sizes, pixel totals and gains of either layout (spec 10.7-10.9), before anything is rendered."""
+    total = 0
+    for k, v in enumerate(views):
+        cam = v.get("camera") if isinstance(v, dict) else None
+        w, h = (cam.get("width"), cam.get("height")) if isinstance(cam, dict) else (None, None)
+        ok = all(isinstance(x, int) and not isinstance(x, bool) and 1 <= x <= MAX_SIDE for x in (w, h))
+        if not ok:
+            raise CodecError(f"side-information view {k} has a camera size {w}x{h} outside 1..{MAX_SIDE}")
+        if w * h > MAX_VIEW_PIXELS:
+            raise CodecError(f"side-information view {k} has {w * h} pixels (limit {MAX_VIEW_PIXELS})")
+        total += w * h
+        if "residual" in v:
+            _check_residual_record(k, v["residual"], h, w)
+    if total > MAX_TOTAL_PIXELS:
+        raise CodecError(f"side-information views have {total} pixels together (limit {MAX_TOTAL_PIXELS})")
 
 
 def side_views(side: dict, chunks: list) -> tuple[list[dict], dict[int, bytes]]:
@@ -153,9 +203,12 @@ def side_views(side: dict, chunks: list) -> tuple[list[dict], dict[int, bytes]]:
     if packed:
         if views or res:
             raise CodecError("the file holds side information both in a SIDE chunk and in the 1.0 form")
+        if packed[0].index != 0:
+            raise CodecError(f"chunk SIDE has index {packed[0].index}, not 0")
         return unpack_side(packed[0].payload)
     with_res = {k for k, v in enumerate(views) if isinstance(v, dict) and "residual" in v}
     if set(res) != with_res:
         bad = sorted(set(res) ^ with_res)[0]
         raise CodecError(f"side-information view {bad} has a RESI chunk or a residual record, not both")
+    _check_views(views)
     return views, res

@@ -1,0 +1,482 @@
+"""A gspc 1.1 reader written from spec/gspc-format.md alone, as an outside implementer would write one.
+
+It imports numpy, msgpack, zstandard and imagecodecs only, never gspc: the range decoder, the probability
+tables, the matrix coder and every payload layout follow the spec's words (section numbers in comments), in
+plain Python integers and floats. Tests decode real files with it and with gspc's reference decoder and
+require the same bits; where the two disagree, the spec or the reference is wrong.
+
+Slow (one Python call per symbol): meant for the small files of spec/vectors/ and the tests.
+"""
+
+from __future__ import annotations
+
+import bisect
+import math
+import struct
+import zlib
+
+import imagecodecs
+import msgpack
+import numpy as np
+import zstandard
+
+MAGIC = b"\x89GSPC\r\n\x1a"
+MASK64 = (1 << 64) - 1
+PRECISION = 24
+INT_LIMIT = 1 << 48  # 10.0: matrix entries and model integers lie in -2^48 .. 2^48
+MAX_SYMBOLS = 1 << 22
+MAX_GAUSSIANS = 1 << 26
+GAUSSIANS_PER_BYTE = 64
+MAX_VIEW_PIXELS = 1 << 24
+MAX_TOTAL_PIXELS = 1 << 28
+SQRT_HALF = 0.7071067811865476
+LN2 = 0.6931471805599453
+BOOSTS = [1, 2, 3, 4, 6, 8, 11, 16, 23, 32, 45, 64, 91, 128, 181, 256, 362, 512, 724, 1024, 1448, 2048]
+
+
+class SpecError(Exception):
+    """The file breaks a MUST of the spec (what the reference calls FormatError or CodecError)."""
+
+
+def need(cond: bool, why: str) -> None:
+    if not cond:
+        raise SpecError(why)
+
+
+def is_int(x: object) -> bool:
+    return isinstance(x, int) and not isinstance(x, bool)
+
+
+# --------------------------------------------------------------------------------- container (2, 4, 5, 8)
+
+
+def read_container(data: bytes) -> tuple[tuple[int, int], dict, list[tuple[str, int, bytes]]]:
+    """(version, meta, [(type, index, payload)]) for a valid file; assumes sections 4-5 hold (the container
+    vectors test those rules) and checks the framing, checksums and padding."""
+    need(data[:8] == MAGIC, "magic")
+    major, minor, h, hcrc = struct.unpack_from("<HHII", data, 8)
+    need(major == 1, "major version")
+    header = data[20 : 20 + h]
+    need(len(header) == h and zlib.crc32(header) == hcrc, "header checksum")
+    top = msgpack.unpackb(header, raw=False)
+    pos = (20 + h + 7) // 8 * 8
+    need(data[20 + h : pos] == bytes(pos - 20 - h), "header padding")
+    chunks = []
+    for e in top["chunks"]:
+        p = data[pos : pos + e["length"]]
+        need(len(p) == e["length"] and zlib.crc32(p) == e["crc"], "chunk checksum")
+        end = (pos + e["length"] + 7) // 8 * 8
+        need(data[pos + e["length"] : end] == bytes(end - pos - e["length"]), "chunk padding")
+        chunks.append((e["type"], e["index"], p))
+        pos = end
+    need(data[pos : pos + 4] == b"GEND" and len(data) == pos + 8, "trailer")
+    need(struct.unpack_from("<I", data, pos + 4)[0] == zlib.crc32(data[: pos + 4]), "file checksum")
+    return (major, minor), top["meta"], chunks
+
+
+# --------------------------------------------------------------------------------- range decoder (10.0)
+
+
+class RangeDecoder:
+    """State: lower, range (64-bit), point (64-bit), the words not read yet."""
+
+    def __init__(self, words: list[int]) -> None:
+        self.words = words
+        self.next = 0
+        self.lower = 0
+        self.range = MASK64
+        self.point = (self.read() << 32) | self.read()
+
+    def read(self) -> int:
+        # Words past the end read as zero; words never read are ignored.
+        if self.next >= len(self.words):
+            return 0
+        self.next += 1
+        return self.words[self.next - 1]
+
+    def decode(self, cdf: list[int]) -> int:
+        """Index i of the symbol with cdf[i] <= quantile < cdf[i + 1]; cdf[0] = 0, cdf[-1] = 2^24."""
+        scale = self.range >> PRECISION
+        quantile = ((self.point - self.lower) & MASK64) // scale
+        need(quantile < 1 << PRECISION, "range coder quantile outside the table (invalid stream)")
+        i = bisect.bisect_right(cdf, quantile) - 1
+        self.lower = (self.lower + scale * cdf[i]) & MASK64
+        self.range = scale * (cdf[i + 1] - cdf[i])
+        if self.range < 1 << 32:
+            self.lower = (self.lower << 32) & MASK64
+            self.range <<= 32
+            self.point = ((self.point << 32) & MASK64) | self.read()
+        return i
+
+
+# --------------------------------------------------------------------------------- model tables (10.0)
+
+
+def theta_numerators() -> list[int]:
+    m = [1 << 20]
+    while m[-1] > 8:
+        m.append((m[-1] * 60097) >> 16)
+    return m
+
+
+THETA_M = theta_numerators()
+
+
+def check_spec(spec: object) -> list[int]:
+    need(isinstance(spec, list) and len(spec) >= 1 and all(is_int(v) for v in spec), "model spec")
+    need(all(-INT_LIMIT <= v <= INT_LIMIT for v in spec), "model spec integer out of range")
+    kind = spec[0]
+    need(kind in (0, 1, 2, 3), "model kind")
+    if kind == 0:
+        need(len(spec) == 1, "kind 0 length")
+    elif kind == 1:
+        need(len(spec) == 2, "kind 1 length")
+    else:
+        need(len(spec) >= 3, "model window")
+        lo, hi = spec[1], spec[2]
+        need(2 <= hi - lo + 1 <= MAX_SYMBOLS, "model window size")
+        if kind == 2:
+            need(len(spec) == 6, "kind 2 length")
+            c, u, b = spec[3:]
+            need(lo <= c <= hi, "kind 2 centre outside the window")
+            need(0 <= u < len(THETA_M) and 0 <= b < len(BOOSTS), "kind 2 ratio or boost index")
+        else:
+            need(len(spec) == 3 + hi - lo + 1, "kind 3 weight count")
+            need(all(0 <= w < 1 << 39 for w in spec[3:]) and sum(spec[3:]) > 0, "kind 3 weights")
+    return spec
+
+
+def weights(spec: list[int]) -> list[int]:
+    kind, lo, hi = spec[0], spec[1], spec[2]
+    if kind == 3:
+        return spec[3:]
+    c, u, b = spec[3], spec[4], spec[5]
+    theta = 1.0 - THETA_M[u] / float(1 << 20)
+    p = [1.0]
+    for _ in range(max(c - lo, hi - c)):
+        p.append(p[-1] * theta)
+    w = [max(math.floor(p[abs(x - c)] * float(1 << 30)), 1) for x in range(lo, hi + 1)]
+    w[c - lo] = max((w[c - lo] * BOOSTS[b]) >> 3, 1)
+    return w
+
+
+def cdf_of(spec: list[int]) -> list[int]:
+    w = weights(spec)
+    s, total = len(w), sum(w)
+    f = [1 + wx * ((1 << PRECISION) - s) // total for wx in w]
+    f[w.index(max(w))] += (1 << PRECISION) - sum(f)
+    cdf = [0]
+    for x in f:
+        cdf.append(cdf[-1] + x)
+    return cdf
+
+
+# --------------------------------------------------------------------------------- ECM (10.0)
+
+
+def bitlen(x: int) -> int:
+    return x.bit_length()
+
+
+def levels(m: int) -> list[list[tuple[int, int, int]]]:
+    """Rows of each level as (row, a, b); level 0 has no neighbours (a = b = -1)."""
+    out = [[(r, -1, -1) for r in range(0, m, 64)]]
+    h = 32
+    while h >= 1:
+        out.append([(r, r - h, r + h if r + h < m else r - h) for r in range(h, m, 2 * h)])
+        h //= 2
+    return out
+
+
+def decode_ecm(payload: bytes, m_expected: int, c_expected: int) -> list[list[int]]:
+    """The matrix as a list of columns."""
+    try:
+        ecm = msgpack.unpackb(payload, raw=False)
+    except Exception as e:
+        raise SpecError(f"ECM is not one msgpack value ({type(e).__name__})") from None
+    need(isinstance(ecm, list) and len(ecm) == 4, "ECM array")
+    m, c, models, words = ecm
+    need(is_int(m) and is_int(c) and isinstance(models, bytes) and isinstance(words, bytes), "ECM types")
+    need((m, c) == (m_expected, c_expected), f"ECM shape {m}x{c}, expected {m_expected}x{c_expected}")
+    if m == 0:
+        need(models == b"" and words == b"", "an empty ECM has empty models and words")
+        return [[] for _ in range(c)]
+    need(len(words) % 4 == 0, "words length")
+    d = zstandard.ZstdDecompressor().decompressobj()
+    try:
+        raw = d.decompress(models)
+    except zstandard.ZstdError:
+        raise SpecError("models are not a zstd frame") from None
+    need(d.eof and not d.unused_data, "models must be exactly one complete zstd frame")
+    header = msgpack.unpackb(raw, raw=False)
+    need(isinstance(header, list) and len(header) == c, "models array length")
+    rc = RangeDecoder(list(struct.unpack(f"<{len(words) // 4}I", words)))
+    lv = levels(m)
+    cols: list[list[int]] = []
+    prev_q, prev_nb, prev_e = [0] * m, [0] * m, [0] * m
+    for j in range(c):
+        need(isinstance(header[j], list) and len(header[j]) == 2, "column entry")
+        mode, specs = header[j]
+        need(is_int(mode) and 0 <= mode <= (3 if j else 1), "column mode")
+        need(isinstance(specs, list) and len(specs) == 15, "15 model specs")
+        specs = [check_spec(s) for s in specs]
+        cdfs: dict[int, list[int]] = {}
+        q, nbs, es = [0] * m, [0] * m, [0] * m
+        for k, level in enumerate(lv):
+            ctx = []
+            for r, a, b in level:
+                if k == 0:
+                    nb, s = 0, 4
+                else:
+                    nb, s = (q[a] + q[b]) >> 1, min(bitlen(abs(q[a] - q[b])), 3)
+                t = min(bitlen(abs(prev_e[r])), 2)
+                ctx.append((3 * s + t, r, nb))
+            for bucket in range(15):
+                for bk, r, nb in ctx:
+                    if bk != bucket:
+                        continue
+                    spec = specs[bucket]
+                    need(spec[0] != 0, "symbol from an empty model")
+                    if spec[0] == 1:
+                        e = spec[1]
+                    else:
+                        if bucket not in cdfs:
+                            cdfs[bucket] = cdf_of(spec)
+                        e = spec[1] + rc.decode(cdfs[bucket])
+                    pred = [0, nb, prev_q[r], nb + prev_q[r] - prev_nb[r]][mode]
+                    q[r], nbs[r], es[r] = e + pred, nb, e
+                    need(abs(q[r]) <= INT_LIMIT, "decoded value out of range")
+        cols.append(q)
+        prev_q, prev_nb, prev_e = q, nbs, es
+    return cols
+
+
+# --------------------------------------------------------------------------------- attributes (10.1-10.6)
+
+
+def det_log(x: float) -> float:
+    m, e = math.frexp(x)
+    if m < SQRT_HALF:
+        m, e = 2.0 * m, e - 1
+    t = (m - 1.0) / (m + 1.0)
+    t2 = t * t
+    s = 0.0
+    for k in range(27, 0, -2):
+        s = s * t2 + 1.0 / k
+    return 2.0 * t * s + e * LN2
+
+
+def unpack_bin_pair(payload: bytes, what: str) -> tuple[bytes, bytes]:
+    try:
+        pair = msgpack.unpackb(payload, raw=False)
+    except Exception:
+        raise SpecError(f"{what} is not one msgpack value") from None
+    need(isinstance(pair, list) and len(pair) == 2 and all(isinstance(x, bytes) for x in pair), what)
+    return pair[0], pair[1]
+
+
+def finite_float(x: object) -> bool:
+    return isinstance(x, float) and math.isfinite(x)
+
+
+def decode_attributes(meta: dict, chunks: dict[str, bytes]) -> dict[str, np.ndarray]:
+    """float32 arrays: means (n,3), quats (n,4), log_scales (n,3), opacities (n,), sh_dc (n,3), sh_rest
+    (n,K,3)."""
+    a = meta["attributes"]
+    need(a["version"] == 1, "codec version")
+    n, deg = a["n"], a["sh_degree"]
+    need(is_int(n) and 1 <= n <= MAX_GAUSSIANS, "Gaussian count")
+    need(is_int(deg) and 0 <= deg <= 3, "SH degree")
+    k = (deg + 1) ** 2 - 1
+    need(n <= GAUSSIANS_PER_BYTE * sum(len(p) for p in chunks.values()), "Gaussian count vs payload")
+    grid = a["position"]
+    bits, lo, step = grid["bits"], grid["lo"], grid["step"]
+    need(is_int(bits) and 1 <= bits <= 17, "position bits")
+    need(len(lo) == 3 and len(step) == 3 and all(map(finite_float, lo + step)), "grid floats")
+    need(all(s > 0 for s in step), "grid step")
+    L, M = a["opacity_levels"], a["rotation_levels"]
+    need(is_int(L) and L >= 1 and is_int(M) and M >= 1, "levels")
+    steps = [a["scale_step"], a["dc_step"], *a["sh_steps"]]
+    need(len(a["sh_steps"]) == k and all(finite_float(s) and s > 0 for s in steps), "steps")
+    need(set(chunks) == {"POSN", "OPAC", "SCAL", "ROTN", "SHDC"} | ({"SHRS"} if deg else set()), "chunks")
+
+    # 10.1 positions
+    classes, raw = unpack_bin_pair(chunks["POSN"], "POSN")
+    lengths = decode_ecm(classes, n, 1)[0]
+    need(all(0 <= x <= 3 * bits for x in lengths), "position class")
+    total = sum(max(x - 1, 0) for x in lengths)
+    need(len(raw) == (total + 7) // 8, "raw bits length")
+    bitstr = int.from_bytes(raw, "big") if raw else 0
+    pad = 8 * len(raw) - total
+    need(bitstr & ((1 << pad) - 1) == 0, "raw padding bits")
+    bitstr >>= pad
+    used, code = 0, 0
+    means = np.zeros((n, 3), np.float32)
+    for i, x in enumerate(lengths):
+        if x:
+            low = (bitstr >> (total - used - (x - 1))) & ((1 << (x - 1)) - 1)
+            used += x - 1
+            code += (1 << (x - 1)) + low
+        need(code < 1 << (3 * bits), "Morton code past 3 x bits")
+        for ax in range(3):
+            v = sum(((code >> (3 * b + ax)) & 1) << b for b in range(bits))
+            means[i, ax] = np.float32(lo[ax] + v * step[ax])
+
+    def cols(name: str, c: int) -> list[list[int]]:
+        return decode_ecm(chunks[name], n, c)
+
+    # 10.2 opacity
+    opac = np.zeros(n, np.float32)
+    for i, q in enumerate(cols("OPAC", 1)[0]):
+        x = min(max(q / float(L), 0.25 / L), 1.0 - 0.25 / L)
+        opac[i] = np.float32(det_log(x) - det_log(1.0 - x))
+    # 10.3, 10.5
+    scales = np.array(cols("SCAL", 3), dtype=np.float64).T * a["scale_step"]
+    dc = np.array(cols("SHDC", 3), dtype=np.float64).T * a["dc_step"]
+    # 10.4 rotations
+    rot = cols("ROTN", 4)
+    quats = np.zeros((n, 4), np.float32)
+    rstep = 2.0 * SQRT_HALF / M
+    for i in range(n):
+        j = rot[0][i]
+        need(0 <= j <= 3 and all(0 <= rot[c][i] <= M for c in (1, 2, 3)), "rotation symbol")
+        r = [rot[c][i] * rstep - SQRT_HALF for c in (1, 2, 3)]
+        largest = math.sqrt(max(1.0 - ((r[0] * r[0] + r[1] * r[1]) + r[2] * r[2]), 0.0))
+        others = [x for x in range(4) if x != j]
+        quats[i, j] = np.float32(largest)
+        for x, v in zip(others, r):
+            quats[i, x] = np.float32(v)
+    # 10.6 SH rest
+    rest = np.zeros((n, k, 3), np.float32)
+    if deg:
+        fl, vals = unpack_bin_pair(chunks["SHRS"], "SHRS")
+        flags = decode_ecm(fl, n, 1)[0]
+        need(all(f in (0, 1) for f in flags), "SH rest flag")
+        rows = [i for i, f in enumerate(flags) if f]
+        v = decode_ecm(vals, len(rows), 3 * k)
+        for r_i, i in enumerate(rows):
+            for kk in range(k):
+                for ch in range(3):
+                    rest[i, kk, ch] = np.float32(v[3 * kk + ch][r_i] * a["sh_steps"][kk])
+    return {
+        "means": means,
+        "quats": quats,
+        "log_scales": scales.astype(np.float32),
+        "opacities": opac,
+        "sh_dc": dc.astype(np.float32),
+        "sh_rest": rest,
+    }
+
+
+# --------------------------------------------------------------------------------- side information
+
+
+def parse_side(payload: bytes) -> list[dict]:
+    """10.9: one dict per view: width, height, intrinsics, pose (binary32 tuples), and with a residual
+    codec, bits, scale, gain, image."""
+    p = 0
+
+    def take(fmt: str) -> tuple:
+        nonlocal p
+        size = struct.calcsize(fmt)
+        need(p + size <= len(payload), "SIDE truncated")
+        out = struct.unpack_from(fmt, payload, p)
+        p += size
+        return out
+
+    count, flags, codec, bits, s = take("<IBBBB")
+    need(1 <= count <= 1 << 20 and flags in (0, 1) and codec in (0, 1, 2), "SIDE head")
+    need(bits in (8, 16) and 1 <= s <= 16, "SIDE head")
+    shared = None if flags else take("<II4f")
+    views = []
+    for _ in range(count):
+        w, h, *intr = take("<II4f") if flags else shared
+        need(1 <= w <= 65536 and 1 <= h <= 65536, "camera size")
+        pose = take("<12f")
+        (length,) = take("<I")
+        need(all(math.isfinite(v) for v in (*intr, *pose)), "camera values")
+        view = {"width": w, "height": h, "intrinsics": tuple(intr), "pose": pose, "length": length}
+        if length:
+            (gain,) = take("<f")
+            need(math.isfinite(gain) and gain > 0, "gain")
+            view.update(codec=codec, bits=bits, scale=s, gain=gain)
+        views.append(view)
+    need(sum(v["width"] * v["height"] <= MAX_VIEW_PIXELS for v in views) == len(views), "view pixels")
+    need(sum(v["width"] * v["height"] for v in views) <= MAX_TOTAL_PIXELS, "total pixels")
+    need(p + sum(v["length"] for v in views) == len(payload), "SIDE length")
+    for v in views:
+        v["image"] = payload[p : p + v["length"]]
+        p += v["length"]
+    return views
+
+
+def decode_residual(view: dict) -> np.ndarray:
+    """10.7: R (H, W, 3) float32 at the camera's full size."""
+    decode = [imagecodecs.jpegxl_decode, imagecodecs.webp_decode, imagecodecs.avif_decode][view["codec"]]
+    u = decode(view["image"])
+    if u.ndim == 2:
+        u = np.repeat(u[:, :, None], 3, axis=2)
+    s, H, W = view["scale"], view["height"], view["width"]
+    h, w = -(-H // s), -(-W // s)
+    need(u.shape[:2] == (h, w) and u.shape[2] >= 3, "residual image size")
+    offset = np.float32(1 << (view["bits"] - 1))
+    r = (u[:, :, :3].astype(np.float32) - offset) / np.float32(view["gain"])
+    if s == 1:
+        return r
+
+    def axis(n_out: int, n_in: int) -> tuple[list[int], list[int], np.ndarray]:
+        i0, i1, f = [], [], []
+        for y in range(n_out):
+            x = min(max((y + 0.5) / s - 0.5, 0.0), n_in - 1.0)
+            a = math.floor(x)
+            i0.append(a)
+            i1.append(min(a + 1, n_in - 1))
+            f.append(x - a)
+        return i0, i1, np.array(f, np.float32)
+
+    y0, y1, fy = axis(H, h)
+    x0, x1, fx = axis(W, w)
+    one = np.float32(1)
+    top = r[y0][:, x0] * (one - fx)[None, :, None] + r[y0][:, x1] * fx[None, :, None]
+    bot = r[y1][:, x0] * (one - fx)[None, :, None] + r[y1][:, x1] * fx[None, :, None]
+    return top * (one - fy)[:, None, None] + bot * fy[:, None, None]
+
+
+def read_scene(data: bytes) -> tuple[dict[str, np.ndarray], list[dict]]:
+    """A whole file's codec layer: the attributes, and the side-information views with residual R."""
+    version, meta, chunks = read_container(data)
+    attr = {}
+    for t, index, payload in chunks:
+        if t in ("POSN", "OPAC", "SCAL", "ROTN", "SHDC", "SHRS"):
+            need(index == 0, f"{t} index")
+            attr[t] = payload
+    attributes = decode_attributes(meta, attr)
+    side = [(i, p) for t, i, p in chunks if t == "SIDE"]
+    resi = {i: p for t, i, p in chunks if t == "RESI"}
+    records = meta["side_info"].get("views", [])
+    if side:  # 10.9
+        need(side[0][0] == 0, "SIDE index")
+        need(not records and not resi, "SIDE and the 1.0 layout")
+        views = parse_side(side[0][1])
+    else:  # 10.7: views in meta, one RESI chunk per view with a residual record
+        views = []
+        need(set(resi) == {k for k, r in enumerate(records) if "residual" in r}, "RESI chunks and records")
+        for k, r in enumerate(records):
+            cam, res = r["camera"], r.get("residual")
+            view = {"width": cam["width"], "height": cam["height"], "length": len(resi.get(k, b""))}
+            need(all(is_int(x) and 1 <= x <= 65536 for x in (cam["width"], cam["height"])), "camera size")
+            if res is not None:
+                need(finite_float(res["gain"]) and res["gain"] > 0, "gain")
+                s = res.get("scale", 1)
+                need(list(res.get("full_shape", res["shape"])) == [cam["height"], cam["width"]], "full shape")
+                need(list(res["shape"]) == [-(-cam["height"] // s), -(-cam["width"] // s)], "shape")
+                codec = ["jxl", "webp", "avif"].index(res["codec"])
+                view.update(codec=codec, bits=res["bits"], scale=s, gain=res["gain"], image=resi[k])
+                need(res["offset"] == 1 << (res["bits"] - 1), "offset")
+            views.append(view)
+        need(all(v["width"] * v["height"] <= MAX_VIEW_PIXELS for v in views), "view pixels")
+        need(sum(v["width"] * v["height"] for v in views) <= MAX_TOTAL_PIXELS, "total pixels")
+    for v in views:
+        if v["length"]:
+            v["residual"] = decode_residual(v)
+    return attributes, views

@@ -1,0 +1,205 @@
+"""tests/spec_reader.py (a decoder written from spec/gspc-format.md alone) against gspc's decoder.
+
+The range decoder and the probability tables of spec section 10.0 are compared with constriction, the
+reference's coder, symbol by symbol; whole files from gspc's encoder must decode to the same bits.
+"""
+
+import re
+from pathlib import Path
+
+import constriction
+import msgpack
+import numpy as np
+import pytest
+import spec_reader as sr
+import zstandard
+from scenes import random_scene
+
+from gspc.codec import container
+from gspc.codec.attributes import decode_attributes, encode_attributes
+from gspc.codec.entropy import _categorical, decode_matrix, encode_matrix, fixed_point_table
+from gspc.codec.presets import PRESETS
+from gspc.codec.sideinfo import side_views
+from gspc.errors import CodecError
+from gspc.io import read_scene
+from gspc.pipeline import EncodeOptions, encode
+
+ROOT = Path(__file__).resolve().parents[1]
+SPEC = (ROOT / "spec" / "gspc-format.md").read_text()
+
+
+def random_spec(rng: np.random.Generator) -> list[int]:
+    lo = int(rng.integers(-50, 50))
+    hi = lo + int(rng.integers(1, 300))
+    if rng.uniform() < 0.5:
+        return [2, lo, hi, int(rng.integers(lo, hi + 1)), int(rng.integers(0, 131)), int(rng.integers(0, 22))]
+    w = rng.integers(0, 1 << int(rng.integers(1, 39)), hi - lo + 1)
+    w[rng.integers(0, w.size)] += 1
+    return [3, lo, hi, *(int(x) for x in w)]
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_tables_match_the_reference(seed):
+    rng = np.random.default_rng(seed)
+    for _ in range(20):
+        spec = random_spec(rng)
+        cdf = sr.cdf_of(sr.check_spec(spec))
+        assert np.diff(cdf).tolist() == fixed_point_table(spec).tolist()
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_range_decoder_matches_constriction(seed):
+    """Valid streams, and arbitrary words (which decode to something or fail at the same symbol)."""
+    rng = np.random.default_rng(100 + seed)
+    specs = [random_spec(rng) for _ in range(4)]
+    order = rng.integers(0, 4, 400)
+    if seed % 2 == 0:
+        enc = constriction.stream.queue.RangeEncoder()
+        for k in order:
+            lo, hi = specs[k][1], specs[k][2]
+            enc.encode(np.array([rng.integers(0, hi - lo + 1)], np.int32), _categorical(specs[k]))
+        words = enc.get_compressed()
+    else:
+        words = rng.integers(0, 1 << 32, int(rng.integers(0, 12)), dtype=np.uint64).astype(np.uint32)
+        if seed == 3:
+            words[:2] = 0xFFFFFFFF  # the first quantile is 2^24: refused at once
+    ref = constriction.stream.queue.RangeDecoder(words.copy())
+    ours = sr.RangeDecoder([int(w) for w in words])
+    for k in order:
+        try:
+            want = int(ref.decode(_categorical(specs[k]), 1)[0])
+        except AssertionError:  # constriction: "invalid for the employed entropy model"
+            with pytest.raises(sr.SpecError, match="quantile"):
+                ours.decode(sr.cdf_of(specs[k]))
+            assert seed % 2 == 1
+            return
+        assert ours.decode(sr.cdf_of(specs[k])) == want
+
+
+def test_spec_worked_example():
+    """Section 10.0's range-decoder example: its bytes decode to its symbols and states in both decoders."""
+    block = SPEC[SPEC.index("*Worked example.*") :]
+    hexbytes = re.search(r"the 8 bytes\s+`([0-9a-f ]+)`", block).group(1)
+    words = np.frombuffer(bytes.fromhex(hexbytes.replace(" ", "")), "<u4").copy()
+    a, b = [3, 0, 2, 1, 2, 1], [3, 0, 2, 0, 1, 0]
+    seq = [(a, 1), (b, 0), (b, 2), (a, 2), (a, 0)]
+    ref = constriction.stream.queue.RangeDecoder(words)
+    assert [int(ref.decode(_categorical(m), 1)[0]) for m, _ in seq] == [s for _, s in seq]
+    ours = sr.RangeDecoder([int(w) for w in words])
+    rows = re.findall(
+        r"^\| (\d) \| [AB] \| `(\w+)` \| `(\w+)` \| (\d) \| `(\w+)` \| `(\w+)` \| `(\w+)` \|$", block, re.M
+    )
+    assert len(rows) == 5
+    for (m, s), row in zip(seq, rows):
+        scale, quantile = ours.range >> 24, ((ours.point - ours.lower) & sr.MASK64) // (ours.range >> 24)
+        assert ours.decode(sr.cdf_of(m)) == s == int(row[3])
+        assert [scale, quantile, ours.lower, ours.range, ours.point] == [
+            int(row[i], 16) for i in (1, 2, 4, 5, 6)
+        ]
+
+
+def attribute_file(scene, params) -> tuple[bytes, dict]:
+    enc = encode_attributes(scene, params)
+    meta = {"attributes": enc.meta, "side_info": {"background": [0.0, 0.0, 0.0], "restorer": "none"}}
+    return container.pack(meta, [container.Chunk(k, v) for k, v in enc.chunks.items()]), enc
+
+
+def assert_same(attrs: dict[str, np.ndarray], scene) -> None:
+    for name, arr in attrs.items():
+        ref = getattr(scene, name).numpy()
+        assert arr.dtype == ref.dtype == np.float32 and arr.shape == ref.shape
+        assert arr.tobytes() == ref.tobytes(), name
+
+
+@pytest.mark.parametrize(
+    "n, degree, preset, lam",
+    [
+        (1, 0, "low", None),
+        (65, 3, "high", None),
+        (700, 2, "low", None),
+        (300, 1, "low", 64.0),
+        (200, 3, "high", 0.3),
+    ],
+)
+def test_spec_reader_decodes_encoder_output(n, degree, preset, lam):
+    params = PRESETS[preset] if lam is None else PRESETS[preset].with_lambda(lam)
+    data, enc = attribute_file(random_scene(n=n, sh_degree=degree, seed=n), params)
+    attrs, views = sr.read_scene(data)
+    assert_same(attrs, enc.decoded)
+    assert views == []
+
+
+@pytest.mark.slow
+def test_spec_reader_decodes_the_example_scene():
+    """The 20k-Gaussian lego example at the low preset: every decoded value the same."""
+    data, enc = attribute_file(read_scene(ROOT / "examples" / "lego" / "point_cloud.ply"), PRESETS["low"])
+    assert_same(sr.read_scene(data)[0], enc.decoded)
+
+
+@pytest.mark.slow
+def test_spec_reader_decodes_a_gspc_encode_file(tmp_path):
+    """A file from gspc's whole encoder, side information included (lossy JPEG XL residuals)."""
+    from gspc.io import write_ply
+
+    src, out = tmp_path / "in.ply", tmp_path / "s.gspc"
+    write_ply(random_scene(n=400, sh_degree=3, seed=11), src)
+    encode(src, out, opts=EncodeOptions(lam=40, synth_views=5, max_side=40, check_iterations=0))
+    data = out.read_bytes()
+    attrs, views = sr.read_scene(data)
+    c = container.unpack(data)
+    assert c.find("SIDE") is not None and any("residual" in v for v in views)
+    chunks = {ch.type: ch.payload for ch in c.chunks if ch.type != "SIDE"}
+    assert_same(attrs, decode_attributes(chunks, c.header["attributes"]))
+    ref_views, images = side_views(c.header["side_info"], c.chunks)
+    from gspc.codec.residuals import decode_residual
+
+    for k, (v, ref) in enumerate(zip(views, ref_views)):
+        assert ("residual" in v) == (k in images)
+        if k in images:
+            assert v["residual"].tobytes() == decode_residual(images[k], ref["residual"]).tobytes()
+
+
+# ------------------------------------------------------------------ section 10.11 in the reference decoder
+
+
+def test_words_that_run_out_or_are_left_over_are_accepted():
+    q = np.random.default_rng(0).integers(-20, 20, (500, 2))
+    payload = encode_matrix(q)
+    m, c, models, words = msgpack.unpackb(payload)
+    assert np.array_equal(decode_matrix(msgpack.packb([m, c, models, words + bytes(8)])), q)
+    short = msgpack.packb([m, c, models, words[:-4]])  # the last word is often one the decoder never needs
+    assert decode_matrix(short).shape == q.shape
+
+
+def test_zstd_frame_declaring_a_huge_size_is_refused_before_decompressing():
+    frame = bytearray(zstandard.ZstdCompressor().compress(b"\x90"))
+    header = zstandard.get_frame_parameters(bytes(frame))
+    assert header.content_size == 1
+    big = zstandard.ZstdCompressor(write_content_size=True).compress(bytes(1 << 12))
+    models = msgpack.packb([8, 1, big, b""])
+    with pytest.raises(CodecError):
+        decode_matrix(models, (8, 1))
+    huge = bytes([0x28, 0xB5, 0x2F, 0xFD, 0xE0]) + (1 << 40).to_bytes(8, "little") + bytes(8)
+    with pytest.raises(CodecError, match="declare"):
+        decode_matrix(msgpack.packb([8, 1, huge, b""]), (8, 1))
+
+
+def test_shape_is_checked_before_decoding():
+    with pytest.raises(CodecError, match="expected"):
+        decode_matrix(msgpack.packb([1 << 40, 3, b"x", b""]), (10, 3))
+
+
+def test_1_0_residual_record_with_bad_gain_is_refused_when_read():
+    cam = {"name": "", "width": 8, "height": 6, "intrinsics": bytes(16), "pose": bytes(48)}
+    rec = {"codec": "jxl", "shape": [6, 8], "bits": 8, "gain": -1.0, "offset": 128}
+    side = {"views": [{"camera": cam, "residual": rec}], "background": [0, 0, 0], "restorer": "none"}
+    chunks = [container.Chunk("RESI", b"img", index=0)]
+    with pytest.raises(CodecError, match="gain"):
+        side_views(side, chunks)
+    with pytest.raises(CodecError, match="does not fit"):
+        side_views(
+            {**side, "views": [{"camera": cam, "residual": dict(rec, gain=1.0, shape=[3, 4])}]}, chunks
+        )
+    assert side_views({**side, "views": [{"camera": cam, "residual": dict(rec, gain=2.0)}]}, chunks)[1] == {
+        0: b"img"
+    }
