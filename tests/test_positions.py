@@ -13,8 +13,9 @@ def test_morton_roundtrip():
 @pytest.mark.parametrize("bits", [1, 8, 16, 17])
 def test_positions_roundtrip(bits):
     rng = np.random.default_rng(bits)
-    means = rng.normal(size=(3000, 3)) * [1, 10, 0.1]
+    means = rng.uniform(-1, 1, size=(3000, 3)) * [1, 10, 0.1]
     voxels, order, grid = pos.curve_order(means, bits)
+    assert not pos.is_contracted(grid)  # a bounded box: the plain grid
     out = pos.decode_positions(pos.encode_positions(voxels, bits), bits, len(voxels))
     assert np.array_equal(out, voxels)
     codes = pos.morton_encode(out, bits)
@@ -29,3 +30,59 @@ def test_degenerate_points():
     out = pos.decode_positions(pos.encode_positions(voxels, 16), 16, 50)
     assert np.array_equal(out, voxels)
     assert (pos.dequantise(out, grid["lo"], grid["step"]) == np.float32(1e6)).all()
+
+
+def unbounded(seed: int = 0, n: int = 4000) -> np.ndarray:
+    """An object (a unit ball) with 10% of its count in a shell at 30 radii and 5 floaters at 3000."""
+    rng = np.random.default_rng(seed)
+    d = rng.normal(size=(n, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    obj = d * rng.uniform(0, 1, (n, 1)) ** (1 / 3)
+    shell = d[: n // 10] * rng.uniform(27, 33, (n // 10, 1))
+    far = d[:5] * 3000.0
+    return np.concatenate([obj, shell, far]) + [5.0, -2.0, 1.0]
+
+
+def test_contract_and_expand_are_inverse_and_identity_near_the_centre():
+    x = unbounded()
+    centre, radius = pos.region_of_interest(x)
+    y = pos.contract(x, centre, radius)
+    back = pos.expand(y, centre, radius)
+    assert np.allclose(back, x, rtol=1e-6, atol=1e-5)
+    u = np.linalg.norm(x - centre, axis=1) / radius
+    near = u <= 2.0
+    assert np.allclose(y[near] * radius + centre, x[near])  # the first two radii are not contracted
+    # Beyond, each octave of distance is one unit of grid radius (1 + log2 u, piecewise linear).
+    rho = np.linalg.norm(y, axis=1)
+    assert np.all(rho[~near] < 1 + np.log2(u[~near]) + 1e-9) and np.all(
+        rho[~near] >= 1 + np.log2(u[~near]) - 0.09
+    )
+
+
+@pytest.mark.parametrize("bits", [8, 11, 14, 16])
+def test_far_gaussians_keep_the_foreground_voxel_size(bits):
+    x = unbounded()
+    obj = x[:4000]
+    _, _, plain = pos.curve_order(obj, bits)
+    voxels, order, grid = pos.curve_order(x, bits)
+    assert pos.is_contracted(grid) and grid["bits"] > bits
+    out = pos.decode_positions(pos.encode_positions(voxels, grid["bits"]), grid["bits"], len(voxels))
+    assert np.array_equal(out, voxels)
+    dec = pos.positions(voxels, grid)
+    err = np.abs(dec - x[order])
+    is_obj = order < 4000
+    # The object keeps the voxel size it has alone (the grid is shifted, so half a step either way).
+    assert (err[is_obj] <= np.asarray(plain["step"]) * 0.5 * 1.0001 + 1e-6).all()
+    # Every Gaussian lies inside the cell the refinement keeps it in.
+    assert (err <= pos.cell_half_widths(dec, grid) * 1.0001 + 1e-6).all()
+    # Far ones err in proportion to their distance (about constant angular error seen from the centre).
+    dist = np.linalg.norm(x[order] - grid["centre"], axis=1)
+    rel = err.max(1)[~is_obj] / dist[~is_obj]
+    assert rel.max() < 2.0 * max(grid["step"]) * grid["radius"] / (0.5 * grid["radius"])
+
+
+def test_bit_length_is_exact_to_int64():
+    from gspc.codec.entropy import bit_length
+
+    x = np.array([0, 1, 2, 3, 2**52 - 1, 2**53 - 1, 2**53, 2**62, 2**63 - 1], np.int64)
+    assert bit_length(x).tolist() == [0, 1, 2, 2, 52, 53, 54, 63, 63]

@@ -31,6 +31,9 @@ from gspc.errors import CodecError
 from gspc.scene import GaussianScene, num_sh_rest
 
 FORMAT_VERSION = 1
+# Version 2: the position grid may lie in contracted space (positions.py, spec 10.1); written only then, so
+# bounded scenes keep version 1 and their bytes.
+CONTRACTED_VERSION = 2
 SQRT_HALF = 0.7071067811865476  # float64 nearest to 1/sqrt(2)
 _LN2 = 0.6931471805599453
 OPACITY_FLOOR = 1.0 / 255.0
@@ -178,7 +181,7 @@ def encode_attributes(
     dc_step = float(params.dc_step * lam)
     sh_steps = _sh_steps(params, scene.sh_degree)
     meta = {
-        "version": FORMAT_VERSION,
+        "version": CONTRACTED_VERSION if pos.is_contracted(grid) else FORMAT_VERSION,
         "n": int(kept.size),
         "sh_degree": int(scene.sh_degree),
         "position": grid,
@@ -191,7 +194,7 @@ def encode_attributes(
 
     opac_q = _opacity_quantise(_np(scene.opacities)[kept], opacity_levels)
     chunks = {
-        "POSN": pos.encode_positions(voxels, params.effective_position_bits),
+        "POSN": pos.encode_positions(voxels, grid["bits"]),
         "OPAC": encode_matrix(opac_q[:, None]),
         "SCAL": encode_matrix(np.rint(_np(scene.log_scales)[kept] / scale_step).astype(np.int64)),
         "ROTN": encode_matrix(_rotation_quantise(_np(scene.quats)[kept], rot_levels)),
@@ -245,7 +248,7 @@ def _is_step(x: object) -> bool:
 def decode_attributes(chunks: dict[str, bytes], meta: dict) -> GaussianScene:
     """Decode chunks to a float32 scene in curve order; identical on every machine."""
     try:
-        if not _is_int(meta["version"]) or meta["version"] != FORMAT_VERSION:
+        if not _is_int(meta["version"]) or meta["version"] not in (FORMAT_VERSION, CONTRACTED_VERSION):
             raise CodecError(f"attribute codec version {meta['version']} is not supported")
         n, degree = meta["n"], meta["sh_degree"]
         grid = meta["position"]
@@ -253,6 +256,13 @@ def decode_attributes(chunks: dict[str, bytes], meta: dict) -> GaussianScene:
         opacity_levels, rot_levels = meta["opacity_levels"], meta["rotation_levels"]
         scale_step, dc_step = meta["scale_step"], meta["dc_step"]
         sh_steps = list(meta["sh_steps"])
+        if (meta["version"] == CONTRACTED_VERSION) != pos.is_contracted(grid):
+            raise CodecError("attribute codec version and position grid disagree on contraction")
+        if pos.is_contracted(grid):
+            centre, radius = list(grid["centre"]), grid["radius"]
+            finite = all(isinstance(v, float) and math.isfinite(v) for v in (*centre, radius))
+            if len(centre) != 3 or not finite or not radius > 0:
+                raise CodecError("attribute codec header's position centre or radius is not finite")
     except (KeyError, TypeError, ValueError) as err:
         raise CodecError(f"attribute codec header is malformed ({err})") from None
     # Integers are msgpack integers and steps msgpack floats (spec 10.0): 300.0 Gaussians is refused.
@@ -262,7 +272,8 @@ def decode_attributes(chunks: dict[str, bytes], meta: dict) -> GaussianScene:
         )
     if not 1 <= n <= MAX_GAUSSIANS or not 0 <= degree <= 3 or len(sh_steps) != num_sh_rest(degree):
         raise CodecError("attribute codec header has an impossible count, SH degree or step list")
-    if opacity_levels < 1 or rot_levels < 1 or not 1 <= bits <= pos.MAX_BITS:
+    max_bits = pos.CONTRACTED_MAX_BITS if meta["version"] == CONTRACTED_VERSION else pos.MAX_BITS
+    if opacity_levels < 1 or rot_levels < 1 or not 1 <= bits <= max_bits:
         raise CodecError("attribute codec header has impossible quantiser levels")
     if not all(_is_step(v) for v in (scale_step, dc_step, *sh_steps, *step)) or len(step) != 3:
         raise CodecError("attribute codec header has a step that is not a positive finite float")
@@ -278,7 +289,7 @@ def decode_attributes(chunks: dict[str, bytes], meta: dict) -> GaussianScene:
     if "POSN" not in chunks:
         raise CodecError("chunk POSN is missing")
     voxels = pos.decode_positions(chunks["POSN"], bits, n)
-    means = pos.dequantise(voxels, grid["lo"], grid["step"])
+    means = pos.positions(voxels, grid)
     opac = _opacity_dequantise(_matrix(chunks, "OPAC", n, 1)[:, 0], opacity_levels)
     scales = (_matrix(chunks, "SCAL", n, 3).astype(np.float64) * scale_step).astype(np.float32)
     quats = _rotation_dequantise(_matrix(chunks, "ROTN", n, 4), rot_levels)

@@ -14,9 +14,11 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import torch
 
 from gspc.codec.attributes import OPACITY_FLOOR, SQRT_HALF
+from gspc.codec.positions import cell_half_widths
 from gspc.errors import CodecError
 from gspc.scene import GaussianScene
 
@@ -35,7 +37,9 @@ def quantisation_cells(decoded: GaussianScene, meta: dict) -> dict[str, Box]:
     """The cell of every attribute of ``decoded`` (what ``decode_attributes`` returned for ``meta``)."""
     try:
         dev = decoded.means.device
-        pos_step = torch.tensor(meta["position"]["step"], dtype=torch.float64, device=dev)
+        pos_half = torch.from_numpy(
+            np.ascontiguousarray(cell_half_widths(decoded.means.detach().cpu().numpy(), meta["position"]))
+        ).to(dev)
         levels, rot_levels = int(meta["opacity_levels"]), int(meta["rotation_levels"])
         scale_step, dc_step = float(meta["scale_step"]), float(meta["dc_step"])
         sh_steps = torch.tensor([float(s) for s in meta["sh_steps"]], dtype=torch.float64, device=dev)
@@ -43,7 +47,7 @@ def quantisation_cells(decoded: GaussianScene, meta: dict) -> dict[str, Box]:
         raise CodecError(f"attribute codec header is malformed ({err})") from None
     g = {name: getattr(decoded, name).detach().double() for name in ("means", "quats", "opacities")}
     cells: dict[str, Box] = {
-        "means": _around(g["means"], pos_step / 2),
+        "means": _around(g["means"], pos_half),
         "log_scales": _around(decoded.log_scales.detach().double(), scale_step / 2),
         "sh_dc": _around(decoded.sh_dc.detach().double(), dc_step / 2),
     }

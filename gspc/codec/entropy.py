@@ -59,10 +59,14 @@ BOOSTS = np.array(
 
 
 def bit_length(x: np.ndarray) -> np.ndarray:
-    """Bit length of non-negative integers below 2^53 (0 -> 0, 1 -> 1, 2..3 -> 2, ...)."""
-    x = np.asarray(x, dtype=np.int64)
-    _, e = np.frexp(x.astype(np.float64))
-    return np.where(x > 0, e, 0).astype(np.int64)
+    """Bit length of non-negative int64 integers (0 -> 0, 1 -> 1, 2..3 -> 2, ...), exact up to 2^63 - 1."""
+    x = np.asarray(x, dtype=np.int64).copy()
+    n = np.zeros(x.shape, np.int64)
+    for s in (32, 16, 8, 4, 2, 1):  # binary search on integers: no float rounding near 2^53
+        big = x >= (1 << s)
+        n += big * s
+        x = np.where(big, x >> s, x)
+    return n + (x > 0)
 
 
 # ---------------------------------------------------------------------------------------------
