@@ -59,8 +59,8 @@ def _int(
         raise CodecError(f"the .gspc header lacks {where}")
     v = parent[key]
     if not (_is_int(v) and v >= lo and (hi is None or v <= hi)):
-        span = f"{lo}..{hi}" if hi is not None else f">= {lo}"
-        raise CodecError(f"the .gspc header's {where} is {_show(v)}, not an integer in {span}")
+        span = f"in {lo}..{hi}" if hi is not None else f">= {lo}"
+        raise CodecError(f"the .gspc header's {where} is {_show(v)}, not an integer {span}")
     return v
 
 

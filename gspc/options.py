@@ -32,8 +32,8 @@ def check_int(name: str, value: Any, lo: int, hi: int | None = None) -> int:
         or value < lo
         or (hi is not None and value > hi)
     ):
-        span = f"{lo}..{hi}" if hi is not None else f">= {lo}"
-        raise InputError(f"{name} must be an integer in {span}, got {value!r}")
+        span = f"in {lo}..{hi}" if hi is not None else f">= {lo}"
+        raise InputError(f"{name} must be an integer {span}, got {value!r}")
     return int(value)
 
 

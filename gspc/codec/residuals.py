@@ -314,6 +314,19 @@ def encode_residual(residual: np.ndarray, params: dict | None = None) -> tuple[b
     return payload, meta
 
 
+def check_coded_size(payload: bytes, meta: object) -> None:
+    """CodecError unless the image's header declares the size ``meta`` names (meta["shape"] = [h, w])."""
+    try:
+        codec, (h, w) = meta["codec"], meta["shape"]  # type: ignore[index]
+    except (KeyError, TypeError, ValueError) as e:
+        raise CodecError(f"residual metadata is incomplete: {e}") from None
+    declared = coded_size(codec, payload)
+    if declared != (w, h):
+        raise CodecError(
+            f"residual {codec} image declares {declared[0]}x{declared[1]} pixels, its view expects {w}x{h}"
+        )
+
+
 def decode_residual(payload: bytes, meta: dict) -> np.ndarray:
     """Inverse of :func:`encode_residual`: (H, W, 3) float32. Raises CodecError on bad data."""
     try:
@@ -322,11 +335,7 @@ def decode_residual(payload: bytes, meta: dict) -> np.ndarray:
     except (KeyError, TypeError, ValueError) as e:
         raise CodecError(f"residual metadata is incomplete: {e}") from None
     _, decode = _image_codec(codec)
-    declared = coded_size(codec, payload)
-    if declared != (w, h):
-        raise CodecError(
-            f"residual {codec} image declares {declared[0]}x{declared[1]} pixels, its view expects {w}x{h}"
-        )
+    check_coded_size(payload, meta)
     try:
         q = decode(payload)
     except Exception as e:  # imagecodecs raises its own per-codec error classes
