@@ -473,7 +473,8 @@ def decode(
         # Sizes before any camera is built or view rendered: the file's pixel budget (gspc/limits.py).
         header.check_view_sizes(views, Path(in_path).stat().st_size)
         for k, image in res_chunks.items():  # each image's declared size, before anything is decoded
-            residuals.check_coded_size(image, views[k].get("residual"))
+            cam = views[k]["camera"]
+            residuals.check_residual(image, views[k].get("residual"), (cam["height"], cam["width"]))
         restorer_name = opts.restorer if opts.restorer is not None else fields.restorer
         restorer = load_restorer(restorer_name) if opts.restore else None
     rep.bytes = _byte_budget(Path(in_path))

@@ -396,6 +396,23 @@ def side_mutations(meta: dict, chunks: list[container.Chunk]) -> Iterator[tuple[
     }.items():
         big = imagecodecs.jpegxl_encode(np.full((*shape, 3), 128, np.uint8), distance=8.0, effort=1)
         yield desc, meta, with_views(records, {**images, k: big})
+    # The 1.0 layout: residual records in the header, one RESI chunk per image; each record field mutated.
+    views10 = copy.deepcopy(records)
+    resi = [container.Chunk("RESI", img, index=i) for i, img in images.items()]
+    for field, bads in {
+        "codec": [[1], 7, "png", None],
+        "shape": [[24], ["a", "b"], [2**40, 2**40], "x"],
+        "gain": [math.nan, "x", 0.0, -1.0, math.inf],
+        "offset": ["x", None],
+        "scale": [0, "x", 99, [2]],
+        "full_shape": [[2**40, 1], "x", [0, 0]],
+    }.items():
+        for bad in bads:
+            m = copy.deepcopy(meta)
+            vs = copy.deepcopy(views10)
+            vs[k]["residual"][field] = bad
+            m["side_info"]["views"] = vs
+            yield f"1.0 residual {field} = {bad!r}", m, [*base, *resi]
     yield "residual not JXL", meta, with_views(records, {**images, k: b"\x00" * 40})
     yield "residual JXL cut to 3 bytes", meta, with_views(records, {**images, k: images[k][:3]})
 

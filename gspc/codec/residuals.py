@@ -12,6 +12,7 @@ float mapping is plain numpy arithmetic.
 
 from __future__ import annotations
 
+import math
 import struct
 from collections.abc import Callable
 
@@ -314,12 +315,30 @@ def encode_residual(residual: np.ndarray, params: dict | None = None) -> tuple[b
     return payload, meta
 
 
-def check_coded_size(payload: bytes, meta: object) -> None:
-    """CodecError unless the image's header declares the size ``meta`` names (meta["shape"] = [h, w])."""
+def check_residual(payload: bytes, meta: object, view_hw: tuple[int, int] | None = None) -> None:
+    """CodecError unless ``meta`` names a codec, a positive finite gain, bits and offset, a scale in 1..16
+    whose full shape is the view's (``view_hw``, when given), and the image's header declares the size
+    ``meta`` names (meta["shape"] = [h, w]): all before any pixel is decoded."""
     try:
-        codec, (h, w) = meta["codec"], meta["shape"]  # type: ignore[index]
+        codec, (h, w), gain = meta["codec"], meta["shape"], meta["gain"]  # type: ignore[index]
     except (KeyError, TypeError, ValueError) as e:
         raise CodecError(f"residual metadata is incomplete: {e}") from None
+    if not isinstance(codec, str):
+        raise CodecError(f"residual codec {codec!r} is not a name")
+    if not (type(gain) in (int, float) and math.isfinite(gain) and gain > 0):
+        raise CodecError(f"residual gain {gain!r} is not a positive finite number")
+    bits, offset = meta.get("bits"), meta.get("offset")  # type: ignore[union-attr]
+    if bits not in (8, 16) or type(bits) is not int or offset != 1 << (bits - 1) or type(offset) is not int:
+        raise CodecError(f"residual bits {bits!r} and offset {offset!r} are not 8 or 16 and 2^(bits - 1)")
+    scale = meta.get("scale", 1)  # type: ignore[union-attr]
+    if type(scale) is not int or not 1 <= scale <= 16:
+        raise CodecError(f"residual scale {scale!r} is not an integer in 1..16")
+    full = meta.get("full_shape", [h, w]) if scale != 1 else [h, w]  # type: ignore[union-attr]
+    want = list(view_hw) if view_hw is not None else full
+    if not (isinstance(full, list) and full == want and full == [x for x in full if type(x) is int]):
+        raise CodecError(f"residual full shape {full!r} is not its view's {want!r}")
+    if [h, w] != [math.ceil(full[0] / scale), math.ceil(full[1] / scale)]:
+        raise CodecError(f"residual shape {[h, w]!r} is not its full shape {full!r} at 1/{scale}")
     declared = coded_size(codec, payload)
     if declared != (w, h):
         raise CodecError(
@@ -334,8 +353,8 @@ def decode_residual(payload: bytes, meta: dict) -> np.ndarray:
         gain, offset = np.float32(meta["gain"]), np.float32(meta["offset"])
     except (KeyError, TypeError, ValueError) as e:
         raise CodecError(f"residual metadata is incomplete: {e}") from None
+    check_residual(payload, meta)
     _, decode = _image_codec(codec)
-    check_coded_size(payload, meta)
     try:
         q = decode(payload)
     except Exception as e:  # imagecodecs raises its own per-codec error classes
