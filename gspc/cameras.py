@@ -20,6 +20,7 @@ import numpy as np
 
 from gspc.atomic import atomic_write_bytes
 from gspc.errors import InputError
+from gspc.limits import MAX_CAMERA_SIDE
 
 
 @dataclass
@@ -33,11 +34,23 @@ class Camera:
     def __post_init__(self) -> None:
         self.world_to_cam = np.asarray(self.world_to_cam, dtype=np.float64).reshape(4, 4)
         self.K = np.asarray(self.K, dtype=np.float64).reshape(3, 3)
-        self.width, self.height = int(self.width), int(self.height)
-        if self.width <= 0 or self.height <= 0:
-            raise InputError(f"camera {self.name!r} has non-positive size {self.width}x{self.height}")
+        try:
+            self.width, self.height = int(self.width), int(self.height)
+        except (TypeError, ValueError, OverflowError):  # NaN, Inf, strings
+            raise InputError(f"camera {self.name!r} has size {self.width!r}x{self.height!r}") from None
+        if not (0 < self.width <= MAX_CAMERA_SIDE and 0 < self.height <= MAX_CAMERA_SIDE):
+            raise InputError(
+                f"camera {self.name!r} has size {self.width}x{self.height}; each side must be in "
+                f"1..{MAX_CAMERA_SIDE}"
+            )
         if not (np.isfinite(self.world_to_cam).all() and np.isfinite(self.K).all()):
             raise InputError(f"camera {self.name!r} has NaN or Inf in its matrices")
+        # Projection divides by the focal lengths (gspc/render/project.py); zero or negative ones are no
+        # pinhole camera.
+        if not (self.K[0, 0] > 0 and self.K[1, 1] > 0):
+            raise InputError(
+                f"camera {self.name!r} has focal lengths fx={self.fx:g}, fy={self.fy:g}; both must be > 0"
+            )
 
     @property
     def fx(self) -> float:
@@ -93,8 +106,8 @@ class Camera:
             K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
             w2c = np.vstack([pose, [0.0, 0.0, 0.0, 1.0]])
             return Camera(w2c, K, d["width"], d["height"], str(d.get("name", "")))
-        except (KeyError, TypeError, ValueError) as e:
-            raise InputError(f"camera record does not parse: {e}") from None
+        except (KeyError, TypeError, ValueError, AttributeError, OverflowError) as e:
+            raise InputError(f"camera record does not parse: {type(e).__name__}: {e}") from None
 
 
 # ---------------------------------------------------------------------------
@@ -203,10 +216,12 @@ def _parse_inria(entries: list, path: Path) -> list[Camera]:
             K = _intrinsics(
                 float(e["fx"]), float(e["fy"]), float(e.get("cx", w / 2)), float(e.get("cy", h / 2))
             )
-        except (TypeError, ValueError) as err:
+        except (TypeError, ValueError, OverflowError) as err:
             raise InputError(f"{path}: entry {i} ({name!r}) does not parse: {err}") from None
         _check_rotation(R_c2w, f"{path}: camera {name!r}")
         cams.append(Camera(_rigid_inverse(R_c2w, pos), K, w, h, name))
+    if not cams:
+        raise InputError(f"{path} lists no cameras")
     return cams
 
 
@@ -252,6 +267,8 @@ def image_size(path: str | Path) -> tuple[int, int]:
                 return _jpeg_size(f, path)
     except OSError as e:
         raise InputError(f"image {path} cannot be read: {e}") from None
+    except struct.error:  # a length field or the frame header runs past the end of the file
+        raise InputError(f"image {path} is truncated before its size") from None
     raise InputError(f"image {path} is neither PNG nor JPEG; give width and height instead")
 
 
@@ -268,6 +285,8 @@ def _jpeg_size(f, path: Path) -> tuple[int, int]:
         if marker in (0x01, 0xD8) or 0xD0 <= marker <= 0xD7:
             continue  # markers without a length field
         (length,) = struct.unpack(">H", f.read(2))
+        if length < 2:  # the length counts its own two bytes; less would seek backwards forever
+            raise InputError(f"JPEG {path} has a segment of length {length}")
         # SOF0-SOF15 carry the size; C4 (DHT), C8 (JPG) and CC (DAC) share the range but do not.
         if 0xC0 <= marker <= 0xCF and marker not in (0xC4, 0xC8, 0xCC):
             seg = f.read(5)
@@ -312,6 +331,16 @@ def _first_image_size(path: Path, file_path: str, width: int | None, height: int
     return wh
 
 
+def _focal_from_angle(size: int, angle: object, path: Path, name: str, key: str) -> float:
+    """Focal length in pixels from a field of view in radians, which must lie in (0, pi)."""
+    a = float(angle)  # TypeError / ValueError: reported by the caller with the frame
+    if not 0.0 < a < math.pi:
+        raise InputError(
+            f"{path}: frame {name!r} has {key} {a!r}; a field of view in radians lies in (0, pi)"
+        )
+    return 0.5 * size / math.tan(0.5 * a)
+
+
 def _parse_transforms(data: dict, path: Path, width: int | None, height: int | None) -> list[Camera]:
     frames = data["frames"]
     if not isinstance(frames, list) or not frames:
@@ -343,9 +372,9 @@ def _parse_transforms(data: dict, path: Path, width: int | None, height: int | N
                 fx = float(get("fl_x"))
                 fy = float(get("fl_y")) if get("fl_y") is not None else fx
             elif get("camera_angle_x") is not None:
-                fx = 0.5 * w / math.tan(0.5 * float(get("camera_angle_x")))
+                fx = _focal_from_angle(w, get("camera_angle_x"), path, name, "camera_angle_x")
                 cay = get("camera_angle_y")
-                fy = 0.5 * h / math.tan(0.5 * float(cay)) if cay is not None else fx
+                fy = _focal_from_angle(h, cay, path, name, "camera_angle_y") if cay is not None else fx
             else:
                 raise InputError(f"{path}: frame {name!r} has no focal length (fl_x or camera_angle_x)")
             cx = float(get("cx")) if get("cx") is not None else w / 2
@@ -354,9 +383,14 @@ def _parse_transforms(data: dict, path: Path, width: int | None, height: int | N
             if c2w.shape == (3, 4):
                 c2w = np.vstack([c2w, [0.0, 0.0, 0.0, 1.0]])
             c2w = c2w.reshape(4, 4)
-        except (TypeError, ValueError) as err:
+        except (TypeError, ValueError, OverflowError) as err:
             raise InputError(f"{path}: frame {i} ({name!r}) does not parse: {err}") from None
-        distortion |= any(float(get(k) or 0.0) != 0.0 for k in ("k1", "k2", "k3", "k4", "p1", "p2"))
+        try:
+            distortion |= any(float(get(k) or 0.0) != 0.0 for k in ("k1", "k2", "k3", "k4", "p1", "p2"))
+        except (TypeError, ValueError) as err:
+            raise InputError(
+                f"{path}: frame {i} ({name!r}) has a distortion term that is no number: {err}"
+            ) from None
         R_gl = c2w[:3, :3]
         _check_rotation(R_gl, f"{path}: frame {name!r}")
         cams.append(
@@ -432,6 +466,8 @@ def _load_colmap(d: Path) -> list[Camera]:
         w2c[:3, :3] = _quat_to_rot(q / np.linalg.norm(q))
         w2c[:3, 3] = t
         cams.append((name, Camera(w2c, _intrinsics(fx, fy, cx, cy), w, h, name)))
+    if not cams:
+        raise InputError(f"COLMAP model in {d} lists no images")
     if distorted:
         warnings.warn(
             f"COLMAP cameras of model {', '.join(sorted(distorted))} have lens distortion; gspc uses their "

@@ -138,9 +138,10 @@ def encode(
     ),
 ) -> None:
     """Compress a 3DGS scene into a .gspc file."""
-    _use_threads()
     from gspc.pipeline import EncodeOptions
     from gspc.pipeline import encode as run
+
+    _use_threads()
 
     opts = EncodeOptions(
         quality=quality,
@@ -177,12 +178,11 @@ def decode(
     device: str = typer.Option("cpu", help="cpu or cuda"),
 ) -> None:
     """Decode a .gspc file into a standard 3DGS PLY."""
-    _use_threads()
     from gspc.pipeline import DecodeOptions
     from gspc.pipeline import decode as run
 
-    if iterations is not None and iterations < 0:
-        raise GspcError(f"--iterations must be >= 0, got {iterations}")
+    _use_threads()
+
     opts = DecodeOptions(
         iterations=iterations,
         restore=restore,
@@ -217,15 +217,17 @@ def info(
     if _is_gspc(path):
         from gspc.codec.container import describe, read
         from gspc.codec.sideinfo import side_views
+        from gspc.header import scene_summary
 
         d = describe(path)
         c = read(path)
         header = c.header
         views, _ = side_views(header.get("side_info", {}), c.chunks)
-        n = max(int(header.get("scene", {}).get("num_gaussians", 0)), 1)
+        count, degree = scene_summary(header)
+        n = max(count, 1)
         out.print(
             f"{path}: gspc format {d['version'][0]}.{d['version'][1]}, {d['file_size']:,} bytes, "
-            f"{n:,} Gaussians, SH degree {header.get('scene', {}).get('sh_degree', '?')}, "
+            f"{n:,} Gaussians, SH degree {'?' if degree is None else degree}, "
             f"{len(views)} side-information views"
         )
         t = Table(show_header=True)
@@ -273,6 +275,13 @@ def _fmt(v) -> str:
     return f"{v:,}" if isinstance(v, int) else str(v)
 
 
+def _check_view_options(views: int, max_side: int) -> None:
+    from gspc.options import check_max_side, check_views
+
+    check_views(views)
+    check_max_side(max_side)
+
+
 def _cameras_for(scene, cameras: Path | None, views: int, max_side: int):
     from gspc.cameras import limit_size, load_cameras, synthesize_views
 
@@ -290,6 +299,10 @@ def render(
     max_side: int = typer.Option(800, help="longest image side in pixels"),
 ) -> None:
     """Render a scene to PNGs."""
+    from gspc.paths import refuse_output_over_input
+
+    _check_view_options(views, max_side)
+    refuse_output_over_input(output, scene, cameras)
     _use_threads()
     import imagecodecs
 
@@ -322,6 +335,10 @@ def evaluate(
     ),
 ) -> None:
     """PSNR and SSIM of one scene's renders against another's (8-bit, 3DGS convention)."""
+    from gspc.options import check_background
+
+    _check_view_options(views, max_side)
+    background = check_background(background)
     _use_threads()
     from gspc.io import read_scene
     from gspc.metrics import psnr, quantize8, ssim
@@ -344,6 +361,9 @@ def convert(
     output: Path = typer.Option(..., "-o", "--output", help="output PLY (INRIA layout)"),
 ) -> None:
     """Convert any readable scene to a standard INRIA 3DGS PLY."""
+    from gspc.paths import refuse_output_over_input
+
+    refuse_output_over_input(output, scene)
     _use_threads()
     from gspc.io import read_scene, write_ply
 

@@ -15,7 +15,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from gspc import __version__
+from gspc import __version__, header
+from gspc.atomic import atomic_write_bytes
 from gspc.cameras import Camera, limit_size, load_cameras, sample_views, synthesize_views
 from gspc.codec import container, residuals
 from gspc.codec.attributes import (
@@ -30,6 +31,8 @@ from gspc.codec.sideinfo import pack_side, side_views
 from gspc.errors import CodecError, DeviceError, InputError
 from gspc.io import read_scene, write_ply
 from gspc.metrics import psnr, quantize8
+from gspc.options import check_decode_options, check_encode_options
+from gspc.paths import refuse_output_over_input
 from gspc.presets import DEFAULT_RESTORER, quality_preset
 from gspc.progress import Progress
 from gspc.refine import refine
@@ -40,7 +43,7 @@ from gspc.visibility import visible_mask
 
 ATTRIBUTE_CHUNKS = ("POSN", "OPAC", "SCAL", "ROTN", "SHDC", "SHRS")
 SIDE_CHUNK = "SIDE"  # all side-information views in one chunk (spec 10.9); 1.0's RESI form is still read
-DEFAULT_ITERATIONS = 300  # decoder refinement when the file names none
+DEFAULT_ITERATIONS = header.DEFAULT_ITERATIONS  # decoder refinement when the file names none
 # Held-out PSNR gain after refinement per dB that the residuals add to their own views' renders (I~ + R~ over
 # I~), measured with 1000 iterations inside the cells: lego fit lambda 8, 0.86 (residuals at 1/2 resolution)
 # and 0.82 (1/4); donut lambda 64, 0.89 (1/4). The encoder predicts with it which resolution pays best.
@@ -75,6 +78,10 @@ class EncodeOptions:
     # 8 sampled views lost 0.25 dB at 13 others on the lego fit (bench/pipeline_equal_bytes.md).
     check_margin_db: float = 0.15
 
+    def validate(self) -> None:
+        """InputError naming the first option out of range (gspc/options.py); called before any work."""
+        check_encode_options(self)
+
 
 @dataclass
 class DecodeOptions:
@@ -87,6 +94,10 @@ class DecodeOptions:
     lr_scale: float = 1.0  # multiplies every refinement learning rate
     # Keep refined attributes inside their quantisation cells (gspc/codec/cells.py).
     in_cells: bool = True
+
+    def validate(self) -> None:
+        """InputError naming the first option out of range (gspc/options.py); called before any work."""
+        check_decode_options(self)
 
 
 @dataclass
@@ -148,8 +159,6 @@ def render_images(
 def _codec_params(opts: EncodeOptions):
     params = quality_preset(opts.quality).attributes
     if opts.lam is not None:
-        if not opts.lam > 0:
-            raise InputError(f"--lambda must be positive, got {opts.lam}")
         params = replace(params, lam=opts.lam)
     if opts.keep_invisible:
         params = replace(params, keep_invisible=True)
@@ -164,9 +173,9 @@ def encode(
     progress: Progress | None = None,
 ) -> Report:
     opts = opts or EncodeOptions()
+    opts.validate()
+    refuse_output_over_input(out_path, scene_path, cameras_path)
     rep = Report()
-    if not 0 < opts.views_fraction <= 1:
-        raise InputError(f"--views-fraction must be in (0, 1], got {opts.views_fraction}")
     with _stage(rep, progress, "read"):
         scene = read_scene(scene_path)
         cameras = load_cameras(cameras_path) if cameras_path else synthesize_views(scene, opts.synth_views)
@@ -188,8 +197,6 @@ def encode(
     side: _Side | None = None  # the side information sent, if any
     preset_iterations = quality_preset(opts.quality).refine_iterations
     check_iterations = preset_iterations if opts.check_iterations is None else opts.check_iterations
-    if check_iterations < 0:
-        raise InputError(f"--check-iterations must be >= 0, got {check_iterations}")
     refine_iterations = check_iterations or preset_iterations  # unchecked files name the preset's
     if views:
         # Round-trip through the stored form so the encoder renders exactly the cameras the decoder reads.
@@ -233,7 +240,7 @@ def encode(
         if side is not None:
             chunks.append(container.Chunk(SIDE_CHUNK, side.payload))
 
-    header = {
+    file_header = {
         "encoder": f"gspc {__version__}",
         "scene": {
             "num_gaussians": enc.decoded.num_gaussians,
@@ -248,7 +255,14 @@ def encode(
         },
     }
     with _stage(rep, progress, "write"):
-        container.write(out_path, header, chunks)
+        data = container.pack(file_header, chunks)
+        # The decoder refuses views beyond its pixel budget for this file size (gspc/limits.py): refuse to
+        # write a file it would refuse.
+        try:
+            header.check_view_sizes(side.records if side is not None else [], len(data))
+        except CodecError as e:
+            raise InputError(f"{e}; lower --max-side or --views-fraction") from None
+        atomic_write_bytes(out_path, data, fsync=True)
     rep.bytes = _byte_budget(Path(out_path))
     stored = side.records if side is not None else []
     rep.info["views"] = len(stored)
@@ -437,14 +451,6 @@ def _byte_budget(path: Path) -> dict[str, int]:
     return budget
 
 
-def _side_iterations(side: dict) -> int:
-    """The header's optional side_info.refine_iterations (spec: an int >= 0)."""
-    v = side.get("refine_iterations", DEFAULT_ITERATIONS)
-    if not isinstance(v, int) or isinstance(v, bool) or v < 0:
-        raise CodecError(f"the .gspc header's side_info.refine_iterations is {v!r}, not an int >= 0")
-    return v
-
-
 def _check_device(device: str) -> torch.device:
     if device not in ("cpu", "cuda"):
         raise DeviceError(f"unknown device {device!r}; use cpu or cuda")
@@ -460,21 +466,22 @@ def decode(
     progress: Progress | None = None,
 ) -> Report:
     opts = opts or DecodeOptions()
-    rep = Report()
+    opts.validate()
     device = _check_device(opts.device)
+    refuse_output_over_input(out_path, in_path)
+    rep = Report()
     with _stage(rep, progress, "read"):
         c = container.read(in_path)
-        header = c.header
-        try:
-            attr_meta, side = header["attributes"], header["side_info"]
-            background = tuple(float(v) for v in side["background"])
-        except (KeyError, TypeError, ValueError):
-            raise CodecError(
-                "the .gspc header lacks the attributes or side_info section gspc 1 writes"
-            ) from None
+        fields = header.parse(c.header)
+        attr_meta, side, background = fields.attributes, fields.side_info, fields.background
         chunks = attribute_chunks(c.chunks)
         views, res_chunks = side_views(side, c.chunks)
-        restorer_name = opts.restorer if opts.restorer is not None else side.get("restorer", "none")
+        # Sizes before any camera is built or view rendered: the file's pixel budget (gspc/limits.py).
+        header.check_view_sizes(views, Path(in_path).stat().st_size)
+        for k, image in res_chunks.items():  # each image's declared size, before anything is decoded
+            cam = views[k]["camera"]
+            residuals.check_residual(image, views[k].get("residual"), (cam["height"], cam["width"]))
+        restorer_name = opts.restorer if opts.restorer is not None else fields.restorer
         restorer = load_restorer(restorer_name) if opts.restore else None
     rep.bytes = _byte_budget(Path(in_path))
     with _stage(rep, progress, "attributes"):
@@ -491,7 +498,7 @@ def decode(
         # With no residual anywhere every target equals the render: the gradients are only round-off, and
         # Adam would turn them into full-size steps (measured: 50.7 -> 41.7 dB on a statue), so skip.
         has_residual = any("residual" in v for v in views) and opts.restore
-        iterations = opts.iterations if opts.iterations is not None else _side_iterations(side)
+        iterations = opts.iterations if opts.iterations is not None else fields.refine_iterations
         if opts.refine and iterations > 0 and not has_residual:
             rep.info["refine"] = "skipped (no view carries a residual)"
         if opts.refine and iterations > 0 and has_residual:

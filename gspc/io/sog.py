@@ -17,13 +17,24 @@ import json
 import math
 import os
 import zipfile
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import imagecodecs
 import numpy as np
 
-from gspc.errors import InputError
+from gspc.codec.residuals import coded_size
+from gspc.errors import CodecError, InputError
+from gspc.limits import (
+    MAX_SOG_MAP_PIXELS,
+    MAX_SOG_MEMBER_BYTES,
+    MAX_SOG_META_BYTES,
+    SOG_MAP_FLOOR,
+    SOG_MAX_MEMBER_RATIO,
+    SOG_MEMBER_FLOOR,
+    SOG_PIXELS_PER_ENTRY,
+)
 from gspc.scene import GaussianScene, make_scene, num_sh_rest, validate_named
 
 SOG_VERSION = 2
@@ -36,8 +47,13 @@ def _unlog(n: np.ndarray) -> np.ndarray:
     return np.sign(n) * np.expm1(np.abs(n))
 
 
-def _loader(path: Path) -> Callable[[str], bytes]:
-    """A function returning the bytes of a named member, from a .sog zip or a SOG folder."""
+@contextmanager
+def _loader(path: Path) -> Iterator[Callable[[str], bytes]]:
+    """A function returning the bytes of a named member, from a .sog zip or a SOG folder.
+
+    Members are read only when asked for, each after its size (the zip's central directory, or the file's)
+    is checked against MAX_SOG_MEMBER_BYTES: an archive's unneeded or oversized members cost nothing.
+    """
     if path.is_dir() or path.name == "meta.json":
         folder = path if path.is_dir() else path.parent
 
@@ -45,21 +61,39 @@ def _loader(path: Path) -> Callable[[str], bytes]:
             member = folder / name
             if not member.is_file():
                 raise InputError(f"{path}: SOG file '{name}' is missing")
+            _check_member_size(path, name, member.stat().st_size)
             return member.read_bytes()
 
-        return from_folder
+        yield from_folder
+        return
     try:
-        with zipfile.ZipFile(path) as z:
-            members = {info.filename: z.read(info) for info in z.infolist() if not info.is_dir()}
+        z = zipfile.ZipFile(path)
     except (zipfile.BadZipFile, OSError, EOFError, ValueError, NotImplementedError) as err:
         raise InputError(f"{path}: not a readable SOG zip ({err})") from err
+    with z:
+        infos = {info.filename: info for info in z.infolist() if not info.is_dir()}
 
-    def from_zip(name: str) -> bytes:
-        if name not in members:
-            raise InputError(f"{path}: SOG archive has no member '{name}'")
-        return members[name]
+        def from_zip(name: str) -> bytes:
+            if name not in infos:
+                raise InputError(f"{path}: SOG archive has no member '{name}'")
+            _check_member_size(path, name, infos[name].file_size, infos[name].compress_size)
+            try:
+                # zipfile stops at the size the directory states and checks the CRC: no more is read.
+                return z.read(infos[name])
+            except (zipfile.BadZipFile, OSError, EOFError, ValueError, NotImplementedError) as err:
+                raise InputError(f"{path}: SOG member '{name}' does not read ({err})") from err
 
-    return from_zip
+        yield from_zip
+
+
+def _check_member_size(path: Path, name: str, size: int, stored: int | None = None) -> None:
+    """A member's uncompressed size against the caps; ``stored``: its compressed size in a zip."""
+    cap = MAX_SOG_META_BYTES if name == "meta.json" else MAX_SOG_MEMBER_BYTES
+    if stored is not None:
+        cap = min(cap, max(SOG_MEMBER_FLOOR, SOG_MAX_MEMBER_RATIO * stored))
+    if size > cap:
+        packed = "" if stored is None else f" ({stored:,} compressed)"
+        raise InputError(f"{path}: SOG member '{name}' is {size:,} bytes{packed}; the limit is {cap:,}")
 
 
 def _meta(path: Path, load: Callable[[str], bytes]) -> dict:
@@ -80,6 +114,8 @@ def _meta(path: Path, load: Callable[[str], bytes]) -> dict:
         raise InputError(f"{path}: meta.json count {count!r} is not a non-negative integer")
     if count == 0:
         raise InputError(f"{path}: scene has zero Gaussians")
+    if count > MAX_SOG_MAP_PIXELS:
+        raise InputError(f"{path}: meta.json count {count:,} exceeds the limit {MAX_SOG_MAP_PIXELS:,}")
     return meta
 
 
@@ -102,10 +138,30 @@ def _floats(path: Path, meta: dict, key: str, field: str, length: int | None) ->
     return values
 
 
-def _pixels(path: Path, load: Callable[[str], bytes], name: str, count: int | None) -> np.ndarray:
-    """Decode a WebP map to RGBA uint8; the first ``count`` pixels in row-major order if given."""
+def _check_map_size(path: Path, name: str, data: bytes, entries: int) -> None:
+    """A WebP map's declared size, before decoding, against the entries it holds (gspc/limits.py)."""
     try:
-        img = imagecodecs.webp_decode(load(name), hasalpha=True)
+        w, h = coded_size("webp", data)
+    except CodecError:
+        raise InputError(f"{path}: SOG image '{name}' is not a WebP image with a size header") from None
+    allowed = min(MAX_SOG_MAP_PIXELS, max(SOG_MAP_FLOOR, SOG_PIXELS_PER_ENTRY * entries))
+    if w * h > allowed:
+        raise InputError(
+            f"{path}: SOG image '{name}' is {w}x{h} = {w * h:,} pixels for {entries:,} entries; the limit is "
+            f"{allowed:,}"
+        )
+
+
+def _pixels(
+    path: Path, load: Callable[[str], bytes], name: str, count: int | None, entries: int | None = None
+) -> np.ndarray:
+    """Decode a WebP map to RGBA uint8; the first ``count`` pixels in row-major order if given.
+
+    ``entries`` (default ``count``): how many pixels the map needs, which bounds its declared size."""
+    data = load(name)
+    _check_map_size(path, name, data, entries if entries is not None else count or 0)
+    try:
+        img = imagecodecs.webp_decode(data, hasalpha=True)
     except InputError:
         raise
     except Exception as err:  # imagecodecs raises WebpError (and others) on corrupt data
@@ -150,7 +206,7 @@ def _sh_rest(path: Path, load: Callable[[str], bytes], meta: dict, count: int) -
     k = num_sh_rest(bands)
     codebook = _floats(path, meta, "shN", "codebook", 256)
     centroids_name, labels_name = _files(path, meta, "shN", 2)
-    centroids = _pixels(path, load, centroids_name, None)
+    centroids = _pixels(path, load, centroids_name, None, 64 * k * ((palette + 63) // 64))
     labels = _pixels(path, load, labels_name, count)
     index = labels[:, 0].astype(np.int64) | (labels[:, 1].astype(np.int64) << 8)
     if (index >= palette).any():
@@ -173,7 +229,11 @@ def read_sog(path: str | os.PathLike) -> GaussianScene:
     path = Path(path)
     if not path.exists():
         raise InputError(f"{path}: no such file")
-    load = _loader(path)
+    with _loader(path) as load:
+        return _read(path, load)
+
+
+def _read(path: Path, load: Callable[[str], bytes]) -> GaussianScene:
     meta = _meta(path, load)
     count = meta["count"]
 
