@@ -283,7 +283,7 @@ def decode_attributes(meta: dict, chunks: dict[str, bytes]) -> dict[str, np.ndar
     """float32 arrays: means (n,3), quats (n,4), log_scales (n,3), opacities (n,), sh_dc (n,3), sh_rest
     (n,K,3)."""
     a = meta["attributes"]
-    need(a["version"] == 1, "codec version")
+    need(is_int(a["version"]) and a["version"] in (1, 2), "codec version")
     n, deg = a["n"], a["sh_degree"]
     need(is_int(n) and 1 <= n <= MAX_GAUSSIANS, "Gaussian count")
     need(is_int(deg) and 0 <= deg <= 3, "SH degree")
@@ -291,7 +291,12 @@ def decode_attributes(meta: dict, chunks: dict[str, bytes]) -> dict[str, np.ndar
     need(n <= GAUSSIANS_PER_BYTE * sum(len(p) for p in chunks.values()), "Gaussian count vs payload")
     grid = a["position"]
     bits, lo, step = grid["bits"], grid["lo"], grid["step"]
-    need(is_int(bits) and 1 <= bits <= 17, "position bits")
+    need(is_int(bits) and 1 <= bits <= (21 if a["version"] == 2 else 17), "position bits")
+    contracted = a["version"] == 2
+    need(contracted == ("radius" in grid) == ("centre" in grid), "contraction keys")
+    if contracted:
+        centre, radius = grid["centre"], grid["radius"]
+        need(len(centre) == 3 and all(map(finite_float, [*centre, radius])) and radius > 0, "centre, radius")
     need(len(lo) == 3 and len(step) == 3 and all(map(finite_float, lo + step)), "grid floats")
     need(all(s > 0 for s in step), "grid step")
     L, M = a["opacity_levels"], a["rotation_levels"]
@@ -318,9 +323,20 @@ def decode_attributes(meta: dict, chunks: dict[str, bytes]) -> dict[str, np.ndar
             used += x - 1
             code += (1 << (x - 1)) + low
         need(code < 1 << (3 * bits), "Morton code past 3 x bits")
-        for ax in range(3):
-            v = sum(((code >> (3 * b + ax)) & 1) << b for b in range(bits))
-            means[i, ax] = np.float32(lo[ax] + v * step[ax])
+        y = [
+            lo[ax] + sum(((code >> (3 * b + ax)) & 1) << b for b in range(bits)) * step[ax] for ax in range(3)
+        ]
+        if not contracted:
+            means[i] = np.array(y, np.float32)
+            continue
+        # 10.1 contracted grid, in the spec's operation order (binary64, then one cast to binary32).
+        rho = math.sqrt((y[0] * y[0] + y[1] * y[1]) + y[2] * y[2])
+        if rho > 1:
+            e = math.floor(rho - 1)
+            r = math.ldexp(1 + ((rho - 1) - e), e)
+            sc = r / rho
+            y = [c * sc for c in y]
+        means[i] = np.array([centre[ax] + radius * y[ax] for ax in range(3)], np.float32)
 
     def cols(name: str, c: int) -> list[list[int]]:
         return decode_ecm(chunks[name], n, c)

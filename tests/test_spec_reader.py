@@ -12,6 +12,7 @@ import msgpack
 import numpy as np
 import pytest
 import spec_reader as sr
+import torch
 import zstandard
 from scenes import random_scene
 
@@ -127,6 +128,16 @@ def test_spec_reader_decodes_encoder_output(n, degree, preset, lam):
     attrs, views = sr.read_scene(data)
     assert_same(attrs, enc.decoded)
     assert views == []
+
+
+def test_spec_reader_decodes_a_contracted_position_grid():
+    """Attribute codec version 2 (spec 10.1): far Gaussians put the grid in contracted space."""
+    scene = random_scene(n=500, sh_degree=1, seed=5)
+    far = np.random.default_rng(5).normal(size=(25, 3)).astype(np.float32) * 300.0
+    scene.means[:25] += torch.from_numpy(far)
+    data, enc = attribute_file(scene, PRESETS["low"])
+    assert enc.meta["version"] == 2
+    assert_same(sr.read_scene(data)[0], enc.decoded)
 
 
 @pytest.mark.slow
