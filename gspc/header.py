@@ -23,7 +23,7 @@ from gspc.limits import (
 )
 
 DEFAULT_ITERATIONS = 300  # decoder refinement when the file names none (spec: side_info.refine_iterations)
-DEFAULT_RESTORER = "none"  # the restorer when the file names none
+UNNAMED_RESTORER = "none"  # the restorer when the file names none (the encoder names one)
 _MAX_SH_DEGREE = 3
 
 
@@ -110,7 +110,7 @@ def _background(side: dict) -> tuple[float, float, float]:
 
 
 def _restorer(side: dict) -> str:
-    v = side.get("restorer", DEFAULT_RESTORER)
+    v = side.get("restorer", UNNAMED_RESTORER)
     if not (isinstance(v, str) and 0 < len(v) <= 200):
         raise CodecError(f"the .gspc header's side_info.restorer is {_show(v)}, not a restorer name")
     return v

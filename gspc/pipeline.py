@@ -43,7 +43,6 @@ from gspc.visibility import visible_mask
 
 ATTRIBUTE_CHUNKS = ("POSN", "OPAC", "SCAL", "ROTN", "SHDC", "SHRS")
 SIDE_CHUNK = "SIDE"  # all side-information views in one chunk (spec 10.9); 1.0's RESI form is still read
-DEFAULT_ITERATIONS = header.DEFAULT_ITERATIONS  # decoder refinement when the file names none
 # Held-out PSNR gain after refinement per dB that the residuals add to their own views' renders (I~ + R~ over
 # I~), measured with 1000 iterations inside the cells: lego fit lambda 8, 0.86 (residuals at 1/2 resolution)
 # and 0.82 (1/4); donut lambda 64, 0.89 (1/4). The encoder predicts with it which resolution pays best.

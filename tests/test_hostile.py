@@ -1,7 +1,6 @@
 """Hostile inputs through the CLI (tests/hostile.py): each is refused in one typed line, leaves no output, and
 costs memory bounded by its size (issue 15)."""
 
-import time
 import tracemalloc
 
 import pytest
@@ -58,18 +57,15 @@ def test_hostile_inputs_are_refused_in_one_line(work):
         *sog_cases(tmp, make_sog),
     ]
     assert len(cases) > 300
-    slowest, problems = (0.0, ""), []
+    problems = []
     for case in cases:
         if case.output is not None and case.output.is_file():
             case.output.unlink()  # left by a case that wrongly succeeded: reported once, not again
-        t0 = time.perf_counter()
         res = runner.invoke(app, case.args)
-        slowest = max(slowest, (time.perf_counter() - t0, case.name))
         why = refusal_problem(case, res)
         if why:
             problems.append(f"{case.category}: {case.name}: {why}: {res.output.strip()[-200:]!r}")
     assert not problems, "\n".join(problems)
-    assert slowest[0] < 5.0, slowest
     # Outputs named as inputs were refused, not written over the inputs.
     assert scene.read_bytes() == scene_bytes and base.read_bytes() == base_bytes
 
@@ -78,7 +74,6 @@ def test_hostile_inputs_are_refused_in_one_line(work):
 def test_hostile_files_decode_in_bounded_memory(work):
     """Peak memory (tracemalloc) decoding each hostile .gspc file: refused before its asks are allocated."""
     tmp, _, base = work
-    worst = 0.0
     tracemalloc.start()
     try:
         for _, name, path in gspc_files(base, tmp):
@@ -90,17 +85,21 @@ def test_hostile_files_decode_in_bounded_memory(work):
             size = path.stat().st_size
             # 4 MiB for the interpreter's own work (imports on first use, tracebacks), then 64 x the file.
             assert peak <= (4 << 20) + 64 * size, (name, peak, size)
-            worst = max(worst, peak / size)
     finally:
         tracemalloc.stop()
 
 
 def test_unneeded_sog_member_is_not_read(tmp_path):
+    """`gspc info` on a SOG archive with a 64 MiB member it does not need: never inflated (peak memory)."""
     bomb = unneeded_bomb(tmp_path, make_sog)
-    t0 = time.perf_counter()
-    res = runner.invoke(app, ["info", str(bomb)])
+    tracemalloc.start()
+    try:
+        res = runner.invoke(app, ["info", str(bomb)])
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
     assert res.exit_code == 0, res.output
-    assert time.perf_counter() - t0 < 2.0
+    assert peak < 16 << 20, peak
 
 
 def test_options_are_validated_by_the_dataclasses(tmp_path):

@@ -168,10 +168,11 @@ def positions(v: np.ndarray, grid: dict) -> np.ndarray:
 
 
 def cell_half_widths(means: np.ndarray, grid: dict) -> np.ndarray:
-    """(N, 3) half-widths of a box holding each decoded position's voxel cell in world space."""
+    """Half-widths of a box holding each decoded position's voxel cell in world space: (N, 3), or (1, 3)
+    for the plain grid, where every cell is the same."""
     half = np.asarray(grid["step"], np.float64)[None, :] / 2
     if not is_contracted(grid):
-        return np.broadcast_to(half, (len(means), 3))
+        return half
     r = np.sqrt(((np.asarray(means, np.float64) - np.asarray(grid["centre"])) ** 2).sum(1)) / grid["radius"]
     # The mapping stretches grid space by 2^e <= r in octave e >= 1 (none below 2 R); a cell may reach into
     # the next octave: 2 r bounds it there, and from 1.5 R on to cover cells that cross 2 R.
