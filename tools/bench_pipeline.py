@@ -14,6 +14,7 @@ Writes bench/pipeline.md and bench/pipeline_rd.png.
 
 from __future__ import annotations
 
+import json
 import sys
 import tempfile
 import time
@@ -53,7 +54,11 @@ class Setup:
     photos: list[torch.Tensor] | None = None  # held-out photos at eval_cams (lego)
 
 
-def lego_setup(folder: Path) -> Setup:
+def fit_setup(folder: Path) -> Setup:
+    """A tools/fit_scene.py output: its held-out photos are the ground truth, its background the fit's."""
+    fit = json.loads((folder / "fit.json").read_text())
+    background = float(fit.get("background", 1.0))
+    kind = "capture" if fit.get("source") == "colmap" else "lego"
     cams = load_cameras(folder / "cameras.json")
     train, test = split_test_views(cams, every=8)
     photos = []
@@ -61,11 +66,11 @@ def lego_setup(folder: Path) -> Setup:
         img = imagecodecs.png_decode((folder / "test" / f"{cams[i].name}.png").read_bytes())
         photos.append(torch.from_numpy(img[..., :3].astype(np.float32) / 255))
     return Setup(
-        f"lego ({folder.name})",
+        f"{kind} ({folder.name})",
         folder / "point_cloud.ply",
         [cams[i] for i in train],
         [cams[i] for i in test],
-        (1.0, 1.0, 1.0),
+        (background,) * 3,
         photos,
     )
 
@@ -334,7 +339,9 @@ def plot(curves: dict, path: Path) -> None:
 
 
 def main(
-    lego: list[Path] = typer.Option([], help="lego fit folders (tools/fit_scene.py output)"),
+    lego: list[Path] = typer.Option(
+        [], help="fit folders (tools/fit_scene.py output: lego fits or real captures such as the bird)"
+    ),
     donut: bool = typer.Option(True, help="include ../shared/data/donut/fused.ply"),
     statues: list[str] = typer.Option(["massa"], help="statue names from ../shared/data/statues"),
     iterations: int | None = typer.Option(None, help="decode iterations (default: the file's)"),
@@ -351,7 +358,7 @@ def main(
     ),
 ) -> None:
     torch.set_num_threads(1)
-    setups = [lego_setup(p) for p in lego]
+    setups = [fit_setup(p) for p in lego]
     if donut:
         setups.append(synth_setup("donut", SHARED / "donut" / "fused.ply"))
     setups += [

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import torch
 import typer
-from bench_pipeline import SHARED, lego_setup, run_point, synth_setup
+from bench_pipeline import SHARED, fit_setup, run_point, synth_setup
 
 from gspc.io import read_scene
 from gspc.pipeline import render_images
@@ -27,7 +27,7 @@ def main(
 ) -> None:
     torch.set_num_threads(1)
     if Path(scene).is_dir():
-        s = lego_setup(Path(scene))
+        s = fit_setup(Path(scene))
     elif scene == "donut":
         s = synth_setup("donut", SHARED / "donut" / "fused.ply")
     else:
