@@ -612,17 +612,26 @@ def _colmap_points_txt(text: str) -> tuple[np.ndarray, np.ndarray]:
 # ---------------------------------------------------------------------------
 
 
+CORE_DISTANCES = 6.0
+
+
 def robust_bounds(scene, quantile: float = 0.002, min_opacity: float = 0.05) -> tuple[np.ndarray, np.ndarray]:
     """Axis-aligned box (lo, hi) holding the bulk of a scene's visible Gaussians.
 
-    Gaussians below ``min_opacity`` are ignored (unless that leaves too few), and the rest weigh by
-    opacity into per-axis ``quantile`` / ``1 - quantile`` quantiles, so sparse floaters do not
-    stretch the box.
+    Gaussians beyond the scene's core (a background, far floaters) and below ``min_opacity`` are
+    ignored (unless that leaves too few), and the rest weigh by opacity into per-axis ``quantile`` /
+    ``1 - quantile`` quantiles, so sparse floaters do not stretch the box.
     """
     means = scene.means.detach().cpu().double().numpy().reshape(-1, 3)
     if len(means) == 0:
         raise InputError("scene has zero Gaussians")
     alpha = 1.0 / (1.0 + np.exp(-scene.opacities.detach().cpu().double().numpy().reshape(-1)))
+    # A capture's background shell and far floaters can be far more than `quantile` of the Gaussians: keep
+    # only those within CORE_DISTANCES median distances of the median, the region the position codec keeps
+    # uncontracted (gspc/codec/positions.py). Bounded objects lie wholly inside (statues reach 4.2).
+    dist = np.sqrt(((means - np.median(means, axis=0)) ** 2).sum(1))
+    core = dist <= CORE_DISTANCES * np.median(dist) if np.median(dist) > 0 else np.ones(len(means), bool)
+    means, alpha = means[core], alpha[core]
     keep = alpha >= min_opacity
     if keep.sum() < max(1, 0.01 * len(means)):
         keep[:] = True

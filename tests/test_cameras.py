@@ -400,3 +400,20 @@ def test_limit_size_scales_only_large_views():
     a, b = limit_size([big, small], 400)
     assert (a.width, a.height) == (400, 300) and np.allclose(a.K[:2], big.K[:2] / 2)
     assert b is small
+
+
+def test_views_of_a_scene_with_a_background_frame_its_object():
+    """A background shell (20% of the count, 30x away) and floaters do not push synthesised cameras away."""
+    from scenes import random_scene
+
+    obj = random_scene(1000, sh_degree=0, seed=4)
+    g = np.random.default_rng(4)
+    d = g.normal(size=(220, 3))
+    far = (
+        d / np.linalg.norm(d, axis=1, keepdims=True) * np.r_[np.full(200, 30.0), np.full(20, 3000.0)][:, None]
+    )
+    world = obj.map(lambda t: torch.cat([t, t[:220]]))
+    world.means[1000:] = torch.from_numpy(far.astype(np.float32))
+    alone, around = synthesize_views(obj, 6), synthesize_views(world, 6)
+    for a, b in zip(alone, around):
+        assert np.allclose(a.center, b.center, atol=0.05 * np.linalg.norm(a.center))
