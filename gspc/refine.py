@@ -35,14 +35,18 @@ SSIM_WEIGHT = 0.2
 def scene_extent(cameras: Sequence[Camera], scene: GaussianScene) -> float:
     """INRIA's "cameras extent": 1.1 x the largest camera distance from the cameras' mean centre.
 
-    Falls back to the spread of the Gaussians when there are too few cameras to measure one.
+    Falls back to the spread of the Gaussians when there are too few cameras to measure one: the distance
+    from their median within which 90% of them lie, so a capture's far background and floaters do not set
+    the step size of the foreground.
     """
     centers = np.stack([c.center for c in cameras])
     radius = float(np.linalg.norm(centers - centers.mean(0), axis=1).max()) * 1.1
     if radius > 0:
         return radius
     means = scene.means.detach().double()
-    spread = float((means - means.mean(0)).norm(dim=1).max()) if scene.num_gaussians > 1 else 0.0
+    if scene.num_gaussians < 2:
+        return 1.0
+    spread = float((means - means.median(0).values).norm(dim=1).quantile(0.9))
     return spread if spread > 0 else 1.0
 
 

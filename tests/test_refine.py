@@ -91,3 +91,8 @@ def test_refine_checks_inputs():
 def test_scene_extent_from_cameras():
     assert np.isclose(scene_extent(_cameras(3), _scene(5)), 0.3 * 1.1)
     assert scene_extent(_cameras(1), _scene(5)) > 0
+    # One camera: the Gaussians' spread, which far floaters (5 of 100, 1000 units out) do not set.
+    scene = _scene(100)
+    near = scene_extent(_cameras(1), scene)
+    scene.means[:5] += 1000.0
+    assert near < 2.0 and scene_extent(_cameras(1), scene) < 2 * near
