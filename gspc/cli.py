@@ -307,7 +307,7 @@ def render(
     import imagecodecs
 
     from gspc.io import read_scene
-    from gspc.pipeline import render_images
+    from gspc.stages import render_images
 
     sc = read_scene(scene)
     cams = _cameras_for(sc, cameras, views, max_side)
@@ -342,7 +342,7 @@ def evaluate(
     _use_threads()
     from gspc.io import read_scene
     from gspc.metrics import psnr, quantize8, ssim
-    from gspc.pipeline import render_images
+    from gspc.stages import render_images
 
     ref, tst = read_scene(reference), read_scene(test)
     cams = _cameras_for(ref, cameras, views, max_side)

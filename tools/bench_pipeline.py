@@ -37,8 +37,9 @@ from gspc.codec import container
 from gspc.codec.sideinfo import side_views
 from gspc.io import read_scene
 from gspc.metrics import psnr, quantize8, ssim
-from gspc.pipeline import DecodeOptions, EncodeOptions, decode, encode, render_images
+from gspc.pipeline import DecodeOptions, EncodeOptions, decode, encode
 from gspc.restore.restorer import available_restorers
+from gspc.stages import render_images
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
 

@@ -31,9 +31,10 @@ from train_restorer import load_view, read_manifest, validate  # noqa: E402
 from gspc.cameras import limit_size, sample_views, synthesize_views  # noqa: E402
 from gspc.io import read_scene  # noqa: E402
 from gspc.metrics import psnr, quantize8  # noqa: E402
-from gspc.pipeline import DecodeOptions, EncodeOptions, decode, encode, render_images  # noqa: E402
+from gspc.pipeline import DecodeOptions, EncodeOptions, decode, encode  # noqa: E402
 from gspc.restore.nafnet import count_parameters  # noqa: E402
 from gspc.restore.restorer import load_restorer  # noqa: E402
+from gspc.stages import render_images  # noqa: E402
 
 
 def restoration_table(data_dir: Path, name: str) -> tuple[list[str], dict]:

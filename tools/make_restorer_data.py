@@ -42,8 +42,9 @@ from gspc.codec import residuals
 from gspc.codec.attributes import encode_attributes
 from gspc.errors import GspcError, InputError
 from gspc.io import read_scene
-from gspc.pipeline import EncodeOptions, render_images
+from gspc.pipeline import EncodeOptions
 from gspc.presets import QUALITY
+from gspc.stages import render_images
 from gspc.visibility import visible_mask
 
 MANIFEST = "manifest.json"
