@@ -217,14 +217,14 @@ def info(
     if _is_gspc(path):
         from gspc.codec.container import describe, read
         from gspc.codec.sideinfo import side_views
-        from gspc.header import scene_summary
+        from gspc.format.header import SceneSummary
 
         d = describe(path)
         c = read(path)
         header = c.header
         views, _ = side_views(header.get("side_info", {}), c.chunks)
-        count, degree = scene_summary(header)
-        n = max(count, 1)
+        summary = SceneSummary.from_dict(header)
+        n, degree = max(summary.num_gaussians, 1), summary.sh_degree
         out.print(
             f"{path}: gspc format {d['version'][0]}.{d['version'][1]}, {d['file_size']:,} bytes, "
             f"{n:,} Gaussians, SH degree {'?' if degree is None else degree}, "

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from gspc import __version__, header
+from gspc import __version__
 from gspc.atomic import atomic_write_bytes
 from gspc.cameras import Camera, limit_size, load_cameras, sample_views, synthesize_views
 from gspc.codec import container, residuals
@@ -25,6 +25,8 @@ from gspc.codec.sideinfo import side_views
 from gspc.encoder.policy import CheckInputs, SideInfoDecision, check_cameras, check_side_info
 from gspc.encoder.side import SideCandidate, side_candidate, view_residuals
 from gspc.errors import CodecError, DeviceError, InputError
+from gspc.format.chunks import ATTRIBUTE_TYPES, SIDE
+from gspc.format.header import FileHeader, SceneSummary, SideInfoHeader, check_view_sizes
 from gspc.io import read_scene, write_ply
 from gspc.options import check_decode_options, check_encode_options
 from gspc.paths import refuse_output_over_input
@@ -33,9 +35,6 @@ from gspc.progress import Progress
 from gspc.restore.restorer import load_restorer
 from gspc.stages import refine_in_cells, render_images, restored_targets
 from gspc.visibility import visible_mask
-
-ATTRIBUTE_CHUNKS = ("POSN", "OPAC", "SCAL", "ROTN", "SHDC", "SHRS")
-SIDE_CHUNK = "SIDE"  # all side-information views in one chunk (spec 10.9); 1.0's RESI form is still read
 
 
 @dataclass
@@ -197,29 +196,21 @@ def encode(
             rep.info.update(result.decision.summary())
     rep.num_gaussians_out = enc.decoded.num_gaussians
 
-    chunks = [container.Chunk(name, enc.chunks[name]) for name in ATTRIBUTE_CHUNKS if name in enc.chunks]
+    chunks = [container.Chunk(name, enc.chunks[name]) for name in ATTRIBUTE_TYPES if name in enc.chunks]
     if side is not None:
-        chunks.append(container.Chunk(SIDE_CHUNK, side.payload))
-    file_header = {
-        "encoder": f"gspc {__version__}",
-        "scene": {
-            "num_gaussians": enc.decoded.num_gaussians,
-            "sh_degree": enc.decoded.sh_degree,
-            "source_gaussians": scene.num_gaussians,
-        },
-        "attributes": enc.meta,
-        "side_info": {
-            "background": list(opts.background),
-            "restorer": opts.restorer,
-            "refine_iterations": refine_iterations,
-        },
-    }
+        chunks.append(container.Chunk(SIDE, side.payload))  # all views in one chunk (spec 10.9)
+    file_header = FileHeader(
+        encoder=f"gspc {__version__}",
+        scene=SceneSummary(enc.decoded.num_gaussians, enc.decoded.sh_degree, scene.num_gaussians),
+        attributes=enc.meta,
+        side_info=SideInfoHeader(opts.background, opts.restorer, refine_iterations),
+    )
     with _stage(rep, progress, "write"):
-        data = container.pack(file_header, chunks)
+        data = container.pack(file_header.to_dict(), chunks)
         # The decoder refuses views beyond its pixel budget for this file size (gspc/limits.py): refuse to
         # write a file it would refuse.
         try:
-            header.check_view_sizes(side.records if side is not None else [], len(data))
+            check_view_sizes(side.records if side is not None else [], len(data))
         except CodecError as e:
             raise InputError(f"{e}; lower --max-side or --views-fraction") from None
         atomic_write_bytes(out_path, data, fsync=True)
@@ -275,16 +266,16 @@ def decode(
     rep = Report()
     with _stage(rep, progress, "read"):
         c = container.read(in_path)
-        fields = header.parse(c.header)
-        attr_meta, side, background = fields.attributes, fields.side_info, fields.background
+        fields = FileHeader.from_dict(c.header)
+        attr_meta, background = fields.attributes, fields.side_info.background
         chunks = attribute_chunks(c.chunks)
-        views, res_chunks = side_views(side, c.chunks)
+        views, res_chunks = side_views(fields.side_info.to_dict(), c.chunks)
         # Sizes before any camera is built or view rendered: the file's pixel budget (gspc/limits.py).
-        header.check_view_sizes(views, Path(in_path).stat().st_size)
+        check_view_sizes(views, Path(in_path).stat().st_size)
         for k, image in res_chunks.items():  # each image's declared size, before anything is decoded
             cam = views[k]["camera"]
             residuals.check_residual(image, views[k].get("residual"), (cam["height"], cam["width"]))
-        restorer_name = opts.restorer if opts.restorer is not None else fields.restorer
+        restorer_name = opts.restorer if opts.restorer is not None else fields.side_info.restorer
         restorer = load_restorer(restorer_name) if opts.restore else None
     rep.bytes = _byte_budget(Path(in_path))
     with _stage(rep, progress, "attributes"):
@@ -301,7 +292,7 @@ def decode(
         # With no residual anywhere every target equals the render: the gradients are only round-off, and
         # Adam would turn them into full-size steps (measured: 50.7 -> 41.7 dB on a statue), so skip.
         has_residual = any("residual" in v for v in views) and opts.restore
-        iterations = opts.iterations if opts.iterations is not None else fields.refine_iterations
+        iterations = opts.iterations if opts.iterations is not None else fields.side_info.refine_iterations
         if opts.refine and iterations > 0 and not has_residual:
             rep.info["refine"] = "skipped (no view carries a residual)"
         if opts.refine and iterations > 0 and has_residual:

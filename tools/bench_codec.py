@@ -32,6 +32,7 @@ import zstandard
 from gspc.cameras import load_cameras, synthesize_views
 from gspc.codec.attributes import decode_attributes, encode_attributes
 from gspc.codec.presets import PRESETS
+from gspc.format.chunks import ATTRIBUTE_TYPES
 from gspc.io import read_scene, write_ply
 from gspc.metrics import psnr, quantize8, ssim
 from gspc.render import render
@@ -39,7 +40,7 @@ from gspc.scene import GaussianScene, make_scene, num_sh_rest
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared" / "data"
-GROUPS = ("POSN", "OPAC", "SCAL", "ROTN", "SHDC", "SHRS")
+GROUPS = ATTRIBUTE_TYPES
 FIT = ROOT.parent / "fits" / "lego200_20k" / "point_cloud.ply"
 LAMBDAS = (0.5, 1.0, 2.0, 4.0, 8.0, 16.0)
 

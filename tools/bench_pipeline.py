@@ -35,6 +35,8 @@ from gspc.cameras import (
 )
 from gspc.codec import container
 from gspc.codec.sideinfo import side_views
+from gspc.format.chunks import RESI, SIDE
+from gspc.format.header import FileHeader
 from gspc.io import read_scene
 from gspc.metrics import psnr, quantize8, ssim
 from gspc.pipeline import DecodeOptions, EncodeOptions, decode, encode
@@ -151,7 +153,7 @@ def run_point(
         n=rep.num_gaussians_out,
         encode_s=enc_s,
         decode_s=dec_s,
-        side=sum(v for k, v in rep.bytes.items() if k in ("RESI", "SIDE")),
+        side=sum(v for k, v in rep.bytes.items() if k in (RESI, SIDE)),
         refine=rep.info.get("refine", "none"),
         scale=_residual_scale(gfile),
     )
@@ -161,7 +163,7 @@ def run_point(
 def _residual_scale(path: Path) -> int | None:
     """The resolution divisor of the file's residuals (None: no side information)."""
     c = container.read(path)
-    views, _ = side_views(c.header["side_info"], c.chunks)
+    views, _ = side_views(FileHeader.from_dict(c.header).side_info.to_dict(), c.chunks)
     scales = {v["residual"].get("scale", 1) for v in views if "residual" in v}
     return scales.pop() if len(scales) == 1 else None
 

@@ -25,15 +25,18 @@ import numpy as np
 import torch
 
 from gspc.codec import positions as pos
+from gspc.codec.attribute_header import (
+    CONTRACTED_VERSION,
+    FORMAT_VERSION,
+    GAUSSIANS_PER_BYTE,
+    check_attribute_header,
+)
 from gspc.codec.entropy import decode_matrix, encode_matrix
 from gspc.codec.presets import CodecParams
 from gspc.errors import CodecError
+from gspc.format.chunks import ATTRIBUTE_TYPES, OPAC, POSN, ROTN, SCAL, SHDC, SHRS
 from gspc.scene import GaussianScene, num_sh_rest
 
-FORMAT_VERSION = 1
-# Version 2: the position grid may lie in contracted space (positions.py, spec 10.1); written only then, so
-# bounded scenes keep version 1 and their bytes.
-CONTRACTED_VERSION = 2
 SQRT_HALF = 0.7071067811865476  # float64 nearest to 1/sqrt(2)
 _LN2 = 0.6931471805599453
 OPACITY_FLOOR = 1.0 / 255.0
@@ -194,11 +197,11 @@ def encode_attributes(
 
     opac_q = _opacity_quantise(_np(scene.opacities)[kept], opacity_levels)
     chunks = {
-        "POSN": pos.encode_positions(voxels, grid["bits"]),
-        "OPAC": encode_matrix(opac_q[:, None]),
-        "SCAL": encode_matrix(np.rint(_np(scene.log_scales)[kept] / scale_step).astype(np.int64)),
-        "ROTN": encode_matrix(_rotation_quantise(_np(scene.quats)[kept], rot_levels)),
-        "SHDC": encode_matrix(np.rint(_np(scene.sh_dc)[kept] / dc_step).astype(np.int64)),
+        POSN: pos.encode_positions(voxels, grid["bits"]),
+        OPAC: encode_matrix(opac_q[:, None]),
+        SCAL: encode_matrix(np.rint(_np(scene.log_scales)[kept] / scale_step).astype(np.int64)),
+        ROTN: encode_matrix(_rotation_quantise(_np(scene.quats)[kept], rot_levels)),
+        SHDC: encode_matrix(np.rint(_np(scene.sh_dc)[kept] / dc_step).astype(np.int64)),
     }
     if scene.sh_degree > 0:
         rest = _np(scene.sh_rest)[kept] / np.asarray(sh_steps)[None, :, None]
@@ -206,18 +209,11 @@ def encode_attributes(
         # Faint Gaussians' view-dependent colour hardly shows: drop it (flag 0), an encoder-only choice.
         faint = opac_q.astype(np.float64) < min(0.5, params.sh_faint_alpha * lam) * opacity_levels
         flags = (q != 0).any(axis=1) & ~faint
-        chunks["SHRS"] = msgpack.packb(
+        chunks[SHRS] = msgpack.packb(
             [encode_matrix(flags[:, None].astype(np.int64)), encode_matrix(q[flags])], use_bin_type=True
         )
     decoded = decode_attributes(chunks, meta)
     return EncodedAttributes(chunks=chunks, meta=meta, decoded=decoded, kept=kept)
-
-
-ATTRIBUTE_TYPES = ("POSN", "OPAC", "SCAL", "ROTN", "SHDC", "SHRS")
-MAX_GAUSSIANS = 1 << 26
-# A Gaussian whose every symbol has a one-value model costs no bits, so the count alone could ask for any
-# allocation from a tiny file; spec 10.0 caps it at 64 per payload byte (real files: under 1 per byte).
-GAUSSIANS_PER_BYTE = 64
 
 
 def attribute_chunks(chunks: list) -> dict[str, bytes]:
@@ -237,70 +233,36 @@ def _matrix(chunks: dict[str, bytes], name: str, n: int, c: int) -> np.ndarray:
     return decode_matrix(chunks[name], (n, c))
 
 
-def _is_int(x: object) -> bool:
-    return isinstance(x, int) and not isinstance(x, bool)
-
-
-def _is_step(x: object) -> bool:
-    return isinstance(x, float) and math.isfinite(x) and x > 0
-
-
 def decode_attributes(chunks: dict[str, bytes], meta: dict) -> GaussianScene:
     """Decode chunks to a float32 scene in curve order; identical on every machine."""
-    try:
-        if not _is_int(meta["version"]) or meta["version"] not in (FORMAT_VERSION, CONTRACTED_VERSION):
-            raise CodecError(f"attribute codec version {meta['version']} is not supported")
-        n, degree = meta["n"], meta["sh_degree"]
-        grid = meta["position"]
-        bits, lo, step = grid["bits"], list(grid["lo"]), list(grid["step"])
-        opacity_levels, rot_levels = meta["opacity_levels"], meta["rotation_levels"]
-        scale_step, dc_step = meta["scale_step"], meta["dc_step"]
-        sh_steps = list(meta["sh_steps"])
-        if (meta["version"] == CONTRACTED_VERSION) != pos.is_contracted(grid):
-            raise CodecError("attribute codec version and position grid disagree on contraction")
-        if pos.is_contracted(grid):
-            centre, radius = list(grid["centre"]), grid["radius"]
-            finite = all(isinstance(v, float) and math.isfinite(v) for v in (*centre, radius))
-            if len(centre) != 3 or not finite or not radius > 0:
-                raise CodecError("attribute codec header's position centre or radius is not finite")
-    except (KeyError, TypeError, ValueError) as err:
-        raise CodecError(f"attribute codec header is malformed ({err})") from None
-    # Integers are msgpack integers and steps msgpack floats (spec 10.0): 300.0 Gaussians is refused.
-    if not all(_is_int(v) for v in (n, degree, bits, opacity_levels, rot_levels)):
-        raise CodecError(
-            "attribute codec header has a count, degree, bit depth or level that is not an integer"
-        )
-    if not 1 <= n <= MAX_GAUSSIANS or not 0 <= degree <= 3 or len(sh_steps) != num_sh_rest(degree):
-        raise CodecError("attribute codec header has an impossible count, SH degree or step list")
-    max_bits = pos.CONTRACTED_MAX_BITS if meta["version"] == CONTRACTED_VERSION else pos.MAX_BITS
-    if opacity_levels < 1 or rot_levels < 1 or not 1 <= bits <= max_bits:
-        raise CodecError("attribute codec header has impossible quantiser levels")
-    if not all(_is_step(v) for v in (scale_step, dc_step, *sh_steps, *step)) or len(step) != 3:
-        raise CodecError("attribute codec header has a step that is not a positive finite float")
-    if len(lo) != 3 or not all(isinstance(v, float) and math.isfinite(v) for v in lo):
-        raise CodecError("attribute codec header has a grid origin that is not 3 finite floats")
-    if degree == 0 and "SHRS" in chunks:
+    check_attribute_header(meta)
+    n, degree, grid = meta["n"], meta["sh_degree"], meta["position"]
+    bits = grid["bits"]
+    opacity_levels, rot_levels = meta["opacity_levels"], meta["rotation_levels"]
+    scale_step, dc_step = meta["scale_step"], meta["dc_step"]
+    sh_steps = list(meta["sh_steps"])
+    if degree == 0 and SHRS in chunks:
         raise CodecError("chunk SHRS in a file of SH degree 0")
     payload_bytes = sum(len(chunks.get(t, b"")) for t in ATTRIBUTE_TYPES)
     if n > GAUSSIANS_PER_BYTE * payload_bytes:
         raise CodecError(
             f"{n} Gaussians from {payload_bytes} payload bytes (at most {GAUSSIANS_PER_BYTE} per byte)"
         )
-    if "POSN" not in chunks:
+    if POSN not in chunks:
         raise CodecError("chunk POSN is missing")
-    voxels = pos.decode_positions(chunks["POSN"], bits, n)
+    voxels = pos.decode_positions(chunks[POSN], bits, n)
     means = pos.positions(voxels, grid)
-    opac = _opacity_dequantise(_matrix(chunks, "OPAC", n, 1)[:, 0], opacity_levels)
-    scales = (_matrix(chunks, "SCAL", n, 3).astype(np.float64) * scale_step).astype(np.float32)
-    quats = _rotation_dequantise(_matrix(chunks, "ROTN", n, 4), rot_levels)
-    dc = (_matrix(chunks, "SHDC", n, 3).astype(np.float64) * dc_step).astype(np.float32)
+    opac = _opacity_dequantise(_matrix(chunks, OPAC, n, 1)[:, 0], opacity_levels)
+    scales = (_matrix(chunks, SCAL, n, 3).astype(np.float64) * scale_step).astype(np.float32)
+    quats = _rotation_dequantise(_matrix(chunks, ROTN, n, 4), rot_levels)
+    dc = (_matrix(chunks, SHDC, n, 3).astype(np.float64) * dc_step).astype(np.float32)
     k = num_sh_rest(degree)
     rest = np.zeros((n, k, 3), np.float32)
     if degree > 0:
-        if "SHRS" not in chunks:
+        if SHRS not in chunks:
             raise CodecError("chunk SHRS is missing")
         try:
-            flag_payload, rest_payload = msgpack.unpackb(chunks["SHRS"], raw=False)
+            flag_payload, rest_payload = msgpack.unpackb(chunks[SHRS], raw=False)
         except Exception:
             raise CodecError("chunk SHRS is malformed") from None
         if not (isinstance(flag_payload, bytes) and isinstance(rest_payload, bytes)):

@@ -18,6 +18,7 @@ import msgpack
 
 from gspc.atomic import atomic_write_bytes
 from gspc.errors import FormatError, InputError
+from gspc.format.chunks import KNOWN_TYPES  # the registry of chunk types; the default of unpack and read
 
 MAGIC = b"\x89GSPC\r\n\x1a"
 END_MARKER = b"GEND"
@@ -34,7 +35,6 @@ MAX_U32 = (1 << 32) - 1
 MAX_DEPTH = 32
 
 # The chunk types of gspc 1.1 (spec section "Chunk type registry"). Payload formats belong to the codecs.
-KNOWN_TYPES = frozenset({"POSN", "OPAC", "SCAL", "ROTN", "SHDC", "SHRS", "RESI", "SIDE"})
 
 _TYPE_CHARS = frozenset(b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789")
 _ENTRY_KEYS = ("type", "flags", "index", "length", "crc")
