@@ -19,8 +19,8 @@ _LAZY = {
     "GspcError": "gspc.errors",
     "read_scene": "gspc.io",
     "write_ply": "gspc.io",
-    "DecodeOptions": "gspc.pipeline",
-    "EncodeOptions": "gspc.pipeline",
+    "DecodeOptions": "gspc.options",
+    "EncodeOptions": "gspc.options",
     "decode": "gspc.pipeline",
     "encode": "gspc.pipeline",
     "render": "gspc.render",
@@ -47,7 +47,8 @@ if TYPE_CHECKING:  # static checkers see the names directly
     from gspc.cameras import Camera, load_cameras, synthesize_views
     from gspc.errors import GspcError
     from gspc.io import read_scene, write_ply
-    from gspc.pipeline import DecodeOptions, EncodeOptions, decode, encode
+    from gspc.options import DecodeOptions, EncodeOptions
+    from gspc.pipeline import decode, encode
     from gspc.render import render
     from gspc.scene import GaussianScene
 

@@ -28,59 +28,13 @@ from gspc.errors import CodecError, DeviceError, InputError
 from gspc.format.chunks import ATTRIBUTE_TYPES, SIDE
 from gspc.format.header import FileHeader, SceneSummary, SideInfoHeader, check_view_sizes
 from gspc.io import read_scene, write_ply
-from gspc.options import check_decode_options, check_encode_options
+from gspc.options import DecodeOptions, EncodeOptions
 from gspc.paths import refuse_output_over_input
-from gspc.presets import DEFAULT_RESTORER, quality_preset
+from gspc.presets import quality_preset
 from gspc.progress import Progress
 from gspc.restore.restorer import load_restorer
 from gspc.stages import refine_in_cells, render_images, restored_targets
 from gspc.visibility import visible_mask
-
-
-@dataclass
-class EncodeOptions:
-    quality: str = "low"
-    lam: float | None = None  # continuous rate knob; overrides the preset's
-    target_size: int | None = None  # bytes for the attribute bitstream; searches lam
-    views_fraction: float = 0.4
-    synth_views: int = 60  # cameras synthesised when the input has none
-    max_side: int = 400  # side-information views are rendered at most this large
-    residual_codec: str | None = None  # overrides the preset's
-    residual_distance: float | None = None  # overrides the preset's
-    residual_scale: int | None = None  # overrides the preset's
-    side_info: bool = True
-    restorer: str = DEFAULT_RESTORER
-    keep_invisible: bool = False
-    background: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    # The encoder runs the decoder's refinement for this many iterations (None: the preset's) and keeps the
-    # side information only if it beats, at views that carry none, the same bytes spent on attributes
-    # (0: no check, keep it).
-    check_iterations: int | None = None
-    check_views: int = 8
-    # Side information must beat its rivals by this much at the check views: a tie within the noise of
-    # 8 sampled views lost 0.25 dB at 13 others on the lego fit (bench/pipeline_equal_bytes.md).
-    check_margin_db: float = 0.15
-
-    def validate(self) -> None:
-        """InputError naming the first option out of range (gspc/options.py); called before any work."""
-        check_encode_options(self)
-
-
-@dataclass
-class DecodeOptions:
-    iterations: int | None = None  # None: what the encoder validated (header), else 300
-    restore: bool = True
-    refine: bool = True
-    restorer: str | None = None  # None: the one the bitstream names
-    device: str = "cpu"
-    seed: int = 0
-    lr_scale: float = 1.0  # multiplies every refinement learning rate
-    # Keep refined attributes inside their quantisation cells (gspc/codec/cells.py).
-    in_cells: bool = True
-
-    def validate(self) -> None:
-        """InputError naming the first option out of range (gspc/options.py); called before any work."""
-        check_decode_options(self)
 
 
 @dataclass
@@ -228,9 +182,9 @@ def _side_candidates(
 ) -> list[SideCandidate]:
     """The preset's resolution, and half of it as a cheaper candidate for the check to weigh."""
     q = quality_preset(opts.quality)
-    level = opts.residual_distance if opts.residual_distance is not None else q.residual_level
+    distance = opts.residual_distance if opts.residual_distance is not None else q.residual_distance
     codec = opts.residual_codec or q.residual_codec
-    plan = residuals.plan_residual_rates(res, level)
+    plan = residuals.plan_residual_rates(res, distance)
     scales = [opts.residual_scale or q.residual_scale]
     if not opts.residual_scale and check_iterations > 0:
         scales.append(2 * q.residual_scale)

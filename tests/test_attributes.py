@@ -12,8 +12,9 @@ from gspc.codec.attributes import (
     rotation_error_bound,
     search_lambda,
 )
-from gspc.codec.presets import PRESETS, CodecParams
+from gspc.codec.params import CodecParams
 from gspc.errors import CodecError
+from gspc.presets import QUALITY
 from gspc.scene import make_scene, num_sh_rest, scene_equal
 
 
@@ -32,7 +33,7 @@ def _scene(n=500, degree=3, seed=0, **over):
     return make_scene(**attrs, sh_degree=degree)
 
 
-def _check_exact(scene, params=PRESETS["high"], visible=None):
+def _check_exact(scene, params=QUALITY["high"].attributes, visible=None):
     enc = encode_attributes(scene, params, visible)
     dec = decode_attributes(enc.chunks, enc.meta)
     assert scene_equal(dec, enc.decoded)
@@ -64,7 +65,7 @@ def test_hard_cases(case):
     n = over.pop("n", None) or len(next(iter(over.values())))
     params = CodecParams(keep_transparent=True)
     _check_exact(_scene(n=n, **over), params)
-    _check_exact(_scene(n=n, **over), PRESETS["low"]) if case != "opacity_0_1" else None
+    _check_exact(_scene(n=n, **over), QUALITY["low"].attributes) if case != "opacity_0_1" else None
 
 
 def test_attribute_errors_within_steps():
@@ -109,8 +110,8 @@ def test_pruning():
 def test_no_sh_path_costs_little():
     quiet = _scene(n=3000, sh_rest=np.zeros((3000, 15, 3)))
     loud = _scene(n=3000)
-    a = encode_attributes(quiet, PRESETS["high"]).chunks["SHRS"]
-    b = encode_attributes(loud, PRESETS["high"]).chunks["SHRS"]
+    a = encode_attributes(quiet, QUALITY["high"].attributes).chunks["SHRS"]
+    b = encode_attributes(loud, QUALITY["high"].attributes).chunks["SHRS"]
     assert len(a) < 200 < len(b)
 
 
@@ -120,7 +121,7 @@ def test_faint_gaussians_drop_sh_rest_and_zero_rotation_is_exact():
     quats = np.tile([1.0, 0.0, 0.0, 0.0], (n, 1))
     opac = np.where(np.arange(n) % 2 == 0, -5.0, 3.0)  # alpha 0.0067 (kept, but faint) and 0.95
     scene = _scene(n=n, quats=quats, opacities=opac)
-    for params in PRESETS.values():
+    for params in (q.attributes for q in QUALITY.values()):
         enc = _check_exact(scene, params)
         dec = enc.decoded
         assert enc.meta["rotation_levels"] % 2 == 0
@@ -132,14 +133,14 @@ def test_faint_gaussians_drop_sh_rest_and_zero_rotation_is_exact():
 
 def test_search_lambda_hits_target():
     scene = _scene(n=3000, degree=1)
-    full = encode_attributes(scene, PRESETS["high"]).num_bytes
+    full = encode_attributes(scene, QUALITY["high"].attributes).num_bytes
     target = int(full * 0.6)
-    enc = search_lambda(scene, target, PRESETS["high"], rel_tol=0.05)
+    enc = search_lambda(scene, target, QUALITY["high"].attributes, rel_tol=0.05)
     assert 0.95 * target <= enc.num_bytes <= target
 
 
 def test_corrupt_chunk_raises():
-    enc = encode_attributes(_scene(n=200), PRESETS["low"])
+    enc = encode_attributes(_scene(n=200), QUALITY["low"].attributes)
     chunks = dict(enc.chunks)
     chunks["SCAL"] = chunks["SCAL"][:-5]
     with pytest.raises(CodecError):
@@ -155,7 +156,7 @@ def test_shared_scenes(shared_data):
     files = [shared_data / "donut" / "fused.ply", *sorted((shared_data / "statues").glob("*.sog"))[:2]]
     for f in files:
         if f.exists():
-            _check_exact(read_scene(f), PRESETS["low"])
+            _check_exact(read_scene(f), QUALITY["low"].attributes)
 
 
 def test_det_log_matches_log():

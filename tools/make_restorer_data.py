@@ -113,7 +113,7 @@ def parse_rates(text: str) -> list[RatePoint]:
     for item in text.split(","):
         if item in QUALITY:
             q = QUALITY[item]
-            out.append(RatePoint(item, float(q.attributes.lam), float(q.residual_level), q.residual_scale))
+            out.append(RatePoint(item, float(q.attributes.lam), float(q.residual_distance), q.residual_scale))
             continue
         parts = item.split(":")
         if len(parts) not in (2, 3):
@@ -132,7 +132,8 @@ def side_info_symbols(
     gain/offset/scale (gain 0: not sent)."""
     if distance is None:
         return {"q": np.zeros(r.shape, np.uint8), "gain": np.float32(0.0), "offset": np.float32(0.0)}
-    payload, meta = residuals.encode_residual(r, {"codec": codec, "level": float(distance), "scale": scale})
+    params = residuals.ResidualParams(codec=codec, distance=float(distance), scale=scale)
+    payload, meta = residuals.encode_residual(r, params)
     decoded = residuals.decode_residual(payload, {**meta, "scale": 1})  # the symbols, before upsampling
     gain, offset = np.float32(meta["gain"]), np.float32(meta["offset"])
     # decode_residual returns (q - offset) / gain in float32; q comes back exactly by rounding.

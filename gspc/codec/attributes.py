@@ -32,7 +32,7 @@ from gspc.codec.attribute_header import (
     check_attribute_header,
 )
 from gspc.codec.entropy import decode_matrix, encode_matrix
-from gspc.codec.presets import CodecParams
+from gspc.codec.params import CodecParams
 from gspc.errors import CodecError
 from gspc.format.chunks import ATTRIBUTE_TYPES, OPAC, POSN, ROTN, SCAL, SHDC, SHRS
 from gspc.scene import GaussianScene, num_sh_rest

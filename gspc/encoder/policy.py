@@ -17,7 +17,7 @@ import torch
 from gspc.cameras import Camera
 from gspc.codec import residuals
 from gspc.codec.attributes import EncodedAttributes, search_lambda
-from gspc.codec.presets import CodecParams
+from gspc.codec.params import CodecParams
 from gspc.encoder.side import SideCandidate
 from gspc.progress import Progress
 from gspc.scene import GaussianScene

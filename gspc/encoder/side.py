@@ -44,8 +44,7 @@ def side_candidate(
     for k, (cam, r, d) in enumerate(zip(view_cams, res, distances)):
         record = {"camera": cam.to_dict()}
         if d is not None:
-            images[k], record["residual"] = residuals.encode_residual(
-                r, {"codec": codec, "level": d, "scale": scale}
-            )
+            params = residuals.ResidualParams(codec=codec, distance=d, scale=scale)
+            images[k], record["residual"] = residuals.encode_residual(r, params)
         records.append(record)
     return SideCandidate(scale, records, images, pack_side(records, images) if images else None)
