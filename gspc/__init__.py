@@ -22,7 +22,9 @@ _LAZY = {
     "DecodeOptions": "gspc.options",
     "EncodeOptions": "gspc.options",
     "decode": "gspc.pipeline",
+    "decode_bytes": "gspc.pipeline",
     "encode": "gspc.pipeline",
+    "encode_scene": "gspc.pipeline",
     "render": "gspc.render",
     "GaussianScene": "gspc.scene",
 }
@@ -35,7 +37,9 @@ __all__ = [
     "GspcError",
     "__version__",
     "decode",
+    "decode_bytes",
     "encode",
+    "encode_scene",
     "load_cameras",
     "read_scene",
     "render",
@@ -48,7 +52,7 @@ if TYPE_CHECKING:  # static checkers see the names directly
     from gspc.errors import GspcError
     from gspc.io import read_scene, write_ply
     from gspc.options import DecodeOptions, EncodeOptions
-    from gspc.pipeline import decode, encode
+    from gspc.pipeline import decode, decode_bytes, encode, encode_scene
     from gspc.render import render
     from gspc.scene import GaussianScene
 

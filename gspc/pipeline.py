@@ -10,31 +10,37 @@ from __future__ import annotations
 
 import time
 from contextlib import contextmanager
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
 import torch
 
 from gspc import __version__
 from gspc.atomic import atomic_write_bytes
-from gspc.cameras import Camera, limit_size, load_cameras, sample_views, synthesize_views
+from gspc.cameras import Camera, load_cameras
 from gspc.codec import container, residuals
-from gspc.codec.attributes import attribute_chunks, decode_attributes, encode_attributes, search_lambda
+from gspc.codec.attributes import attribute_chunks, decode_attributes
 from gspc.codec.sideinfo import side_views
 from gspc.encoder.policy import CheckInputs, SideInfoDecision, check_cameras, check_side_info
-from gspc.encoder.side import SideCandidate, side_candidate, view_residuals
+from gspc.encoder.side import SideCandidate, view_residuals
+from gspc.encoder.stages import (
+    code_attributes,
+    codec_params,
+    encoder_cameras,
+    iteration_counts,
+    sample_side_views,
+    side_candidates,
+)
 from gspc.errors import CodecError, DeviceError, InputError
 from gspc.format.chunks import ATTRIBUTE_TYPES, SIDE
 from gspc.format.header import FileHeader, SceneSummary, SideInfoHeader, check_view_sizes
 from gspc.io import read_scene, write_ply
 from gspc.options import DecodeOptions, EncodeOptions
 from gspc.paths import refuse_output_over_input
-from gspc.presets import quality_preset
 from gspc.progress import Progress
 from gspc.restore.restorer import load_restorer
+from gspc.scene import GaussianScene
 from gspc.stages import refine_in_cells, render_images, restored_targets
-from gspc.visibility import visible_mask
 
 
 @dataclass
@@ -78,15 +84,6 @@ class _Timer:
         self.sink[self.stage] = self.sink.get(self.stage, 0.0) + time.perf_counter() - self.t0
 
 
-def _codec_params(opts: EncodeOptions):
-    params = quality_preset(opts.quality).attributes
-    if opts.lam is not None:
-        params = replace(params, lam=opts.lam)
-    if opts.keep_invisible:
-        params = replace(params, keep_invisible=True)
-    return params
-
-
 def encode(
     scene_path: str | Path,
     out_path: str | Path,
@@ -94,53 +91,61 @@ def encode(
     opts: EncodeOptions | None = None,
     progress: Progress | None = None,
 ) -> Report:
+    """Encode the scene file at ``scene_path`` (with the cameras at ``cameras_path``) into ``out_path``."""
     opts = opts or EncodeOptions()
     opts.validate()
     refuse_output_over_input(out_path, scene_path, cameras_path)
     rep = Report()
     with _stage(rep, progress, "read"):
         scene = read_scene(scene_path)
-        cameras = load_cameras(cameras_path) if cameras_path else synthesize_views(scene, opts.synth_views)
-        cameras = limit_size(cameras, opts.max_side)
+        cameras = load_cameras(cameras_path) if cameras_path else None
+    data, rep = encode_scene(scene, cameras, opts, progress, rep)
+    with _stage(rep, progress, "write"):
+        atomic_write_bytes(out_path, data, fsync=True)
+    return rep
+
+
+def encode_scene(
+    scene: GaussianScene,
+    cameras: list[Camera] | None = None,
+    opts: EncodeOptions | None = None,
+    progress: Progress | None = None,
+    rep: Report | None = None,
+) -> tuple[bytes, Report]:
+    """Encode a scene in memory: (the .gspc file's bytes, what was done). ``cameras`` None: synthesised."""
+    opts = opts or EncodeOptions()
+    opts.validate()
+    rep = rep or Report()
     rep.num_gaussians_in = scene.num_gaussians
-    params = _codec_params(opts)
+    cameras = encoder_cameras(scene, cameras, opts)
     restorer = load_restorer(opts.restorer)  # fails early on a name the package lacks
-
     with _stage(rep, progress, "attributes"):
-        visible = visible_mask(scene.means.numpy(), scene.log_scales.numpy(), cameras)
-        if opts.target_size is not None:
-            enc = search_lambda(scene, opts.target_size, params, visible=visible)
-        else:
-            enc = encode_attributes(scene, params, visible=visible)
-
-    views = sample_views(cameras, opts.views_fraction) if opts.side_info else []
+        coded_attributes = code_attributes(scene, cameras, codec_params(opts), opts.target_size)
+    enc = coded_attributes.encoded
+    runs = iteration_counts(opts)
+    views, view_cams = sample_side_views(cameras, opts)
     side: SideCandidate | None = None  # the side information sent, if any
-    preset_iterations = quality_preset(opts.quality).refine_iterations
-    check_iterations = preset_iterations if opts.check_iterations is None else opts.check_iterations
-    refine_iterations = check_iterations or preset_iterations  # unchecked files name the preset's
     if views:
-        # Round-trip through the stored form so the encoder renders exactly the cameras the decoder reads.
-        view_cams = [Camera.from_dict(cameras[i].to_dict()) for i in views]
         with rep.timed("render"):
             original = render_images(scene, view_cams, opts.background, progress, "render original")
             coded = render_images(enc.decoded, view_cams, opts.background, progress, "render coded")
         with _stage(rep, progress, "side info"):
-            candidates = _side_candidates(opts, view_cams, view_residuals(original, coded), check_iterations)
+            candidates = side_candidates(opts, view_cams, view_residuals(original, coded), runs.check)
         # No residual anywhere: no chunk at all (cameras alone would be dead weight).
         side = candidates[0] if candidates[0].payload is not None else None
-        if side is not None and check_iterations > 0:
+        if side is not None and runs.check > 0:
             inputs = CheckInputs(
                 scene=scene,
                 attributes=enc,
-                params=params,
-                visible=visible,
+                params=coded_attributes.params,
+                visible=coded_attributes.visible,
                 view_cameras=view_cams,
                 check_cameras=check_cameras(cameras, views, opts.check_views),
                 original=original,
                 coded=coded,
                 candidates=candidates,
                 restorer=restorer,
-                iterations=refine_iterations,
+                iterations=runs.refine,
                 background=opts.background,
                 margin_db=opts.check_margin_db,
             )
@@ -157,42 +162,26 @@ def encode(
         encoder=f"gspc {__version__}",
         scene=SceneSummary(enc.decoded.num_gaussians, enc.decoded.sh_degree, scene.num_gaussians),
         attributes=enc.meta,
-        side_info=SideInfoHeader(opts.background, opts.restorer, refine_iterations),
+        side_info=SideInfoHeader(opts.background, opts.restorer, runs.refine),
     )
-    with _stage(rep, progress, "write"):
+    with rep.timed("write"):
         data = container.pack(file_header.to_dict(), chunks)
         # The decoder refuses views beyond its pixel budget for this file size (gspc/limits.py): refuse to
-        # write a file it would refuse.
+        # make a file it would refuse.
         try:
             check_view_sizes(side.records if side is not None else [], len(data))
         except CodecError as e:
             raise InputError(f"{e}; lower --max-side or --views-fraction") from None
-        atomic_write_bytes(out_path, data, fsync=True)
-    rep.bytes = _byte_budget(Path(out_path))
-    stored = side.records if side is not None else []
-    rep.views = len(stored)
+    rep.bytes = _byte_budget(data)
+    rep.views = len(side.records) if side is not None else 0
     rep.views_with_residual = side.views_with_residual if side is not None else 0
     rep.info["views"] = rep.views
     rep.info["views with residual"] = rep.views_with_residual
-    return rep
+    return data, rep
 
 
-def _side_candidates(
-    opts: EncodeOptions, view_cams: list[Camera], res: list[np.ndarray], check_iterations: int
-) -> list[SideCandidate]:
-    """The preset's resolution, and half of it as a cheaper candidate for the check to weigh."""
-    q = quality_preset(opts.quality)
-    distance = opts.residual_distance if opts.residual_distance is not None else q.residual_distance
-    codec = opts.residual_codec or q.residual_codec
-    plan = residuals.plan_residual_rates(res, distance)
-    scales = [opts.residual_scale or q.residual_scale]
-    if not opts.residual_scale and check_iterations > 0:
-        scales.append(2 * q.residual_scale)
-    return [side_candidate(view_cams, res, plan, codec, sc) for sc in scales]
-
-
-def _byte_budget(path: Path) -> dict[str, int]:
-    d = container.describe(path)
+def _byte_budget(data: bytes) -> dict[str, int]:
+    d = container.describe(data)
     budget = {"file": int(d["file_size"])}
     budget.update({k: int(v) for k, v in d["bytes_per_type"].items()})
     budget["header+framing"] = budget["file"] - sum(v for k, v in budget.items() if k != "file")
@@ -213,25 +202,45 @@ def decode(
     opts: DecodeOptions | None = None,
     progress: Progress | None = None,
 ) -> Report:
+    """Decode the .gspc file at ``in_path`` into an INRIA PLY at ``out_path``."""
+    opts = opts or DecodeOptions()
+    opts.validate()
+    _check_device(opts.device)
+    refuse_output_over_input(out_path, in_path)
+    rep = Report()
+    with rep.timed("read"):
+        data = container.read_bytes(in_path)
+    scene, rep = decode_bytes(data, opts, progress, rep)
+    with _stage(rep, progress, "write"):
+        write_ply(scene.to("cpu"), out_path)
+    return rep
+
+
+def decode_bytes(
+    data: bytes,
+    opts: DecodeOptions | None = None,
+    progress: Progress | None = None,
+    rep: Report | None = None,
+) -> tuple[GaussianScene, Report]:
+    """Decode a .gspc file's bytes in memory: (the decoded, restored and refined scene, what was done)."""
     opts = opts or DecodeOptions()
     opts.validate()
     device = _check_device(opts.device)
-    refuse_output_over_input(out_path, in_path)
-    rep = Report()
+    rep = rep or Report()
     with _stage(rep, progress, "read"):
-        c = container.read(in_path)
+        c = container.unpack(data)
         fields = FileHeader.from_dict(c.header)
         attr_meta, background = fields.attributes, fields.side_info.background
         chunks = attribute_chunks(c.chunks)
         views, res_chunks = side_views(fields.side_info.to_dict(), c.chunks)
         # Sizes before any camera is built or view rendered: the file's pixel budget (gspc/limits.py).
-        check_view_sizes(views, Path(in_path).stat().st_size)
+        check_view_sizes(views, len(data))
         for k, image in res_chunks.items():  # each image's declared size, before anything is decoded
             cam = views[k]["camera"]
             residuals.check_residual(image, views[k].get("residual"), (cam["height"], cam["width"]))
         restorer_name = opts.restorer if opts.restorer is not None else fields.side_info.restorer
         restorer = load_restorer(restorer_name) if opts.restore else None
-    rep.bytes = _byte_budget(Path(in_path))
+    rep.bytes = _byte_budget(data)
     with _stage(rep, progress, "attributes"):
         scene = decode_attributes(chunks, attr_meta)
     rep.num_gaussians_in = rep.num_gaussians_out = scene.num_gaussians
@@ -268,6 +277,4 @@ def decode(
     rep.info["restorer"] = restorer_name if opts.restore else "off"
     rep.views = rep.info["views"] = len(cams)
     rep.views_with_residual = len(res_chunks)
-    with _stage(rep, progress, "write"):
-        write_ply(scene.to("cpu"), out_path)
-    return rep
+    return scene, rep

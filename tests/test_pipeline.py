@@ -11,7 +11,7 @@ from gspc.codec.sideinfo import side_views
 from gspc.encoder.policy import Outcome
 from gspc.errors import CodecError
 from gspc.io import read_scene, write_ply
-from gspc.pipeline import DecodeOptions, EncodeOptions, decode, encode
+from gspc.pipeline import DecodeOptions, EncodeOptions, decode, decode_bytes, encode, encode_scene
 
 
 def scene(seed=1):
@@ -174,3 +174,14 @@ def test_bad_refine_iterations_are_refused(encoded, tmp_path, value):
     with pytest.raises(CodecError, match="refine_iterations"):
         decode(bad, dst)
     assert not dst.exists()
+
+
+def test_memory_api_matches_the_path_api(encoded, tmp_path):
+    src, out, rep = encoded
+    opts = EncodeOptions(lam=40, synth_views=5, max_side=40, check_iterations=0)
+    data, mem = encode_scene(read_scene(src), None, opts)
+    assert data == out.read_bytes() and mem.bytes == rep.bytes and mem.views == rep.views
+    scene, drep = decode_bytes(data, DecodeOptions(iterations=3))
+    dst = tmp_path / "d.ply"
+    decode(out, dst, DecodeOptions(iterations=3))
+    assert torch.equal(read_scene(dst).sh_dc, scene.sh_dc) and drep.refine_iterations == 3

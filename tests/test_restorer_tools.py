@@ -23,11 +23,11 @@ from make_restorer_data import (  # noqa: E402
     make_data,
     parse_rates,
     parse_scene,
-    side_info_from_npz,
     side_info_symbols,
 )
 
 from gspc.codec import residuals  # noqa: E402
+from gspc.restore.data import side_info_from_npz  # noqa: E402
 
 
 def _tiny_scene(path: Path, seed: int) -> None:
