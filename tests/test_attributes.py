@@ -5,14 +5,13 @@ import pytest
 import torch
 
 from gspc.codec.attributes import (
-    _rotation_dequantise,
-    _rotation_quantise,
     decode_attributes,
     encode_attributes,
     rotation_error_bound,
     search_lambda,
 )
 from gspc.codec.params import CodecParams
+from gspc.codec.quantisers import SmallestThreeQuantiser
 from gspc.errors import CodecError
 from gspc.presets import QUALITY
 from gspc.scene import make_scene, num_sh_rest, scene_equal
@@ -84,7 +83,8 @@ def test_rotation_error_bound():
     q = rng.normal(size=(20000, 4))
     q /= np.linalg.norm(q, axis=1, keepdims=True)
     for levels in (8, 64, 354):
-        out = _rotation_dequantise(_rotation_quantise(q, levels), levels).astype(np.float64)
+        quant = SmallestThreeQuantiser(levels)
+        out = quant.dequantise(quant.quantise(q)).astype(np.float64)
         dot = np.abs((out * q).sum(1)) / np.linalg.norm(out, axis=1)
         angle = 2 * np.arccos(np.clip(dot, -1, 1))
         assert angle.max() <= rotation_error_bound(levels)
@@ -160,7 +160,7 @@ def test_shared_scenes(shared_data):
 
 
 def test_det_log_matches_log():
-    from gspc.codec.attributes import det_log
+    from gspc.codec.quantisers import det_log
 
     x = np.concatenate([np.linspace(1e-6, 1, 10001), np.geomspace(1e-300, 1e300, 200)])
     assert np.allclose(det_log(x), np.log(x), rtol=1e-15, atol=1e-12)
@@ -186,3 +186,23 @@ def test_geometry_steps_grow_as_sqrt_lambda_beyond_the_knee():
     dec = enc.decoded
     err = np.abs(np.sort(dec.log_scales.numpy().ravel()) - np.sort(scene.log_scales.numpy().ravel())).max()
     assert err <= enc.meta["scale_step"] / 2 + 1e-5
+
+
+def test_each_quantiser_owns_its_cell():
+    """Every quantiser's cell holds the values that quantise to the decoded one (the original's)."""
+    from gspc.codec.quantisers import OpacityQuantiser, SHRestQuantiser, UniformQuantiser
+
+    rng = np.random.default_rng(3)
+    x = rng.normal(size=(500, 3))
+    for quant in (UniformQuantiser(0.07), SHRestQuantiser((0.05,), 0.2)):
+        xs = x.reshape(500, 1, 3) if isinstance(quant, SHRestQuantiser) else x
+        dec = quant.dequantise(quant.quantise(xs))
+        lo, hi = quant.cell(torch.from_numpy(dec.reshape(xs.shape)))
+        inside = (torch.from_numpy(xs) >= lo - 1e-6) & (torch.from_numpy(xs) <= hi + 1e-6)
+        assert inside.all()
+    logits = rng.uniform(-4, 4, 500)
+    op = OpacityQuantiser(100)
+    lo, hi = op.cell(torch.from_numpy(op.dequantise(op.quantise(logits)).astype(np.float64)))
+    alpha_ok = 1 / (1 + np.exp(-logits)) >= 1 / 255
+    t = torch.from_numpy(logits)
+    assert ((t >= lo - 1e-6) & (t <= hi + 1e-6))[torch.from_numpy(alpha_ok)].all()
