@@ -280,7 +280,8 @@ def _check_view_options(views: int, max_side: int) -> None:
 
 
 def _cameras_for(scene, cameras: Path | None, views: int, max_side: int):
-    from gspc.cameras import limit_size, load_cameras, synthesize_views
+    from gspc.io.camera_files import load_cameras
+    from gspc.views import limit_size, synthesize_views
 
     cams = load_cameras(cameras) if cameras else synthesize_views(scene, views)
     return limit_size(cams, max_side)

@@ -17,7 +17,7 @@ import torch
 
 from gspc import __version__
 from gspc.atomic import atomic_write_bytes
-from gspc.cameras import Camera, load_cameras
+from gspc.cameras import Camera
 from gspc.codec import container, residuals
 from gspc.codec.attributes import attribute_chunks, decode_attributes
 from gspc.codec.sideinfo import side_views
@@ -35,6 +35,7 @@ from gspc.errors import CodecError, DeviceError, InputError
 from gspc.format.chunks import ATTRIBUTE_TYPES, SIDE
 from gspc.format.header import FileHeader, SceneSummary, SideInfoHeader, check_view_sizes
 from gspc.io import read_scene, write_ply
+from gspc.io.camera_files import load_cameras
 from gspc.options import DecodeOptions, EncodeOptions
 from gspc.paths import refuse_output_over_input
 from gspc.progress import Progress

@@ -1,7 +1,7 @@
 """Stages that both the encoder and the decoder run: render views, restore them, refine against them.
 
-The encoder runs the decoder's own stages (ARCHITECTURE.md: G~ and its refinement are predicted by the same
-code the decoder runs), so they live here, between gspc/pipeline.py and gspc/encoder/policy.py.
+The encoder predicts what the decoder will render and refine by running the decoder's own code, so these
+stages live here, used by gspc/pipeline.py's decoder and gspc/encoder/policy.py alike.
 """
 
 from __future__ import annotations

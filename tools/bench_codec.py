@@ -29,14 +29,15 @@ import torch
 import typer
 import zstandard
 
-from gspc.cameras import load_cameras, synthesize_views
 from gspc.codec.attributes import decode_attributes, encode_attributes
 from gspc.format.chunks import ATTRIBUTE_TYPES
 from gspc.io import read_scene, write_ply
+from gspc.io.camera_files import load_cameras
 from gspc.metrics import psnr, quantize8, ssim
 from gspc.presets import QUALITY
 from gspc.render import render
 from gspc.scene import GaussianScene, make_scene, num_sh_rest
+from gspc.views import synthesize_views
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared" / "data"

@@ -25,23 +25,19 @@ import numpy as np
 import torch
 import typer
 
-from gspc.cameras import (
-    Camera,
-    load_cameras,
-    sample_views,
-    save_cameras_json,
-    split_test_views,
-    synthesize_views,
-)
+from gspc.cameras import Camera
 from gspc.codec import container
 from gspc.codec.sideinfo import side_views
 from gspc.format.chunks import RESI, SIDE
 from gspc.format.header import FileHeader
 from gspc.io import read_scene
+from gspc.io.camera_files import load_cameras
+from gspc.io.cameras_json import save_cameras_json
 from gspc.metrics import psnr, quantize8, ssim
 from gspc.pipeline import DecodeOptions, EncodeOptions, decode, encode
 from gspc.restore.restorer import available_restorers
 from gspc.stages import render_images
+from gspc.views import sample_views, split_test_views, synthesize_views
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
 

@@ -25,7 +25,6 @@ import numpy as np
 import torch
 import typer
 
-from gspc.cameras import limit_size, sample_views, synthesize_views
 from gspc.io import read_scene
 from gspc.metrics import psnr, quantize8
 from gspc.options import DecodeOptions, EncodeOptions
@@ -34,6 +33,7 @@ from gspc.restore.data import load_view, read_manifest, validate
 from gspc.restore.nafnet import count_parameters
 from gspc.restore.restorer import load_restorer
 from gspc.stages import render_images
+from gspc.views import limit_size, sample_views, synthesize_views
 
 
 def restoration_table(data_dir: Path, name: str) -> tuple[list[str], dict]:

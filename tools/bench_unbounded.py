@@ -27,7 +27,7 @@ import numpy as np
 import torch
 import typer
 
-from gspc.cameras import Camera, robust_bounds, synthesize_views
+from gspc.cameras import Camera
 from gspc.codec import positions
 from gspc.codec.attributes import encode_attributes
 from gspc.io import read_scene
@@ -35,6 +35,7 @@ from gspc.metrics import psnr, quantize8
 from gspc.presets import QUALITY
 from gspc.render import render
 from gspc.scene import GaussianScene
+from gspc.views import robust_bounds, synthesize_views
 
 
 def add_background(

@@ -37,12 +37,12 @@ import torch
 import typer
 
 from gspc.atomic import atomic_write, atomic_write_bytes
-from gspc.cameras import load_cameras
 from gspc.codec import residuals
 from gspc.encoder.side import view_residuals
 from gspc.encoder.stages import code_attributes, codec_params, encoder_cameras, sample_side_views
 from gspc.errors import GspcError, InputError
 from gspc.io import read_scene
+from gspc.io.camera_files import load_cameras
 from gspc.options import EncodeOptions
 from gspc.presets import QUALITY
 from gspc.restore.data import FORMAT, MANIFEST

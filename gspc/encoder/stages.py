@@ -9,7 +9,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from gspc.cameras import Camera, limit_size, sample_views, synthesize_views
+from gspc.cameras import Camera
 from gspc.codec import residuals
 from gspc.codec.attributes import EncodedAttributes, encode_attributes, search_lambda
 from gspc.codec.params import CodecParams
@@ -17,6 +17,7 @@ from gspc.encoder.side import SideCandidate, side_candidate
 from gspc.options import EncodeOptions
 from gspc.presets import quality_preset
 from gspc.scene import GaussianScene
+from gspc.views import limit_size, sample_views, synthesize_views
 from gspc.visibility import visible_mask
 
 
