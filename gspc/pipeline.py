@@ -2,7 +2,7 @@
 side-information policy in gspc/encoder/policy.py.
 
 encode:  scene -> attribute codec -> G~ (through the decoder's own path)
-         cameras -> sampled views -> render G and G~ -> residuals -> JPEG XL -> container
+         cameras -> sampled views -> render G and G~ -> residuals -> image codec (JPEG XL) -> container
 decode:  container -> G~ -> render at stored views -> restore (I~ (+) R~) -> refine -> PLY
 """
 
