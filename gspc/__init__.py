@@ -14,15 +14,17 @@ __version__ = "0.1.0"
 # public name -> the module that holds it
 _LAZY = {
     "Camera": "gspc.cameras",
-    "load_cameras": "gspc.cameras",
-    "synthesize_views": "gspc.cameras",
+    "load_cameras": "gspc.io.camera_files",
+    "synthesize_views": "gspc.views",
     "GspcError": "gspc.errors",
     "read_scene": "gspc.io",
     "write_ply": "gspc.io",
-    "DecodeOptions": "gspc.pipeline",
-    "EncodeOptions": "gspc.pipeline",
+    "DecodeOptions": "gspc.options",
+    "EncodeOptions": "gspc.options",
     "decode": "gspc.pipeline",
+    "decode_bytes": "gspc.pipeline",
     "encode": "gspc.pipeline",
+    "encode_scene": "gspc.pipeline",
     "render": "gspc.render",
     "GaussianScene": "gspc.scene",
 }
@@ -35,7 +37,9 @@ __all__ = [
     "GspcError",
     "__version__",
     "decode",
+    "decode_bytes",
     "encode",
+    "encode_scene",
     "load_cameras",
     "read_scene",
     "render",
@@ -44,12 +48,15 @@ __all__ = [
 ]
 
 if TYPE_CHECKING:  # static checkers see the names directly
-    from gspc.cameras import Camera, load_cameras, synthesize_views
+    from gspc.cameras import Camera
     from gspc.errors import GspcError
     from gspc.io import read_scene, write_ply
-    from gspc.pipeline import DecodeOptions, EncodeOptions, decode, encode
+    from gspc.io.camera_files import load_cameras
+    from gspc.options import DecodeOptions, EncodeOptions
+    from gspc.pipeline import decode, decode_bytes, encode, encode_scene
     from gspc.render import render
     from gspc.scene import GaussianScene
+    from gspc.views import synthesize_views
 
 
 def __getattr__(name: str):

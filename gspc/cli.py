@@ -7,6 +7,7 @@ Heavy modules (torch, the pipeline) are imported inside the commands that need t
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import os
 import sys
@@ -19,7 +20,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 from gspc.errors import GspcError
-from gspc.presets import DEFAULT_RESTORER
+from gspc.options import DecodeOptions, EncodeOptions
 from gspc.progress import ProgressLines
 
 app = typer.Typer(
@@ -111,34 +112,35 @@ def _summary(title: str, rep) -> None:
     out.print("  ".join(f"{k}: {v}" for k, v in facts.items()))
 
 
+def _option(cls: type, name: str, *flags: str):
+    """A typer option for field ``name`` of an options dataclass (gspc/options.py): the field's default and
+    help, and its flag when it names one (else typer's ``--name``, ``--name/--no-name`` for switches)."""
+    f = next(f for f in dataclasses.fields(cls) if f.name == name)
+    flag = f.metadata.get("flag")
+    if flag and isinstance(f.default, bool):
+        flag = f"{flag}/--no-{flag[2:]}"
+    return typer.Option(f.default, *flags, *([flag] if flag else []), help=f.metadata["help"])
+
+
 @app.command()
 @_one_line_errors
 def encode(
     scene: Path = typer.Argument(..., help="input scene: INRIA PLY, PlayCanvas SOG or compressed PLY, SPZ"),
     output: Path = typer.Option(..., "-o", "--output", help="output .gspc file"),
     cameras: Path | None = typer.Option(None, help="cameras.json, transforms.json or COLMAP sparse folder"),
-    quality: str = typer.Option("low", help="rate preset: low or high"),
-    lam: float | None = typer.Option(None, "--lambda", help="continuous rate knob (overrides the preset's)"),
-    target_size: int | None = typer.Option(None, help="attribute bitstream size in bytes to aim for"),
-    views_fraction: float = typer.Option(0.4, help="fraction of views that carry side information"),
-    views: int = typer.Option(60, help="views to synthesise when no cameras are given"),
-    max_side: int = typer.Option(400, help="longest side of the side-information views, in pixels"),
-    side_info: bool = typer.Option(True, help="store residual side information"),
-    keep_invisible: bool = typer.Option(False, help="keep Gaussians no view sees"),
-    restorer: str = typer.Option(
-        DEFAULT_RESTORER, help="restorer the decoder should use ('none': I~ + R~; see gspc/restore/weights)"
-    ),
-    check_iterations: int | None = typer.Option(
-        None,
-        help="refinement iterations the encoder runs to check that side information pays, and the decoder's "
-        "default (default: the preset's, low 1000, high 300; 0: no check)",
-    ),
-    background: tuple[float, float, float] = typer.Option(
-        (0.0, 0.0, 0.0), help="render background RGB in [0, 1] (1 1 1 for scenes trained on white)"
-    ),
+    quality: str = _option(EncodeOptions, "quality"),
+    lam: float | None = _option(EncodeOptions, "lam"),
+    target_size: int | None = _option(EncodeOptions, "target_size"),
+    views_fraction: float = _option(EncodeOptions, "views_fraction"),
+    synth_views: int = _option(EncodeOptions, "synth_views"),
+    max_side: int = _option(EncodeOptions, "max_side"),
+    side_info: bool = _option(EncodeOptions, "side_info"),
+    keep_invisible: bool = _option(EncodeOptions, "keep_invisible"),
+    restorer: str = _option(EncodeOptions, "restorer"),
+    check_iterations: int | None = _option(EncodeOptions, "check_iterations"),
+    background: tuple[float, float, float] = _option(EncodeOptions, "background"),
 ) -> None:
     """Compress a 3DGS scene into a .gspc file."""
-    from gspc.pipeline import EncodeOptions
     from gspc.pipeline import encode as run
 
     _use_threads()
@@ -148,7 +150,7 @@ def encode(
         lam=lam,
         target_size=target_size,
         views_fraction=views_fraction,
-        synth_views=views,
+        synth_views=synth_views,
         max_side=max_side,
         side_info=side_info,
         keep_invisible=keep_invisible,
@@ -166,19 +168,14 @@ def encode(
 def decode(
     source: Path = typer.Argument(..., help="input .gspc file"),
     output: Path = typer.Option(..., "-o", "--output", help="output PLY (INRIA layout)"),
-    iterations: int | None = typer.Option(
-        None, help="refinement iterations (default: what the encoder validated, stored in the file)"
-    ),
-    restore: bool = typer.Option(True, help="restore the rendered views with the side information"),
-    refine: bool = typer.Option(True, help="refine the Gaussians against the restored views"),
-    restorer: str | None = typer.Option(
-        None, help="restorer to use (default: the one the file names; 'none')"
-    ),
-    cells: bool = typer.Option(True, help="keep refined attributes inside their quantisation cells"),
-    device: str = typer.Option("cpu", help="cpu or cuda"),
+    iterations: int | None = _option(DecodeOptions, "iterations"),
+    restore: bool = _option(DecodeOptions, "restore"),
+    refine: bool = _option(DecodeOptions, "refine"),
+    restorer: str | None = _option(DecodeOptions, "restorer"),
+    in_cells: bool = _option(DecodeOptions, "in_cells"),
+    device: str = _option(DecodeOptions, "device"),
 ) -> None:
     """Decode a .gspc file into a standard 3DGS PLY."""
-    from gspc.pipeline import DecodeOptions
     from gspc.pipeline import decode as run
 
     _use_threads()
@@ -189,7 +186,7 @@ def decode(
         refine=refine,
         restorer=restorer,
         device=device,
-        in_cells=cells,
+        in_cells=in_cells,
     )
     with _progress_bars() as cb:
         rep = run(source, output, opts, progress=cb)
@@ -217,14 +214,14 @@ def info(
     if _is_gspc(path):
         from gspc.codec.container import describe, read
         from gspc.codec.sideinfo import side_views
-        from gspc.header import scene_summary
+        from gspc.format.header import SceneSummary
 
         d = describe(path)
         c = read(path)
         header = c.header
         views, _ = side_views(header.get("side_info", {}), c.chunks)
-        count, degree = scene_summary(header)
-        n = max(count, 1)
+        summary = SceneSummary.from_dict(header)
+        n, degree = max(summary.num_gaussians, 1), summary.sh_degree
         out.print(
             f"{path}: gspc format {d['version'][0]}.{d['version'][1]}, {d['file_size']:,} bytes, "
             f"{n:,} Gaussians, SH degree {'?' if degree is None else degree}, "
@@ -283,7 +280,8 @@ def _check_view_options(views: int, max_side: int) -> None:
 
 
 def _cameras_for(scene, cameras: Path | None, views: int, max_side: int):
-    from gspc.cameras import limit_size, load_cameras, synthesize_views
+    from gspc.io.camera_files import load_cameras
+    from gspc.views import limit_size, synthesize_views
 
     cams = load_cameras(cameras) if cameras else synthesize_views(scene, views)
     return limit_size(cams, max_side)
@@ -307,7 +305,7 @@ def render(
     import imagecodecs
 
     from gspc.io import read_scene
-    from gspc.pipeline import render_images
+    from gspc.stages import render_images
 
     sc = read_scene(scene)
     cams = _cameras_for(sc, cameras, views, max_side)
@@ -342,7 +340,7 @@ def evaluate(
     _use_threads()
     from gspc.io import read_scene
     from gspc.metrics import psnr, quantize8, ssim
-    from gspc.pipeline import render_images
+    from gspc.stages import render_images
 
     ref, tst = read_scene(reference), read_scene(test)
     cams = _cameras_for(ref, cameras, views, max_side)

@@ -29,7 +29,7 @@ MAX_TOTAL_PIXELS = 1 << 28
 # ... and bounded by the file's size: at most max(PIXEL_FLOOR, PIXELS_PER_FILE_BYTE * file bytes). A view
 # without a residual costs 52 bytes of SIDE chunk (gspc/codec/sideinfo.py), so without this rule a 1 KB
 # file could ask for 2^28 pixels. The floor admits the default encode of a scene without cameras (24
-# synthesised views at 400 x 400 = 3.84 Mpixel, gspc/pipeline.py) whatever the file's size; 1024 pixels per
+# synthesised views at 400 x 400 = 3.84 Mpixel, gspc/options.py) whatever the file's size; 1024 pixels per
 # byte is 5x the densest real file we have (lego at the low preset: 35 views of 200 x 200 in 199 KB is
 # 7 pixels per byte; 120 views of 400 x 267 in 250 KB would be 200).
 PIXEL_FLOOR = 1 << 22
@@ -64,7 +64,7 @@ MAX_SOG_MAP_PIXELS = 1 << 26
 SOG_PIXELS_PER_ENTRY = 4
 SOG_MAP_FLOOR = 1 << 16
 
-# --- options (gspc/pipeline.py EncodeOptions / DecodeOptions) ----------------------------------------------
+# --- options (gspc/options.py EncodeOptions / DecodeOptions) -----------------------------------------------
 
 # --lambda: the attribute codec's rate knob multiplies quantiser steps; search_lambda
 # (gspc/codec/attributes.py) searches 1e-3..1e3, so the same range is accepted from the command line.

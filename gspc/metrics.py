@@ -1,4 +1,4 @@
-"""Image quality metrics with the 3DGS evaluation conventions (see design/METHOD.md).
+"""Image quality metrics with the 3DGS evaluation conventions (8-bit renders, PSNR and SSIM as in INRIA 3DGS).
 
 Images are torch tensors of shape (H, W, 3) or (B, H, W, 3), float in [0, 1]. PSNR and SSIM
 return one value per image: a 0-dim tensor for a single image, shape (B,) for a batch. SSIM is

@@ -1,13 +1,17 @@
-"""Range and finiteness checks of every encode/decode option, run before any work (issue 15).
+"""The encoder's and decoder's options (:class:`EncodeOptions`, :class:`DecodeOptions`) and their range and
+finiteness checks, run before any work (issue 15).
 
-The CLI and the Python API both reach them through ``EncodeOptions.validate`` / ``DecodeOptions.validate``
-(gspc/pipeline.py); ``render`` and ``eval`` use the single checks. Each failure is an InputError that names
-the option as the command line spells it and the value given.
+Each field carries its help text (and, where the command line spells it differently, its flag): gspc/cli.py
+builds its options, defaults and help from these fields, so they are stated once. The CLI and the Python API
+both validate through ``EncodeOptions.validate`` / ``DecodeOptions.validate``; ``render`` and ``eval`` use
+the single checks. Each failure is an InputError that names the option as the command line spells it and the
+value given. No torch here: ``gspc --help`` reads this module.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass, field
 from numbers import Integral, Real
 from typing import Any
 
@@ -21,7 +25,7 @@ from gspc.limits import (
     MIN_MAX_SIDE,
     MIN_TARGET_SIZE,
 )
-from gspc.presets import quality_preset
+from gspc.presets import DEFAULT_RESTORER, QUALITY, quality_preset
 
 _MAX_RESIDUAL_SCALE = 16  # the SIDE chunk's scale field allows 1..16 (gspc/codec/sideinfo.py)
 
@@ -106,3 +110,69 @@ def check_decode_options(o: Any) -> None:
     # device: checked (DeviceError) by gspc/pipeline.py _check_device, also before any work
     check_int("seed", o.seed, 0)
     check_real("lr_scale", o.lr_scale, 0.0, 1e3, lo_open=True)
+
+
+def knob(default: Any, help: str, flag: str | None = None) -> Any:
+    """A dataclass field with the help text (and command-line flag, if not the field's name) the CLI shows."""
+    return field(default=default, metadata={"help": help, "flag": flag})
+
+
+def _per_preset(attr: str) -> str:
+    return ", ".join(f"{name} {getattr(p, attr)}" for name, p in QUALITY.items())
+
+
+@dataclass
+class EncodeOptions:
+    quality: str = knob("low", f"rate preset: {' or '.join(QUALITY)} (gspc/presets.py)")
+    lam: float | None = knob(None, "continuous rate knob (overrides the preset's)", "--lambda")
+    target_size: int | None = knob(None, "attribute bitstream size in bytes to aim for (searches lambda)")
+    views_fraction: float = knob(0.4, "fraction of views that carry side information")
+    synth_views: int = knob(60, "views to synthesise when no cameras are given", "--views")
+    max_side: int = knob(400, "longest side of the side-information views, in pixels")
+    residual_codec: str | None = knob(None, "residual image codec (overrides the preset's)")
+    residual_distance: float | None = knob(
+        None, "residual rate knob, larger is coarser (overrides the preset's; gspc/codec/residuals.py)"
+    )
+    residual_scale: int | None = knob(None, "residuals at 1/scale resolution (overrides the preset's)")
+    side_info: bool = knob(True, "store residual side information")
+    restorer: str = knob(
+        DEFAULT_RESTORER, "restorer the decoder should use ('none': I~ + R~; see gspc/restore/weights)"
+    )
+    keep_invisible: bool = knob(False, "keep Gaussians no view sees")
+    background: tuple[float, float, float] = knob(
+        (0.0, 0.0, 0.0), "render background RGB in [0, 1] (1 1 1 for scenes trained on white)"
+    )
+    # The encoder runs the decoder's refinement for this many iterations (None: the preset's) and keeps the
+    # side information only if it beats, at views that carry none, the same bytes spent on attributes
+    # (0: no check, keep it).
+    check_iterations: int | None = knob(
+        None,
+        "refinement iterations the encoder runs to check that side information pays, and the decoder's "
+        f"default (default: the preset's, {_per_preset('refine_iterations')}; 0: no check)",
+    )
+    check_views: int = knob(8, "views carrying no side information at which the check scores")
+    # Side information must beat its rivals by this much at the check views: a tie within the noise of
+    # 8 sampled views lost 0.25 dB at 13 others on the lego fit (bench/pipeline_equal_bytes.md).
+    check_margin_db: float = knob(0.15, "dB by which side information must beat its rivals at the check")
+
+    def validate(self) -> None:
+        """InputError naming the first option out of range; called before any work."""
+        check_encode_options(self)
+
+
+@dataclass
+class DecodeOptions:
+    iterations: int | None = knob(
+        None, "refinement iterations (default: what the encoder validated, stored in the file)"
+    )
+    restore: bool = knob(True, "restore the rendered views with the side information")
+    refine: bool = knob(True, "refine the Gaussians against the restored views")
+    restorer: str | None = knob(None, "restorer to use (default: the one the file names; 'none')")
+    device: str = knob("cpu", "cpu or cuda")
+    seed: int = knob(0, "refinement's random seed")
+    lr_scale: float = knob(1.0, "multiplies every refinement learning rate")
+    in_cells: bool = knob(True, "keep refined attributes inside their quantisation cells", "--cells")
+
+    def validate(self) -> None:
+        """InputError naming the first option out of range; called before any work."""
+        check_decode_options(self)

@@ -1,15 +1,14 @@
-"""Named quality presets: one table for the whole encoder (attribute codec + side information).
+"""Named quality presets: ONE table for the whole encoder (attribute codec + side information).
 
-Like CompressAI's zoo: a preset is a name for a complete, versioned configuration; CLI options
-override single fields.
+Like CompressAI's zoo: a preset is a name for a complete, versioned configuration, built by keyword; the
+command line's options override single fields (gspc/options.py). This module imports no torch.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-from gspc.codec.presets import PRESETS as ATTRIBUTE_PRESETS
-from gspc.codec.presets import CodecParams
+from gspc.codec.params import CodecParams
 from gspc.errors import InputError
 
 # The restorer an encoder names by default. Held-out lego fit, low preset: +0.31 dB per restored view over
@@ -20,23 +19,36 @@ DEFAULT_RESTORER = "nafnet-s16-v2"
 @dataclass(frozen=True)
 class Preset:
     attributes: CodecParams
-    residual_codec: str = "jxl"
-    residual_level: float = 4.0  # JPEG XL distance (coarser is larger)
+    residual_codec: str = "jxl"  # one of gspc.codec.residuals.IMAGE_CODECS
+    residual_distance: float = 4.0  # the residual image codecs' rate knob (larger is coarser)
     residual_scale: int = 1  # residuals coded at 1/scale resolution
     refine_iterations: int = 300  # the decoder's refinement, validated by the encoder's check
 
 
+# Attribute rate points: lam 1 (14 position bits) and lam 8 (11 position bits; <= 10 B/G on the SH-3 lego
+# fit; gspc/codec/params.py).
 # Side information measured on the lego fit (tools/bench_pipeline.py): at the low preset, residuals at half
 # resolution and distance 8 (~24 KB for 35 views) beat spending those bytes on attributes; at the high preset
 # residuals mostly fall under the skip threshold and cost nothing.
 # Refinement at the low preset (inside the quantisation cells): on the lego fit 300 iterations gain 2.3 dB
 # over the coded scene, 1000 gain 3.1 and 3000 gain 3.3 (bench/pipeline.md); 1000 is where side information
 # clearly beats spending its bytes on attributes, at about 0.16 s per iteration for 20k Gaussians on one core.
-# The encoder also weighs residuals at half this resolution (pipeline.REFINE_TRANSFER).
-LOW_ITERATIONS = 1000
+# The encoder also weighs residuals at half this resolution (gspc/encoder/policy.py, REFINE_TRANSFER).
 QUALITY: dict[str, Preset] = {
-    "low": Preset(ATTRIBUTE_PRESETS["low"], "jxl", 8.0, 2, LOW_ITERATIONS),
-    "high": Preset(ATTRIBUTE_PRESETS["high"], "jxl", 4.0, 1),
+    "low": Preset(
+        attributes=CodecParams(lam=8.0),
+        residual_codec="jxl",
+        residual_distance=8.0,
+        residual_scale=2,
+        refine_iterations=1000,
+    ),
+    "high": Preset(
+        attributes=CodecParams(lam=1.0),
+        residual_codec="jxl",
+        residual_distance=4.0,
+        residual_scale=1,
+        refine_iterations=300,
+    ),
 }
 
 

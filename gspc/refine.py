@@ -1,4 +1,4 @@
-"""Decoder-side refinement: re-fit a decoded scene's attributes to restored renders (METHOD.md step 4).
+"""Decoder-side refinement: re-fit a decoded scene's attributes to restored renders (README.md, decoder).
 
 Adam over the chosen attributes with INRIA-3DGS-like per-attribute learning rates, loss
 0.8 * L1 + 0.2 * (1 - SSIM) on one view per iteration (drawn with a seeded generator, so a run is

@@ -2,7 +2,7 @@
 
 Attributes are stored as in INRIA's training code (the "raw" parameters the optimiser sees):
 quaternions unnormalised (w, x, y, z), log scales, opacity logits, SH coefficients where the DC
-term maps to colour as ``0.5 + C0 * sh_dc``. ``sh_rest`` is coefficient-major, shape
+term maps to colour as ``0.5 + SH_C0 * sh_dc``. ``sh_rest`` is coefficient-major, shape
 ``(N, K, 3)`` with ``K = (sh_degree + 1) ** 2 - 1``; the INRIA PLY stores it channel-major and
 the PLY module converts.
 """
@@ -17,6 +17,9 @@ import torch
 from gspc.errors import InputError
 
 ATTRIBUTE_NAMES = ("means", "quats", "log_scales", "opacities", "sh_dc", "sh_rest")
+# The degree-0 SH basis constant 1 / (2 sqrt(pi)), as in INRIA 3DGS; the renderer, readers and statistics
+# take it from here.
+SH_C0 = 0.28209479177387814
 
 
 def num_sh_rest(sh_degree: int) -> int:

@@ -5,9 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from gspc.io.ply import inria_bytes_per_gaussian
-from gspc.scene import GaussianScene
+from gspc.scene import SH_C0, GaussianScene
 
-SH_C0 = 0.28209479177387814
 AXES = ("x", "y", "z")
 CHANNELS = ("r", "g", "b")
 

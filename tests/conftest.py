@@ -3,7 +3,7 @@ from pathlib import Path
 import pytest
 import torch
 
-# The 2 vCPUs deliver about one core; more threads only add wake-up latency (FINDINGS.md).
+# One thread: results and timings do not depend on the machine's core count.
 torch.set_num_threads(1)
 
 SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"

@@ -5,15 +5,15 @@ import pytest
 import torch
 
 from gspc.codec.attributes import (
-    _rotation_dequantise,
-    _rotation_quantise,
     decode_attributes,
     encode_attributes,
     rotation_error_bound,
     search_lambda,
 )
-from gspc.codec.presets import PRESETS, CodecParams
+from gspc.codec.params import CodecParams
+from gspc.codec.quantisers import SmallestThreeQuantiser
 from gspc.errors import CodecError
+from gspc.presets import QUALITY
 from gspc.scene import make_scene, num_sh_rest, scene_equal
 
 
@@ -32,7 +32,7 @@ def _scene(n=500, degree=3, seed=0, **over):
     return make_scene(**attrs, sh_degree=degree)
 
 
-def _check_exact(scene, params=PRESETS["high"], visible=None):
+def _check_exact(scene, params=QUALITY["high"].attributes, visible=None):
     enc = encode_attributes(scene, params, visible)
     dec = decode_attributes(enc.chunks, enc.meta)
     assert scene_equal(dec, enc.decoded)
@@ -64,7 +64,7 @@ def test_hard_cases(case):
     n = over.pop("n", None) or len(next(iter(over.values())))
     params = CodecParams(keep_transparent=True)
     _check_exact(_scene(n=n, **over), params)
-    _check_exact(_scene(n=n, **over), PRESETS["low"]) if case != "opacity_0_1" else None
+    _check_exact(_scene(n=n, **over), QUALITY["low"].attributes) if case != "opacity_0_1" else None
 
 
 def test_attribute_errors_within_steps():
@@ -83,7 +83,8 @@ def test_rotation_error_bound():
     q = rng.normal(size=(20000, 4))
     q /= np.linalg.norm(q, axis=1, keepdims=True)
     for levels in (8, 64, 354):
-        out = _rotation_dequantise(_rotation_quantise(q, levels), levels).astype(np.float64)
+        quant = SmallestThreeQuantiser(levels)
+        out = quant.dequantise(quant.quantise(q)).astype(np.float64)
         dot = np.abs((out * q).sum(1)) / np.linalg.norm(out, axis=1)
         angle = 2 * np.arccos(np.clip(dot, -1, 1))
         assert angle.max() <= rotation_error_bound(levels)
@@ -109,8 +110,8 @@ def test_pruning():
 def test_no_sh_path_costs_little():
     quiet = _scene(n=3000, sh_rest=np.zeros((3000, 15, 3)))
     loud = _scene(n=3000)
-    a = encode_attributes(quiet, PRESETS["high"]).chunks["SHRS"]
-    b = encode_attributes(loud, PRESETS["high"]).chunks["SHRS"]
+    a = encode_attributes(quiet, QUALITY["high"].attributes).chunks["SHRS"]
+    b = encode_attributes(loud, QUALITY["high"].attributes).chunks["SHRS"]
     assert len(a) < 200 < len(b)
 
 
@@ -120,7 +121,7 @@ def test_faint_gaussians_drop_sh_rest_and_zero_rotation_is_exact():
     quats = np.tile([1.0, 0.0, 0.0, 0.0], (n, 1))
     opac = np.where(np.arange(n) % 2 == 0, -5.0, 3.0)  # alpha 0.0067 (kept, but faint) and 0.95
     scene = _scene(n=n, quats=quats, opacities=opac)
-    for params in PRESETS.values():
+    for params in (q.attributes for q in QUALITY.values()):
         enc = _check_exact(scene, params)
         dec = enc.decoded
         assert enc.meta["rotation_levels"] % 2 == 0
@@ -132,14 +133,14 @@ def test_faint_gaussians_drop_sh_rest_and_zero_rotation_is_exact():
 
 def test_search_lambda_hits_target():
     scene = _scene(n=3000, degree=1)
-    full = encode_attributes(scene, PRESETS["high"]).num_bytes
+    full = encode_attributes(scene, QUALITY["high"].attributes).num_bytes
     target = int(full * 0.6)
-    enc = search_lambda(scene, target, PRESETS["high"], rel_tol=0.05)
+    enc = search_lambda(scene, target, QUALITY["high"].attributes, rel_tol=0.05)
     assert 0.95 * target <= enc.num_bytes <= target
 
 
 def test_corrupt_chunk_raises():
-    enc = encode_attributes(_scene(n=200), PRESETS["low"])
+    enc = encode_attributes(_scene(n=200), QUALITY["low"].attributes)
     chunks = dict(enc.chunks)
     chunks["SCAL"] = chunks["SCAL"][:-5]
     with pytest.raises(CodecError):
@@ -155,11 +156,11 @@ def test_shared_scenes(shared_data):
     files = [shared_data / "donut" / "fused.ply", *sorted((shared_data / "statues").glob("*.sog"))[:2]]
     for f in files:
         if f.exists():
-            _check_exact(read_scene(f), PRESETS["low"])
+            _check_exact(read_scene(f), QUALITY["low"].attributes)
 
 
 def test_det_log_matches_log():
-    from gspc.codec.attributes import det_log
+    from gspc.codec.quantisers import det_log
 
     x = np.concatenate([np.linspace(1e-6, 1, 10001), np.geomspace(1e-300, 1e300, 200)])
     assert np.allclose(det_log(x), np.log(x), rtol=1e-15, atol=1e-12)
@@ -185,3 +186,23 @@ def test_geometry_steps_grow_as_sqrt_lambda_beyond_the_knee():
     dec = enc.decoded
     err = np.abs(np.sort(dec.log_scales.numpy().ravel()) - np.sort(scene.log_scales.numpy().ravel())).max()
     assert err <= enc.meta["scale_step"] / 2 + 1e-5
+
+
+def test_each_quantiser_owns_its_cell():
+    """Every quantiser's cell holds the values that quantise to the decoded one (the original's)."""
+    from gspc.codec.quantisers import OpacityQuantiser, SHRestQuantiser, UniformQuantiser
+
+    rng = np.random.default_rng(3)
+    x = rng.normal(size=(500, 3))
+    for quant in (UniformQuantiser(0.07), SHRestQuantiser((0.05,), 0.2)):
+        xs = x.reshape(500, 1, 3) if isinstance(quant, SHRestQuantiser) else x
+        dec = quant.dequantise(quant.quantise(xs))
+        lo, hi = quant.cell(torch.from_numpy(dec.reshape(xs.shape)))
+        inside = (torch.from_numpy(xs) >= lo - 1e-6) & (torch.from_numpy(xs) <= hi + 1e-6)
+        assert inside.all()
+    logits = rng.uniform(-4, 4, 500)
+    op = OpacityQuantiser(100)
+    lo, hi = op.cell(torch.from_numpy(op.dequantise(op.quantise(logits)).astype(np.float64)))
+    alpha_ok = 1 / (1 + np.exp(-logits)) >= 1 / 255
+    t = torch.from_numpy(logits)
+    assert ((t >= lo - 1e-6) & (t <= hi + 1e-6))[torch.from_numpy(alpha_ok)].all()

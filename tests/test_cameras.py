@@ -8,19 +8,13 @@ import numpy as np
 import pytest
 import torch
 
-from gspc.cameras import (
-    Camera,
-    image_size,
-    load_cameras,
-    natural_key,
-    robust_bounds,
-    sample_views,
-    save_cameras_json,
-    split_test_views,
-    synthesize_views,
-)
+from gspc.cameras import Camera, natural_key
 from gspc.errors import InputError
+from gspc.io.camera_files import load_cameras
+from gspc.io.cameras_json import save_cameras_json
+from gspc.io.transforms import image_size
 from gspc.scene import make_scene
+from gspc.views import robust_bounds, sample_views, split_test_views, synthesize_views
 
 
 def _project(cam: Camera, p) -> tuple[float, float, float]:
@@ -330,7 +324,7 @@ def test_synthesized_views_spread_and_poles():
     dirs -= dirs.mean(0)
     assert np.abs(dirs.mean(0)).max() < 0.1 * np.linalg.norm(dirs, axis=1).mean()
     # a camera straight above the centre still gets a valid frame
-    from gspc.cameras import look_at
+    from gspc.views import look_at
 
     w2c = look_at([0, 0, 5], [0, 0, 0], [0, 0, 1])
     np.testing.assert_allclose(w2c[:3, :3] @ w2c[:3, :3].T, np.eye(3), atol=1e-12)
@@ -393,7 +387,7 @@ def test_lego_transforms(shared_data):
 
 
 def test_limit_size_scales_only_large_views():
-    from gspc.cameras import limit_size
+    from gspc.views import limit_size
 
     big = Camera(np.eye(4), [[800, 0, 400], [0, 800, 300], [0, 0, 1]], 800, 600, "big")
     small = Camera(np.eye(4), [[100, 0, 50], [0, 100, 40], [0, 0, 1]], 100, 80, "small")

@@ -7,7 +7,7 @@ from test_refine import _cameras, _scene
 
 from gspc.codec.attributes import encode_attributes
 from gspc.codec.cells import project, quantisation_cells
-from gspc.codec.presets import CodecParams
+from gspc.codec.params import CodecParams
 from gspc.errors import CodecError
 from gspc.refine import refine
 

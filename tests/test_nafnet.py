@@ -115,3 +115,24 @@ def test_config_mismatch_raises_codec_error(tmp_path):
 def test_restore_rejects_mismatched_inputs():
     with pytest.raises(InputError):
         load_restorer("none").restore(torch.zeros(4, 4, 3), torch.zeros(4, 5, 3))
+
+
+def test_restorer_registry_names_the_architecture(tmp_path):
+    import json
+
+    import pytest
+
+    from gspc.errors import CodecError
+    from gspc.restore.architectures import ARCHITECTURES
+    from gspc.restore.nafnet import NAFNet
+    from gspc.restore.restorer import load_restorer, save_restorer
+
+    config = {"width": 8, "enc_blocks": [1], "dec_blocks": [1], "middle_blocks": 1}
+    save_restorer(NAFNet(**config), config, "tiny", tmp_path)
+    manifest = json.loads((tmp_path / "MANIFEST.json").read_text())
+    assert manifest["tiny"]["architecture"] == "nafnet" and "nafnet" in ARCHITECTURES
+    assert load_restorer("tiny", tmp_path).model is not None
+    manifest["tiny"]["architecture"] = "unet-9000"
+    (tmp_path / "MANIFEST.json").write_text(json.dumps(manifest))
+    with pytest.raises(CodecError, match="unet-9000"):
+        load_restorer("tiny", tmp_path)

@@ -8,9 +8,10 @@ from scenes import random_scene
 
 from gspc.codec import container
 from gspc.codec.sideinfo import side_views
+from gspc.encoder.policy import Outcome
 from gspc.errors import CodecError
 from gspc.io import read_scene, write_ply
-from gspc.pipeline import DecodeOptions, EncodeOptions, decode, encode
+from gspc.pipeline import DecodeOptions, EncodeOptions, decode, decode_bytes, encode, encode_scene
 
 
 def scene(seed=1):
@@ -38,7 +39,8 @@ def test_encode_report_and_views(encoded):
     views, images = side_views(c.header["side_info"], c.chunks)
     assert len(views) == 2  # 40% of 5 views
     assert rep.bytes["file"] == out.stat().st_size
-    assert len(images) == sum("residual" in v for v in views) == rep.info["views with residual"]
+    assert len(images) == sum("residual" in v for v in views) == rep.views_with_residual
+    assert rep.views == len(views) and rep.side_info is None  # check_iterations=0: no check
     assert len(images) >= 1
 
 
@@ -90,7 +92,7 @@ def test_refinement_changes_scene_only_with_side_info(encoded, tmp_path):
     a, b = read_scene(plain), read_scene(refined)
     assert not np.array_equal(a.sh_dc.numpy(), b.sh_dc.numpy())
     rep = decode(out, norestore, DecodeOptions(iterations=5, restore=False))
-    assert "refine" not in rep.seconds and "skipped" in rep.info["refine"]
+    assert "refine" not in rep.seconds and rep.refine_iterations == 0
     assert np.array_equal(read_scene(norestore).sh_dc.numpy(), a.sh_dc.numpy())
 
 
@@ -114,25 +116,19 @@ def test_encoder_check_keeps_side_info_only_if_refinement_pays(tmp_path):
     write_ply(scene(seed=4), src)
     out = tmp_path / "c.gspc"
     rep = encode(src, out, opts=EncodeOptions(lam=40, synth_views=6, max_side=40, check_iterations=20))
-    before, after, alt = (float(x.rsplit(" ", 1)[-1]) for x in nums_text(rep.info["check"]))
+    d = rep.side_info
     c = container.read(out)
     views, images = side_views(c.header["side_info"], c.chunks)
     assert c.header["side_info"]["refine_iterations"] == 20
     # Two resolutions weighed (the preset's 1/2 and 1/4), one refined.
-    choice = rep.info["side info resolution"]
-    assert choice.startswith("1/2: ") and "; 1/4: " in choice
-    chosen = int(choice.rsplit("chose 1/", 1)[1])
-    if after >= max(before, alt) + EncodeOptions().check_margin_db:
-        assert len(images) >= 1 and "side info" not in rep.info
-        assert all(v["residual"]["scale"] == chosen for v in views if "residual" in v)
+    assert [cand.scale for cand in d.candidates] == [2, 4] and d.scale in (2, 4)
+    assert all(cand.payload_bytes > 0 and cand.render_gain_db is not None for cand in d.candidates)
+    if d.refined_db >= max(d.coded_db, d.rival_db) + EncodeOptions().check_margin_db:
+        assert d.outcome is Outcome.SENT and len(images) >= 1
+        assert all(v["residual"]["scale"] == d.scale for v in views if "residual" in v)
     else:
+        assert d.outcome in (Outcome.SPENT_ON_ATTRIBUTES, Outcome.DROPPED)
         assert not images and not views and c.find("SIDE", 0) is None
-        assert "instead" in rep.info["side info"] or "dropped" in rep.info["side info"]
-
-
-def nums_text(check: str) -> list[str]:
-    """'at N unsent views: coded A dB, refined B dB, same bytes on attributes C dB' -> the three numbers."""
-    return [part.strip().removesuffix(" dB") for part in check.split(": ", 1)[1].split(",")]
 
 
 @pytest.mark.slow
@@ -141,9 +137,11 @@ def test_long_check_runs_a_short_one_first(tmp_path):
     write_ply(scene(seed=5), src)
     out = tmp_path / "c.gspc"
     rep = encode(src, out, opts=EncodeOptions(lam=40, synth_views=5, max_side=32, check_iterations=500))
-    assert "check" in rep.info and container.read(out).header["side_info"]["refine_iterations"] == 500
-    if "short check" in rep.info:  # refinement hurt after 50 iterations: the long run was skipped
-        assert "50 iterations" in rep.info["short check"] and "side info" in rep.info
+    d = rep.side_info
+    assert d is not None and container.read(out).header["side_info"]["refine_iterations"] == 500
+    assert d.short_iterations == 50
+    if d.short_check_failed:  # refinement hurt after 50 iterations: the long run was skipped
+        assert d.refined_db < d.coded_db and d.outcome is not Outcome.SENT
 
 
 def test_decoder_refines_inside_the_quantisation_cells(encoded, tmp_path):
@@ -156,7 +154,7 @@ def test_decoder_refines_inside_the_quantisation_cells(encoded, tmp_path):
     cells = quantisation_cells(coded, c.header["attributes"])
     inside, free = tmp_path / "a.ply", tmp_path / "b.ply"
     rep = decode(out, inside, DecodeOptions(iterations=5))
-    assert rep.info["refine"] == "5 iterations"
+    assert rep.refine_iterations == 5
     decode(out, free, DecodeOptions(iterations=5, in_cells=False))
     a, b = read_scene(inside), read_scene(free)
     for name in ("means", "log_scales", "sh_dc"):
@@ -176,3 +174,14 @@ def test_bad_refine_iterations_are_refused(encoded, tmp_path, value):
     with pytest.raises(CodecError, match="refine_iterations"):
         decode(bad, dst)
     assert not dst.exists()
+
+
+def test_memory_api_matches_the_path_api(encoded, tmp_path):
+    src, out, rep = encoded
+    opts = EncodeOptions(lam=40, synth_views=5, max_side=40, check_iterations=0)
+    data, mem = encode_scene(read_scene(src), None, opts)
+    assert data == out.read_bytes() and mem.bytes == rep.bytes and mem.views == rep.views
+    scene, drep = decode_bytes(data, DecodeOptions(iterations=3))
+    dst = tmp_path / "d.ply"
+    decode(out, dst, DecodeOptions(iterations=3))
+    assert torch.equal(read_scene(dst).sh_dc, scene.sh_dc) and drep.refine_iterations == 3

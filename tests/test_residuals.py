@@ -4,14 +4,16 @@ import pytest
 
 from gspc.codec.residuals import (
     IMAGE_CODECS,
+    ResidualParams,
     choose_gain,
     decode_residual,
     encode_residual,
     plan_residual_rates,
+    quality_for_distance,
 )
 from gspc.errors import CodecError, InputError
 
-LEVELS = {"jxl": 1.0, "webp": 80, "avif": 80}
+DISTANCES = {"jxl": 1.0, "webp": 2.0, "avif": 2.0}  # WebP / AVIF: quality 80
 
 
 def _residual(seed=0, h=48, w=40, amp=0.05):
@@ -29,7 +31,7 @@ def _psnr(a, b):
 @pytest.mark.parametrize("codec", sorted(IMAGE_CODECS))
 def test_round_trip_each_codec(codec):
     r = _residual()
-    payload, meta = encode_residual(r, {"codec": codec, "level": LEVELS[codec]})
+    payload, meta = encode_residual(r, ResidualParams(codec=codec, distance=DISTANCES[codec]))
     meta = msgpack.unpackb(msgpack.packb(meta))  # meta travels as msgpack in the container
     out = decode_residual(payload, meta)
     assert out.shape == r.shape and out.dtype == np.float32
@@ -40,14 +42,14 @@ def test_round_trip_each_codec(codec):
 
 def test_jxl_16_bit_round_trip():
     r = _residual()
-    p16, m16 = encode_residual(r, {"codec": "jxl", "level": 0.5, "bits": 16})
+    p16, m16 = encode_residual(r, ResidualParams(codec="jxl", distance=0.5, bits=16))
     assert m16["bits"] == 16 and m16["offset"] == 32768
     assert _psnr(decode_residual(p16, m16), r) > _psnr(np.zeros_like(r), r) + 10
 
 
 def test_webp_refuses_16_bit():
     with pytest.raises(InputError):
-        encode_residual(_residual(), {"codec": "webp", "bits": 16})
+        encode_residual(_residual(), ResidualParams(codec="webp", bits=16))
 
 
 def test_gain_maps_percentile_to_range_and_is_capped():
@@ -64,7 +66,7 @@ def test_zero_residual_and_quiet_tiles():
     assert np.abs(decode_residual(payload, meta)).max() <= 1.0 / meta["gain"] + 1e-9
     r = _residual(h=64, w=64)
     r[:32] *= 1e-3  # top half negligible
-    _, meta = encode_residual(r, {"tile": 32, "zero_rms": 1e-3})
+    _, meta = encode_residual(r, ResidualParams(tile=32, zero_rms=1e-3))
     assert meta["zeroed_tiles"] == 2
 
 
@@ -72,7 +74,7 @@ def test_bad_input_and_payload():
     with pytest.raises(InputError):
         encode_residual(np.zeros((8, 8), np.float32))
     with pytest.raises(CodecError):
-        encode_residual(_residual(), {"codec": "nope"})
+        encode_residual(_residual(), ResidualParams(codec="nope"))
     payload, meta = encode_residual(_residual())
     with pytest.raises(CodecError):
         decode_residual(payload[: len(payload) // 3], meta)
@@ -104,9 +106,23 @@ def test_reduced_resolution_round_trip():
         assert back.shape == smooth.shape
         # A smooth field survives the box/bilinear pair far better than it is large.
         assert np.abs(back - smooth).mean() < 0.2 * np.abs(smooth).mean()
-        payload, meta = encode_residual(smooth, {"level": 1.0, "scale": s})
+        payload, meta = encode_residual(smooth, ResidualParams(distance=1.0, scale=s))
         assert meta["scale"] == s and meta["full_shape"] == [37, 50]
         assert decode_residual(payload, meta).shape == (37, 50, 3)
     # Constant images are reproduced exactly by both directions.
     c = np.full((9, 7, 3), 0.25, np.float32)
     assert np.allclose(upsample(downsample(c, 4), 4, 9, 7), 0.25)
+
+
+@pytest.mark.parametrize("codec", sorted(IMAGE_CODECS))
+def test_distance_means_coarser_for_every_codec(codec):
+    r = _residual(h=64, w=64)
+    fine, _ = encode_residual(r, ResidualParams(codec=codec, distance=1.0))
+    coarse, _ = encode_residual(r, ResidualParams(codec=codec, distance=6.0))
+    assert len(coarse) < len(fine)
+    assert quality_for_distance(2.0) == 80.0 and quality_for_distance(20) == 0.0
+
+
+def test_misspelt_residual_knob_is_refused():
+    with pytest.raises(TypeError):
+        ResidualParams(level=2.0)  # the knob is called distance

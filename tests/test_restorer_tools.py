@@ -23,11 +23,11 @@ from make_restorer_data import (  # noqa: E402
     make_data,
     parse_rates,
     parse_scene,
-    side_info_from_npz,
     side_info_symbols,
 )
 
 from gspc.codec import residuals  # noqa: E402
+from gspc.restore.data import side_info_from_npz  # noqa: E402
 
 
 def _tiny_scene(path: Path, seed: int) -> None:
@@ -102,7 +102,7 @@ def test_stored_side_info_is_what_the_decoder_gets(scale):
     z = {"residual": r, "q_0": sym["q"], "gain_0": sym["gain"], "offset_0": sym["offset"]}
     if scale != 1:
         z["scale_0"] = sym["scale"]
-    payload, meta = residuals.encode_residual(r, {"level": 4.0, "scale": scale})
+    payload, meta = residuals.encode_residual(r, residuals.ResidualParams(distance=4.0, scale=scale))
     assert np.array_equal(side_info_from_npz(z, 0), residuals.decode_residual(payload, meta))
     assert parse_rates("low,12:8:2")[1].scale == 2 and parse_rates("low")[0].scale >= 1
 

@@ -19,11 +19,11 @@ from scenes import random_scene
 from gspc.codec import container
 from gspc.codec.attributes import decode_attributes, encode_attributes
 from gspc.codec.entropy import _categorical, decode_matrix, encode_matrix, fixed_point_table
-from gspc.codec.presets import PRESETS
 from gspc.codec.sideinfo import side_views
 from gspc.errors import CodecError
 from gspc.io import read_scene
 from gspc.pipeline import EncodeOptions, encode
+from gspc.presets import QUALITY
 
 ROOT = Path(__file__).resolve().parents[1]
 SPEC = (ROOT / "spec" / "gspc-format.md").read_text()
@@ -123,7 +123,7 @@ def assert_same(attrs: dict[str, np.ndarray], scene) -> None:
     ],
 )
 def test_spec_reader_decodes_encoder_output(n, degree, preset, lam):
-    params = PRESETS[preset] if lam is None else PRESETS[preset].with_lambda(lam)
+    params = QUALITY[preset].attributes if lam is None else QUALITY[preset].attributes.with_lambda(lam)
     data, enc = attribute_file(random_scene(n=n, sh_degree=degree, seed=n), params)
     attrs, views = sr.read_scene(data)
     assert_same(attrs, enc.decoded)
@@ -135,7 +135,7 @@ def test_spec_reader_decodes_a_contracted_position_grid():
     scene = random_scene(n=500, sh_degree=1, seed=5)
     far = np.random.default_rng(5).normal(size=(25, 3)).astype(np.float32) * 300.0
     scene.means[:25] += torch.from_numpy(far)
-    data, enc = attribute_file(scene, PRESETS["low"])
+    data, enc = attribute_file(scene, QUALITY["low"].attributes)
     assert enc.meta["version"] == 2
     assert_same(sr.read_scene(data)[0], enc.decoded)
 
@@ -143,7 +143,8 @@ def test_spec_reader_decodes_a_contracted_position_grid():
 @pytest.mark.slow
 def test_spec_reader_decodes_the_example_scene():
     """The 20k-Gaussian lego example at the low preset: every decoded value the same."""
-    data, enc = attribute_file(read_scene(ROOT / "examples" / "lego" / "point_cloud.ply"), PRESETS["low"])
+    lego = read_scene(ROOT / "examples" / "lego" / "point_cloud.ply")
+    data, enc = attribute_file(lego, QUALITY["low"].attributes)
     assert_same(sr.read_scene(data)[0], enc.decoded)
 
 

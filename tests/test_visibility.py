@@ -2,7 +2,8 @@
 
 import numpy as np
 
-from gspc.cameras import Camera, look_at
+from gspc.cameras import Camera
+from gspc.views import look_at
 from gspc.visibility import visible_mask
 
 

@@ -29,17 +29,19 @@ import torch
 import typer
 import zstandard
 
-from gspc.cameras import load_cameras, synthesize_views
 from gspc.codec.attributes import decode_attributes, encode_attributes
-from gspc.codec.presets import PRESETS
+from gspc.format.chunks import ATTRIBUTE_TYPES
 from gspc.io import read_scene, write_ply
+from gspc.io.camera_files import load_cameras
 from gspc.metrics import psnr, quantize8, ssim
+from gspc.presets import QUALITY
 from gspc.render import render
 from gspc.scene import GaussianScene, make_scene, num_sh_rest
+from gspc.views import synthesize_views
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared" / "data"
-GROUPS = ("POSN", "OPAC", "SCAL", "ROTN", "SHDC", "SHRS")
+GROUPS = ATTRIBUTE_TYPES
 FIT = ROOT.parent / "fits" / "lego200_20k" / "point_cloud.ply"
 LAMBDAS = (0.5, 1.0, 2.0, 4.0, 8.0, 16.0)
 
@@ -232,8 +234,8 @@ def bench_scene(name: str, scene: GaussianScene, cams, bg: float, rows: list, cu
     spz_size, spz_dec = spz_style(scene)
     spz_psnr = add("SPZ-style", spz_size, "", renders(spz_dec), time.perf_counter() - t, 0.0, n)
     curve = []
-    points = [(k, v) for k, v in PRESETS.items()] + [
-        (f"lam={lam}", PRESETS["high"].with_lambda(lam)) for lam in LAMBDAS
+    points = [(k, QUALITY[k].attributes) for k in ("high", "low")] + [
+        (f"lam={lam}", QUALITY["high"].attributes.with_lambda(lam)) for lam in LAMBDAS
     ]
     summary = {"sh": scene.sh_degree, "spz_bpg": spz_size / n, "spz_psnr": spz_psnr}
     for label, params in points:
@@ -249,7 +251,7 @@ def bench_scene(name: str, scene: GaussianScene, cams, bg: float, rows: list, cu
         )
         p = add(label, enc.num_bytes, groups, renders(enc.decoded), enc_s, dec_s, len(enc.kept))
         curve.append((enc.num_bytes / n, p))
-        if label in PRESETS:
+        if label in QUALITY:
             summary[label] = (enc.num_bytes / n, p)
     curves[name] = curve
     curves.setdefault("_spz", []).append((spz_size / n, spz_psnr))

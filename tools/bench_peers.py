@@ -28,10 +28,12 @@ import numpy as np
 import torch
 import typer
 
-from gspc.cameras import load_cameras, save_cameras_json, split_test_views
 from gspc.io import read_scene
+from gspc.io.camera_files import load_cameras
+from gspc.io.cameras_json import save_cameras_json
 from gspc.metrics import psnr, quantize8
 from gspc.pipeline import DecodeOptions, EncodeOptions, decode, encode, render_images
+from gspc.views import split_test_views
 
 
 def mean_psnr(images: list[torch.Tensor], targets: list[torch.Tensor]) -> float:

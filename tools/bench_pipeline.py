@@ -26,20 +26,19 @@ import numpy as np
 import torch
 import typer
 
-from gspc.cameras import (
-    Camera,
-    load_cameras,
-    sample_views,
-    save_cameras_json,
-    split_test_views,
-    synthesize_views,
-)
+from gspc.cameras import Camera
 from gspc.codec import container
 from gspc.codec.sideinfo import side_views
+from gspc.format.chunks import RESI, SIDE
+from gspc.format.header import FileHeader
 from gspc.io import read_scene
+from gspc.io.camera_files import load_cameras
+from gspc.io.cameras_json import save_cameras_json
 from gspc.metrics import psnr, quantize8, ssim
-from gspc.pipeline import DecodeOptions, EncodeOptions, decode, encode, render_images
+from gspc.pipeline import DecodeOptions, EncodeOptions, decode, encode
 from gspc.restore.restorer import available_restorers
+from gspc.stages import render_images
+from gspc.views import sample_views, split_test_views, synthesize_views
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
 
@@ -155,7 +154,7 @@ def run_point(
         n=rep.num_gaussians_out,
         encode_s=enc_s,
         decode_s=dec_s,
-        side=sum(v for k, v in rep.bytes.items() if k in ("RESI", "SIDE")),
+        side=sum(v for k, v in rep.bytes.items() if k in (RESI, SIDE)),
         refine=rep.info.get("refine", "none"),
         scale=_residual_scale(gfile),
     )
@@ -165,7 +164,7 @@ def run_point(
 def _residual_scale(path: Path) -> int | None:
     """The resolution divisor of the file's residuals (None: no side information)."""
     c = container.read(path)
-    views, _ = side_views(c.header["side_info"], c.chunks)
+    views, _ = side_views(FileHeader.from_dict(c.header).side_info.to_dict(), c.chunks)
     scales = {v["residual"].get("scale", 1) for v in views if "residual" in v}
     return scales.pop() if len(scales) == 1 else None
 

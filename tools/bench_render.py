@@ -135,7 +135,7 @@ def main() -> None:
         "jobs); peak MB is the growth of the process's max RSS "
         "during the first call (forward: a no-grad forward; then forward + backward).",
         "",
-        "For comparison, FINDINGS.md's earlier ~360-line design (sparse scenes): 20k 256x256 0.30 / 0.55 s, "
+        "For comparison, an earlier ~360-line design (sparse scenes): 20k 256x256 0.30 / 0.55 s, "
         "100k 400x300 0.57 / 1.63 s, 100k 800x600 1.37 / 3.99 s (fwd / fwd+bwd).",
         "",
         "| N | image | camera distance | drawn | tile pairs | mean alpha | fwd s | fwd+bwd s | fwd CPU s "

@@ -24,7 +24,14 @@ import numpy as np
 import torch
 from scipy.ndimage import gaussian_filter
 
-from gspc.codec.residuals import IMAGE_CODECS, decode_residual, encode_residual, plan_residual_rates
+from gspc.codec.residuals import (
+    IMAGE_CODECS,
+    ResidualParams,
+    decode_residual,
+    encode_residual,
+    plan_residual_rates,
+    quality_for_distance,
+)
 from gspc.restore.nafnet import NAFNet, count_parameters
 from gspc.restore.restorer import Restorer
 
@@ -39,7 +46,9 @@ NAFNET_CONFIGS = {
     },
 }
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "lego" / "train"
-KNOBS = {"jxl": [0.5, 1, 2, 3, 4, 6, 8], "webp": [5, 20, 40, 60, 80, 95], "avif": [10, 25, 40, 55, 70, 85]}
+# Distances (gspc/codec/residuals.py): WebP's are qualities 5, 20, 40, 60, 80, 95 and AVIF's 10, 25, 40, 55,
+# 70, 85 (quality = 100 - 10 distance).
+KNOBS = {"jxl": [0.5, 1, 2, 3, 4, 6, 8], "webp": [9.5, 8, 6, 4, 2, 0.5], "avif": [9, 7.5, 6, 4.5, 3, 1.5]}
 # (blur sigma, quantisation levels) per view, cycling: mild to strong degradation.
 DEGRADE = [(0.6, 64), (1.0, 32), (1.5, 24), (0.8, 48), (2.0, 16), (0.5, 128), (1.2, 32), (0.7, 96)]
 
@@ -61,7 +70,7 @@ def psnr(a: np.ndarray, b: np.ndarray) -> float:
     return float(10 * np.log10(1.0 / max(np.mean((a.astype(np.float64) - b) ** 2), 1e-20)))
 
 
-def run(residuals, params: dict) -> tuple[int, float, float, float]:
+def run(residuals, params: ResidualParams) -> tuple[int, float, float, float]:
     """Total bytes, mean PSNR, mean encode ms, mean decode ms over views."""
     size, scores, enc_t, dec_t = 0, [], [], []
     for r in residuals:
@@ -83,7 +92,7 @@ def run_plan(residuals, distances) -> tuple[int, float, float]:
     for r, d in zip(residuals, distances, strict=True):
         rt = np.zeros_like(r)
         if d is not None:
-            payload, meta = encode_residual(r, {"codec": "jxl", "level": d})
+            payload, meta = encode_residual(r, ResidualParams(codec="jxl", distance=d))
             size += len(payload)
             rt = decode_residual(payload, meta)
         scores.append(psnr(rt, r))
@@ -125,15 +134,15 @@ def main() -> None:
         "|---|---|---|---|---|---|---|",
     ]
     for codec in IMAGE_CODECS:
-        for level in KNOBS[codec]:
-            size, score, te, td = run(res, {"codec": codec, "level": level})
-            knob = "distance" if codec == "jxl" else "quality"
+        for distance in KNOBS[codec]:
+            size, score, te, td = run(res, ResidualParams(codec=codec, distance=distance))
+            knob = f"distance {distance}" if codec == "jxl" else f"quality {quality_for_distance(distance):g}"
             lines.append(
-                f"| {codec} | {knob} {level} | {size // len(res)} | {8 * size / pixels:.3f} | {score:.2f} "
+                f"| {codec} | {knob} | {size // len(res)} | {8 * size / pixels:.3f} | {score:.2f} "
                 f"| {te:.1f} | {td:.1f} |"
             )
     for level in [0.5, 1, 2, 4]:
-        size, score, te, td = run(res, {"codec": "jxl", "level": level, "bits": 16})
+        size, score, te, td = run(res, ResidualParams(codec="jxl", distance=level, bits=16))
         lines.append(
             f"| jxl 16-bit | distance {level} | {size // len(res)} | {8 * size / pixels:.3f} | {score:.2f} "
             f"| {te:.1f} | {td:.1f} |"
@@ -147,7 +156,7 @@ def main() -> None:
         "|---|---|---|",
     ]
     for pct in [99.0, 99.9, 100.0]:
-        size, score, _, _ = run(res, {"codec": "jxl", "level": 2, "percentile": pct})
+        size, score, _, _ = run(res, ResidualParams(codec="jxl", distance=2, percentile=pct))
         lines.append(f"| {pct} | {size // len(res)} | {score:.2f} |")
 
     lines += [
@@ -176,7 +185,7 @@ def main() -> None:
         "|---|---|---|",
     ]
     for zr in [0.0, 0.5 / 255, 1 / 255, 2 / 255]:
-        size, score, _, _ = run(res, {"codec": "jxl", "level": 2, "zero_rms": zr})
+        size, score, _, _ = run(res, ResidualParams(codec="jxl", distance=2, zero_rms=zr))
         lines.append(f"| {zr:.5f} | {size // len(res)} | {score:.2f} |")
 
     lines += [

@@ -25,15 +25,15 @@ import numpy as np
 import torch
 import typer
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from train_restorer import load_view, read_manifest, validate  # noqa: E402
-
-from gspc.cameras import limit_size, sample_views, synthesize_views  # noqa: E402
-from gspc.io import read_scene  # noqa: E402
-from gspc.metrics import psnr, quantize8  # noqa: E402
-from gspc.pipeline import DecodeOptions, EncodeOptions, decode, encode, render_images  # noqa: E402
-from gspc.restore.nafnet import count_parameters  # noqa: E402
-from gspc.restore.restorer import load_restorer  # noqa: E402
+from gspc.io import read_scene
+from gspc.metrics import psnr, quantize8
+from gspc.options import DecodeOptions, EncodeOptions
+from gspc.pipeline import decode, encode
+from gspc.restore.data import load_view, read_manifest, validate
+from gspc.restore.nafnet import count_parameters
+from gspc.restore.restorer import load_restorer
+from gspc.stages import render_images
+from gspc.views import limit_size, sample_views, synthesize_views
 
 
 def restoration_table(data_dir: Path, name: str) -> tuple[list[str], dict]:

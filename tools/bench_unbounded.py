@@ -27,14 +27,15 @@ import numpy as np
 import torch
 import typer
 
-from gspc.cameras import Camera, robust_bounds, synthesize_views
+from gspc.cameras import Camera
 from gspc.codec import positions
 from gspc.codec.attributes import encode_attributes
-from gspc.codec.presets import PRESETS
 from gspc.io import read_scene
 from gspc.metrics import psnr, quantize8
+from gspc.presets import QUALITY
 from gspc.render import render
 from gspc.scene import GaussianScene
+from gspc.views import robust_bounds, synthesize_views
 
 
 def add_background(
@@ -89,7 +90,7 @@ def code(
     masks: list[torch.Tensor],
     plain: bool,
 ) -> Score:
-    params = PRESETS["low"].with_lambda(lam)
+    params = QUALITY["low"].attributes.with_lambda(lam)
     t0 = time.perf_counter()
     if plain:  # format 1.1's grid: one box over every Gaussian
         with mock.patch.object(positions, "region_of_interest", lambda means: None):

@@ -35,11 +35,15 @@ import torch
 import torch.nn.functional as F
 import typer
 
-from gspc.cameras import Camera, load_cameras, load_colmap_points, save_cameras_json, split_test_views
+from gspc.cameras import Camera
 from gspc.io import write_ply
+from gspc.io.camera_files import load_cameras
+from gspc.io.cameras_json import save_cameras_json
+from gspc.io.colmap import load_colmap_points
 from gspc.metrics import psnr, quantize8, ssim
 from gspc.render import render
 from gspc.scene import GaussianScene, num_sh_rest
+from gspc.views import split_test_views
 
 C0 = 0.28209479177387814
 

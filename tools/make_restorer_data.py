@@ -5,10 +5,10 @@
         --scene /work/fits/lego200_20k/point_cloud.ply,cameras=/work/fits/lego200_20k/cameras.json,bg=1 \
         --scene ../shared/data/statues/massa.sog,split=val
 
-For every scene and rate point (attribute lambda, base JPEG XL distance) the encoder's path is
-replayed exactly as gspc.pipeline.encode runs it: cameras (loaded, or synthesised as the encoder
-does), shrunk to at most 400 px, visibility mask, encode_attributes -> G~, clamped renders I and
-I~ on the scene's background, R = clamp(I) - clamp(I~), per-view distances from
+For every scene and rate point (attribute lambda, base residual distance) the encoder's own stages
+run (gspc/encoder/stages.py): cameras (loaded, or synthesised as the encoder does), shrunk to at most
+400 px, the views in their stored form, visibility mask and attribute coding -> G~, clamped renders I
+and I~ on the scene's background, R = clamp(I) - clamp(I~), per-view distances from
 plan_residual_rates, residuals coded (at the rate point's residual scale) and decoded with
 encode_residual/decode_residual.
 Each (scene, rate, view) becomes one ``.npz``: ``degraded`` (I~, float16), ``residual`` (R,
@@ -37,17 +37,17 @@ import torch
 import typer
 
 from gspc.atomic import atomic_write, atomic_write_bytes
-from gspc.cameras import limit_size, load_cameras, sample_views, synthesize_views
 from gspc.codec import residuals
-from gspc.codec.attributes import encode_attributes
+from gspc.encoder.side import view_residuals
+from gspc.encoder.stages import code_attributes, codec_params, encoder_cameras, sample_side_views
 from gspc.errors import GspcError, InputError
 from gspc.io import read_scene
-from gspc.pipeline import EncodeOptions, render_images
+from gspc.io.camera_files import load_cameras
+from gspc.options import EncodeOptions
 from gspc.presets import QUALITY
-from gspc.visibility import visible_mask
+from gspc.restore.data import FORMAT, MANIFEST
+from gspc.stages import render_images
 
-MANIFEST = "manifest.json"
-FORMAT = 1
 DEFAULT_RATES = "low,high,3:3"
 DEFAULT_DISTANCES = "1.5,3,6"
 
@@ -67,7 +67,7 @@ class SceneSpec:
 class RatePoint:
     name: str
     lam: float
-    distance: float  # base JPEG XL distance handed to plan_residual_rates
+    distance: float  # base residual distance handed to plan_residual_rates
     scale: int = 1  # residuals coded at 1/scale resolution, as the preset's residual_scale
 
 
@@ -112,7 +112,7 @@ def parse_rates(text: str) -> list[RatePoint]:
     for item in text.split(","):
         if item in QUALITY:
             q = QUALITY[item]
-            out.append(RatePoint(item, float(q.attributes.lam), float(q.residual_level), q.residual_scale))
+            out.append(RatePoint(item, float(q.attributes.lam), float(q.residual_distance), q.residual_scale))
             continue
         parts = item.split(":")
         if len(parts) not in (2, 3):
@@ -131,7 +131,8 @@ def side_info_symbols(
     gain/offset/scale (gain 0: not sent)."""
     if distance is None:
         return {"q": np.zeros(r.shape, np.uint8), "gain": np.float32(0.0), "offset": np.float32(0.0)}
-    payload, meta = residuals.encode_residual(r, {"codec": codec, "level": float(distance), "scale": scale})
+    params = residuals.ResidualParams(codec=codec, distance=float(distance), scale=scale)
+    payload, meta = residuals.encode_residual(r, params)
     decoded = residuals.decode_residual(payload, {**meta, "scale": 1})  # the symbols, before upsampling
     gain, offset = np.float32(meta["gain"]), np.float32(meta["offset"])
     # decode_residual returns (q - offset) / gain in float32; q comes back exactly by rounding.
@@ -144,26 +145,27 @@ def side_info_symbols(
     return out
 
 
-def side_info_from_npz(data, k: int) -> np.ndarray:
-    """Decoded R~ number ``k`` of a stored view (float32, exactly as decode_residual gives it)."""
-    gain = np.float32(data[f"gain_{k}"])
-    h, w = data["residual"].shape[:2]
-    if gain == 0:
-        return np.zeros((h, w, 3), np.float32)
-    r = ((data[f"q_{k}"].astype(np.float32) - np.float32(data[f"offset_{k}"])) / gain).astype(np.float32)
-    scale = int(data[f"scale_{k}"]) if f"scale_{k}" in data else 1
-    return residuals.upsample(r, scale, h, w) if scale != 1 else r
+def encode_options(
+    spec: SceneSpec, rate: RatePoint | None, max_side: int = EncodeOptions.max_side
+) -> EncodeOptions:
+    """The encoder's options for a scene at a rate point (the low preset's, with the rate's lambda)."""
+    fraction = spec.fraction if spec.fraction is not None else (1.0 if spec.split == "train" else 0.4)
+    return EncodeOptions(
+        quality="low",
+        lam=rate.lam if rate is not None else None,
+        views_fraction=fraction,
+        synth_views=spec.views,
+        max_side=max_side,
+        background=(spec.background,) * 3,
+    )
 
 
 def scene_cameras(spec: SceneSpec, scene, max_side: int) -> tuple[list, list]:
-    """(every camera, the ones rendered): the encoder's visibility mask uses them all."""
-    if spec.cameras is not None:
-        cams = load_cameras(spec.cameras)
-    else:
-        cams = synthesize_views(scene, spec.views)
-    cams = limit_size(cams, max_side)
-    fraction = spec.fraction if spec.fraction is not None else (1.0 if spec.split == "train" else 0.4)
-    return cams, ([cams[i] for i in sample_views(cams, fraction)] if fraction < 1 else cams)
+    """(every camera, the ones rendered), by the encoder's own stages: its visibility mask uses them all,
+    and the rendered ones are in their stored form, as the decoder reads them."""
+    opts = encode_options(spec, None, max_side)
+    cams = encoder_cameras(scene, load_cameras(spec.cameras) if spec.cameras is not None else None, opts)
+    return cams, sample_side_views(cams, opts)[1]
 
 
 def make_scene_rate(
@@ -184,15 +186,16 @@ def make_scene_rate(
     todo = [i for i, f in enumerate(files) if not f.is_file()]
     if todo:
         # The plan depends on every view's residual, so a partial set is redone as a whole.
-        params = QUALITY["low"].attributes.with_lambda(rate.lam)
-        visible = visible_mask(scene.means.numpy(), scene.log_scales.numpy(), all_cams)
-        enc = encode_attributes(scene, params, visible=visible)
-        bg = (spec.background,) * 3
+        # The encoder's own stages (gspc/encoder/stages.py, gspc/encoder/side.py), so the restorer learns
+        # from what the encoder sends.
+        opts = encode_options(spec, rate)
+        enc = code_attributes(scene, all_cams, codec_params(opts)).encoded
+        bg = opts.background
         res, degr = [], []
         for i, cam in enumerate(cams):
             original = render_images(scene, [cam], bg)[0]
             coded = render_images(enc.decoded, [cam], bg)[0]
-            res.append((original - coded).numpy().astype(np.float32))
+            res += view_residuals([original], [coded])
             degr.append(coded.numpy())
             progress(f"{spec.name}/{rate.name} render", i + 1, len(cams))
         plan = residuals.plan_residual_rates(res, rate.distance)

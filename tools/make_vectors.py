@@ -682,9 +682,9 @@ def tiny_scene(n: int, degree: int, seed: int, rest_fraction: float = 0.5):
 def encode_scene(scene) -> tuple[dict, dict[str, bytes]]:
     """(meta["attributes"], attribute payloads) from gspc's attribute encoder at the low preset."""
     from gspc.codec.attributes import encode_attributes
-    from gspc.codec.presets import PRESETS
+    from gspc.presets import QUALITY
 
-    enc = encode_attributes(scene, PRESETS["low"])
+    enc = encode_attributes(scene, QUALITY["low"].attributes)
     return enc.meta, enc.chunks
 
 

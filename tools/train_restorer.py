@@ -24,49 +24,25 @@ import csv
 import json
 import math
 import os
-import sys
 import time
 from pathlib import Path
 
-import numpy as np
 import torch
 import torch.distributed as dist
 import torch.nn.functional as F
 import typer
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from make_restorer_data import MANIFEST, side_info_from_npz  # noqa: E402
-
 from gspc.atomic import atomic_write
-from gspc.metrics import LPIPS, psnr, quantize8, ssim  # noqa: E402
-from gspc.restore.nafnet import NAFNet, count_parameters  # noqa: E402
-from gspc.restore.restorer import Restorer, save_restorer  # noqa: E402
+from gspc.metrics import LPIPS, ssim
+from gspc.restore.data import load_view, read_manifest, validate
+from gspc.restore.nafnet import NAFNet, count_parameters
+from gspc.restore.restorer import save_restorer
 
 LOG_FIELDS = "step epoch lr loss l1 ssim_term val_side_db val_restored_db val_gain_db s".split()
 
 
 # ---------------------------------------------------------------------------------------------
 # Data
-
-
-def read_manifest(data_dir: Path) -> list[dict]:
-    path = data_dir / MANIFEST
-    if not path.is_file():
-        raise SystemExit(f"{path} does not exist: run tools/make_restorer_data.py first")
-    return json.loads(path.read_text())["entries"]
-
-
-def load_view(data_dir: Path, entry: dict) -> dict:
-    """One stored view as CHW tensors: I~ and R in float16, every R~ in float16."""
-    with np.load(data_dir / entry["file"]) as z:
-        n = len(z["distances"])
-        side = [torch.from_numpy(side_info_from_npz(z, k)).permute(2, 0, 1).half() for k in range(n)]
-        return {
-            "degraded": torch.from_numpy(z["degraded"]).permute(2, 0, 1).contiguous(),
-            "residual": torch.from_numpy(z["residual"]).permute(2, 0, 1).contiguous(),
-            "side": [s.contiguous() for s in side],
-            "entry": entry,
-        }
 
 
 def sample_batch(
@@ -113,31 +89,6 @@ def sample_batch(
 
 # ---------------------------------------------------------------------------------------------
 # Validation
-
-
-@torch.no_grad()
-def validate(model: NAFNet, views: list[dict], rate: str | None = None) -> dict:
-    """Mean PSNR (dB) over whole views of I~, I~ + R~ (planned distance) and the restored view."""
-    restorer = Restorer("candidate", model)
-    side_only = Restorer("none", None)
-    sums = {"degraded": [], "side": [], "restored": []}
-    try:
-        for v in views:
-            if rate is not None and v["entry"]["rate"] != rate:
-                continue
-            d = v["degraded"].float().permute(1, 2, 0)
-            r = v["residual"].float().permute(1, 2, 0)
-            s = v["side"][0].float().permute(1, 2, 0)
-            ref = quantize8(d + r)
-            sums["degraded"].append(float(psnr(quantize8(d), ref)))
-            sums["side"].append(float(psnr(quantize8(side_only.restore(d, s)), ref)))
-            sums["restored"].append(float(psnr(quantize8(restorer.restore(d, s)), ref)))
-    finally:
-        model.train()
-    out = {k: float(np.mean(v)) if v else float("nan") for k, v in sums.items()}
-    out["gain"] = out["restored"] - out["side"]
-    out["views"] = len(sums["side"])
-    return out
 
 
 # ---------------------------------------------------------------------------------------------

@@ -10,8 +10,8 @@ Chunks (bytes, stored by the container under these types):
   largest is ``sqrt(1 - sum of squares)``. Rotation error bound: :func:`rotation_error_bound`.
 - ``SHDC`` ``q = round(dc / step)``; ``SHRS`` per-Gaussian flag (any non-zero SH rest symbol), then
   only flagged Gaussians' SH rest, coefficient-major, steps growing with degree. No SHRS at degree 0.
-Each chunk is an :func:`gspc.codec.entropy.encode_matrix` payload (SHRS: a msgpack pair).
-Dequantisation runs in float64 with correctly rounded ops and casts to float32 at the end.
+Each chunk is an :func:`gspc.codec.entropy.encode_matrix` payload (SHRS: a msgpack pair). Each attribute's
+quantiser (quantise, exact dequantise and cell together) is in :mod:`gspc.codec.quantisers`.
 The byte layouts are specified in spec/gspc-format.md, section 10.
 """
 
@@ -25,18 +25,18 @@ import numpy as np
 import torch
 
 from gspc.codec import positions as pos
+from gspc.codec.attribute_header import (
+    CONTRACTED_VERSION,
+    FORMAT_VERSION,
+    GAUSSIANS_PER_BYTE,
+    check_attribute_header,
+)
 from gspc.codec.entropy import decode_matrix, encode_matrix
-from gspc.codec.presets import CodecParams
+from gspc.codec.params import CodecParams
+from gspc.codec.quantisers import OPACITY_FLOOR, SQRT_HALF, AttributeQuantisers, SmallestThreeQuantiser
 from gspc.errors import CodecError
+from gspc.format.chunks import ATTRIBUTE_TYPES, OPAC, POSN, ROTN, SCAL, SHDC, SHRS
 from gspc.scene import GaussianScene, num_sh_rest
-
-FORMAT_VERSION = 1
-# Version 2: the position grid may lie in contracted space (positions.py, spec 10.1); written only then, so
-# bounded scenes keep version 1 and their bytes.
-CONTRACTED_VERSION = 2
-SQRT_HALF = 0.7071067811865476  # float64 nearest to 1/sqrt(2)
-_LN2 = 0.6931471805599453
-OPACITY_FLOOR = 1.0 / 255.0
 
 
 @dataclass
@@ -52,77 +52,13 @@ class EncodedAttributes:
         return sum(len(c) for c in self.chunks.values()) + len(msgpack.packb(self.meta, use_bin_type=True))
 
 
-# ---------------------------------------------------------------------------------------------
-# Deterministic helpers
-
-
-def det_log(x: np.ndarray) -> np.ndarray:
-    """Natural log of positive float64 values using only correctly rounded IEEE operations."""
-    m, e = np.frexp(np.asarray(x, np.float64))
-    small = m < SQRT_HALF
-    m = np.where(small, m * 2.0, m)
-    e = np.where(small, e - 1, e).astype(np.float64)
-    t = (m - 1.0) / (m + 1.0)  # |t| <= 0.1716
-    t2 = t * t
-    acc = np.zeros_like(t)
-    for k in range(27, 0, -2):  # atanh series, Horner from the highest term
-        acc = acc * t2 + 1.0 / k
-    return 2.0 * t * acc + e * _LN2
-
-
 def rotation_error_bound(levels: int) -> float:
     """Largest rotation angle (radians) between a unit quaternion and its decoded version."""
-    step = 2.0 * SQRT_HALF / levels
-    e = math.sqrt(3.0) * step / 2.0  # norm of the three components' rounding errors
-    d = 2.0 * e * (math.sqrt(3.0) + e)  # error of the recomputed largest component (it is >= 1/2)
-    chord = math.sqrt(e * e + d * d)
-    return 4.0 * math.asin(min(1.0, chord / 2.0))
+    return SmallestThreeQuantiser(levels).error_bound()
 
 
 def _np(t: torch.Tensor) -> np.ndarray:
     return t.detach().cpu().numpy().astype(np.float64)
-
-
-# ---------------------------------------------------------------------------------------------
-# Per-attribute quantisers: encoder side (float -> int) and exact decoder side (int -> float32)
-
-
-def _opacity_quantise(logits: np.ndarray, levels: int) -> np.ndarray:
-    alpha = 1.0 / (1.0 + np.exp(-logits))
-    return np.rint(alpha * levels).astype(np.int64)
-
-
-def _opacity_dequantise(q: np.ndarray, levels: int) -> np.ndarray:
-    a = q.astype(np.float64) / float(levels)
-    a = np.clip(a, 0.25 / levels, 1.0 - 0.25 / levels)
-    return (det_log(a) - det_log(1.0 - a)).astype(np.float32)
-
-
-_OTHERS = np.array([[1, 2, 3], [0, 2, 3], [0, 1, 3], [0, 1, 2]])
-
-
-def _rotation_quantise(quats: np.ndarray, levels: int) -> np.ndarray:
-    q = quats / np.linalg.norm(quats, axis=1, keepdims=True)
-    big = np.argmax(np.abs(q), axis=1)
-    q = q * np.where(q[np.arange(len(q)), big] < 0, -1.0, 1.0)[:, None]
-    rest = np.take_along_axis(q, _OTHERS[big], axis=1)
-    step = 2.0 * SQRT_HALF / levels
-    comp = np.clip(np.rint((rest + SQRT_HALF) / step), 0, levels).astype(np.int64)
-    return np.concatenate([big[:, None].astype(np.int64), comp], axis=1)
-
-
-def _rotation_dequantise(sym: np.ndarray, levels: int) -> np.ndarray:
-    big = sym[:, 0]
-    if ((big < 0) | (big > 3)).any() or ((sym[:, 1:] < 0) | (sym[:, 1:] > levels)).any():
-        raise CodecError("rotation symbols outside their range")
-    step = 2.0 * SQRT_HALF / levels
-    rest = sym[:, 1:].astype(np.float64) * step - SQRT_HALF
-    ss = (rest[:, 0] * rest[:, 0] + rest[:, 1] * rest[:, 1]) + rest[:, 2] * rest[:, 2]
-    largest = np.sqrt(np.maximum(1.0 - ss, 0.0))
-    out = np.zeros((len(sym), 4))
-    out[np.arange(len(sym)), big] = largest
-    np.put_along_axis(out, _OTHERS[big], rest, axis=1)
-    return out.astype(np.float32)
 
 
 def _sh_steps(params: CodecParams, degree: int) -> list[float]:
@@ -133,12 +69,6 @@ def _sh_steps(params: CodecParams, degree: int) -> list[float]:
         growth = params.sh_degree_growth ** (deg - 1)
         steps.append(float(params.sh_step * params.lam**params.sh_lam_exponent * growth))
     return steps
-
-
-def _deadzone_round(x: np.ndarray, offset: float) -> np.ndarray:
-    """Round to nearest, but values within ``0.5 + offset`` steps of zero go to zero."""
-    mag = np.maximum(np.floor(np.abs(x) + 0.5 - offset), 0.0)
-    return (np.sign(x) * mag).astype(np.int64)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -192,32 +122,25 @@ def encode_attributes(
         "sh_steps": sh_steps,
     }
 
-    opac_q = _opacity_quantise(_np(scene.opacities)[kept], opacity_levels)
+    quant = AttributeQuantisers.from_meta(meta, params.sh_deadzone)
+    opac_q = quant.opacity.quantise(_np(scene.opacities)[kept])
     chunks = {
-        "POSN": pos.encode_positions(voxels, grid["bits"]),
-        "OPAC": encode_matrix(opac_q[:, None]),
-        "SCAL": encode_matrix(np.rint(_np(scene.log_scales)[kept] / scale_step).astype(np.int64)),
-        "ROTN": encode_matrix(_rotation_quantise(_np(scene.quats)[kept], rot_levels)),
-        "SHDC": encode_matrix(np.rint(_np(scene.sh_dc)[kept] / dc_step).astype(np.int64)),
+        POSN: pos.encode_positions(voxels, grid["bits"]),
+        OPAC: encode_matrix(opac_q[:, None]),
+        SCAL: encode_matrix(quant.scale.quantise(_np(scene.log_scales)[kept])),
+        ROTN: encode_matrix(quant.rotation.quantise(_np(scene.quats)[kept])),
+        SHDC: encode_matrix(quant.dc.quantise(_np(scene.sh_dc)[kept])),
     }
     if scene.sh_degree > 0:
-        rest = _np(scene.sh_rest)[kept] / np.asarray(sh_steps)[None, :, None]
-        q = _deadzone_round(rest, params.sh_deadzone).reshape(len(kept), -1)
+        q = quant.sh_rest.quantise(_np(scene.sh_rest)[kept])
         # Faint Gaussians' view-dependent colour hardly shows: drop it (flag 0), an encoder-only choice.
         faint = opac_q.astype(np.float64) < min(0.5, params.sh_faint_alpha * lam) * opacity_levels
         flags = (q != 0).any(axis=1) & ~faint
-        chunks["SHRS"] = msgpack.packb(
+        chunks[SHRS] = msgpack.packb(
             [encode_matrix(flags[:, None].astype(np.int64)), encode_matrix(q[flags])], use_bin_type=True
         )
     decoded = decode_attributes(chunks, meta)
     return EncodedAttributes(chunks=chunks, meta=meta, decoded=decoded, kept=kept)
-
-
-ATTRIBUTE_TYPES = ("POSN", "OPAC", "SCAL", "ROTN", "SHDC", "SHRS")
-MAX_GAUSSIANS = 1 << 26
-# A Gaussian whose every symbol has a one-value model costs no bits, so the count alone could ask for any
-# allocation from a tiny file; spec 10.0 caps it at 64 per payload byte (real files: under 1 per byte).
-GAUSSIANS_PER_BYTE = 64
 
 
 def attribute_chunks(chunks: list) -> dict[str, bytes]:
@@ -237,70 +160,34 @@ def _matrix(chunks: dict[str, bytes], name: str, n: int, c: int) -> np.ndarray:
     return decode_matrix(chunks[name], (n, c))
 
 
-def _is_int(x: object) -> bool:
-    return isinstance(x, int) and not isinstance(x, bool)
-
-
-def _is_step(x: object) -> bool:
-    return isinstance(x, float) and math.isfinite(x) and x > 0
-
-
 def decode_attributes(chunks: dict[str, bytes], meta: dict) -> GaussianScene:
     """Decode chunks to a float32 scene in curve order; identical on every machine."""
-    try:
-        if not _is_int(meta["version"]) or meta["version"] not in (FORMAT_VERSION, CONTRACTED_VERSION):
-            raise CodecError(f"attribute codec version {meta['version']} is not supported")
-        n, degree = meta["n"], meta["sh_degree"]
-        grid = meta["position"]
-        bits, lo, step = grid["bits"], list(grid["lo"]), list(grid["step"])
-        opacity_levels, rot_levels = meta["opacity_levels"], meta["rotation_levels"]
-        scale_step, dc_step = meta["scale_step"], meta["dc_step"]
-        sh_steps = list(meta["sh_steps"])
-        if (meta["version"] == CONTRACTED_VERSION) != pos.is_contracted(grid):
-            raise CodecError("attribute codec version and position grid disagree on contraction")
-        if pos.is_contracted(grid):
-            centre, radius = list(grid["centre"]), grid["radius"]
-            finite = all(isinstance(v, float) and math.isfinite(v) for v in (*centre, radius))
-            if len(centre) != 3 or not finite or not radius > 0:
-                raise CodecError("attribute codec header's position centre or radius is not finite")
-    except (KeyError, TypeError, ValueError) as err:
-        raise CodecError(f"attribute codec header is malformed ({err})") from None
-    # Integers are msgpack integers and steps msgpack floats (spec 10.0): 300.0 Gaussians is refused.
-    if not all(_is_int(v) for v in (n, degree, bits, opacity_levels, rot_levels)):
-        raise CodecError(
-            "attribute codec header has a count, degree, bit depth or level that is not an integer"
-        )
-    if not 1 <= n <= MAX_GAUSSIANS or not 0 <= degree <= 3 or len(sh_steps) != num_sh_rest(degree):
-        raise CodecError("attribute codec header has an impossible count, SH degree or step list")
-    max_bits = pos.CONTRACTED_MAX_BITS if meta["version"] == CONTRACTED_VERSION else pos.MAX_BITS
-    if opacity_levels < 1 or rot_levels < 1 or not 1 <= bits <= max_bits:
-        raise CodecError("attribute codec header has impossible quantiser levels")
-    if not all(_is_step(v) for v in (scale_step, dc_step, *sh_steps, *step)) or len(step) != 3:
-        raise CodecError("attribute codec header has a step that is not a positive finite float")
-    if len(lo) != 3 or not all(isinstance(v, float) and math.isfinite(v) for v in lo):
-        raise CodecError("attribute codec header has a grid origin that is not 3 finite floats")
-    if degree == 0 and "SHRS" in chunks:
+    check_attribute_header(meta)
+    n, degree, grid = meta["n"], meta["sh_degree"], meta["position"]
+    bits = grid["bits"]
+    if degree == 0 and SHRS in chunks:
         raise CodecError("chunk SHRS in a file of SH degree 0")
     payload_bytes = sum(len(chunks.get(t, b"")) for t in ATTRIBUTE_TYPES)
     if n > GAUSSIANS_PER_BYTE * payload_bytes:
         raise CodecError(
             f"{n} Gaussians from {payload_bytes} payload bytes (at most {GAUSSIANS_PER_BYTE} per byte)"
         )
-    if "POSN" not in chunks:
+    if POSN not in chunks:
         raise CodecError("chunk POSN is missing")
-    voxels = pos.decode_positions(chunks["POSN"], bits, n)
+    voxels = pos.decode_positions(chunks[POSN], bits, n)
     means = pos.positions(voxels, grid)
-    opac = _opacity_dequantise(_matrix(chunks, "OPAC", n, 1)[:, 0], opacity_levels)
-    scales = (_matrix(chunks, "SCAL", n, 3).astype(np.float64) * scale_step).astype(np.float32)
-    quats = _rotation_dequantise(_matrix(chunks, "ROTN", n, 4), rot_levels)
-    dc = (_matrix(chunks, "SHDC", n, 3).astype(np.float64) * dc_step).astype(np.float32)
+    quant = AttributeQuantisers.from_meta(meta)
+    opac = quant.opacity.dequantise(_matrix(chunks, OPAC, n, 1)[:, 0])
+    scales = quant.scale.dequantise(_matrix(chunks, SCAL, n, 3))
+    quats = quant.rotation.dequantise(_matrix(chunks, ROTN, n, 4))
+    dc = quant.dc.dequantise(_matrix(chunks, SHDC, n, 3))
     k = num_sh_rest(degree)
     rest = np.zeros((n, k, 3), np.float32)
     if degree > 0:
-        if "SHRS" not in chunks:
+        if SHRS not in chunks:
             raise CodecError("chunk SHRS is missing")
         try:
-            flag_payload, rest_payload = msgpack.unpackb(chunks["SHRS"], raw=False)
+            flag_payload, rest_payload = msgpack.unpackb(chunks[SHRS], raw=False)
         except Exception:
             raise CodecError("chunk SHRS is malformed") from None
         if not (isinstance(flag_payload, bytes) and isinstance(rest_payload, bytes)):
@@ -310,8 +197,7 @@ def decode_attributes(chunks: dict[str, bytes], meta: dict) -> GaussianScene:
             raise CodecError("chunk SHRS has a malformed flag matrix")
         flags = flags[:, 0].astype(bool)
         q = decode_matrix(rest_payload, (int(flags.sum()), 3 * k))
-        vals = q.reshape(-1, k, 3).astype(np.float64) * np.asarray(sh_steps)[None, :, None]
-        rest[flags] = vals.astype(np.float32)
+        rest[flags] = quant.sh_rest.dequantise(q)
     t = torch.from_numpy
     return GaussianScene(t(means), t(quats), t(scales), t(opac), t(dc), t(rest), degree)
 

@@ -18,6 +18,7 @@ import msgpack
 
 from gspc.atomic import atomic_write_bytes
 from gspc.errors import FormatError, InputError
+from gspc.format.chunks import KNOWN_TYPES  # the registry of chunk types; the default of unpack and read
 
 MAGIC = b"\x89GSPC\r\n\x1a"
 END_MARKER = b"GEND"
@@ -34,7 +35,6 @@ MAX_U32 = (1 << 32) - 1
 MAX_DEPTH = 32
 
 # The chunk types of gspc 1.1 (spec section "Chunk type registry"). Payload formats belong to the codecs.
-KNOWN_TYPES = frozenset({"POSN", "OPAC", "SCAL", "ROTN", "SHDC", "SHRS", "RESI", "SIDE"})
 
 _TYPE_CHARS = frozenset(b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789")
 _ENTRY_KEYS = ("type", "flags", "index", "length", "crc")
@@ -456,7 +456,8 @@ def unpack(data: bytes | bytearray | memoryview, known_types: Collection[str] = 
     return Container(p.version, p.meta, kept, skipped)
 
 
-def _read_bytes(path: str | os.PathLike) -> bytes:
+def read_bytes(path: str | os.PathLike) -> bytes:
+    """The file's bytes; InputError (one line) when it cannot be read."""
     try:
         return Path(path).read_bytes()
     except OSError as e:
@@ -465,7 +466,7 @@ def _read_bytes(path: str | os.PathLike) -> bytes:
 
 def read(path: str | os.PathLike, known_types: Collection[str] = KNOWN_TYPES) -> Container:
     """unpack() the file at `path`."""
-    return unpack(_read_bytes(path), known_types)
+    return unpack(read_bytes(path), known_types)
 
 
 def describe(data_or_path: bytes | bytearray | memoryview | str | os.PathLike) -> dict:
@@ -478,7 +479,7 @@ def describe(data_or_path: bytes | bytearray | memoryview | str | os.PathLike) -
     if isinstance(data_or_path, (bytes, bytearray, memoryview)):
         data = bytes(data_or_path)
     else:
-        data = _read_bytes(data_or_path)
+        data = read_bytes(data_or_path)
     p = _parse(data, None)
     header_total = _align(PREAMBLE.size + p.header_length) + TRAILER.size
     chunks = []

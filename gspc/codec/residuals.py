@@ -4,10 +4,13 @@ A residual (H, W, 3) float32 is mapped to unsigned integers ``q = round(R * gain
 (offset at mid-range, gain from a robust percentile of |R| so clipping is rare), then coded by a
 still-image codec. ``meta`` (msgpack-able) holds everything :func:`decode_residual` needs.
 
-Image codecs sit behind one table, ``IMAGE_CODECS``: name -> (encode(img, level), decode(bytes)).
-``level`` is each codec's own knob: JPEG XL butteraugli distance (lower is finer), WebP/AVIF
-quality 0-100 (higher is finer). Decoding is deterministic: the codecs return integers and the
-float mapping is plain numpy arithmetic.
+Image codecs sit behind one interface, :class:`ImageCodec` (``IMAGE_CODECS``: the ones this imagecodecs
+build has), whose rate parameter is a *distance* for every codec: larger is coarser and smaller. It is JPEG
+XL's butteraugli distance; WebP and AVIF take a quality 0-100 (larger is finer), and a distance ``d`` maps
+to quality ``100 - 10 d`` (:func:`quality_for_distance`). The mapping makes the knob run the same way for
+every codec; it does not make equal distances cost equal bytes (bench/residual_codecs.md compares the codecs
+at equal bytes). Decoding is deterministic: the codecs return integers and the float mapping is plain numpy
+arithmetic.
 """
 
 from __future__ import annotations
@@ -15,24 +18,29 @@ from __future__ import annotations
 import math
 import struct
 from collections.abc import Callable
+from dataclasses import asdict, dataclass
 
 import imagecodecs
 import numpy as np
 
 from gspc.errors import CodecError, InputError
 
-# Effort 3 codes residuals as small as effort 7 at ~15x the speed (FINDINGS.md).
+# Effort 3 codes residuals as small as effort 7 at about 15x the speed.
 JXL_EFFORT = 3
-DEFAULT_PARAMS = {
-    "codec": "jxl",
-    "level": 2.0,  # JPEG XL distance
-    "bits": 8,
-    "percentile": 99.9,  # |R| at this percentile maps to the edge of the integer range
-    "max_gain": 2048.0,  # caps amplification of near-zero residuals (in units of 1/range)
-    "tile": 32,  # tiles whose RMS is below zero_rms are zeroed before coding; 0 disables
-    "zero_rms": 0.0,
-    "scale": 1,  # code the residual at 1/scale resolution (box filter); the decoder upsamples bilinearly
-}
+
+
+@dataclass(frozen=True)
+class ResidualParams:
+    """How one residual is coded (keyword-built: a misspelt knob is a TypeError, not ignored)."""
+
+    codec: str = "jxl"
+    distance: float = 2.0  # the rate knob, larger is coarser (see the module's doc)
+    bits: int = 8
+    percentile: float = 99.9  # |R| at this percentile maps to the edge of the integer range
+    max_gain: float = 2048.0  # caps amplification of near-zero residuals (in units of 1/range)
+    tile: int = 32  # tiles whose RMS is below zero_rms are zeroed before coding; 0 disables
+    zero_rms: float = 0.0
+    scale: int = 1  # code the residual at 1/scale resolution (box filter); the decoder upsamples bilinearly
 
 
 def downsample(r: np.ndarray, factor: int) -> np.ndarray:
@@ -64,8 +72,13 @@ def upsample(r: np.ndarray, factor: int, h: int, w: int) -> np.ndarray:
     return (top * (1 - fy)[:, None, None] + bot * fy[:, None, None]).astype(np.float32)
 
 
-def _jxl_encode(img: np.ndarray, level: float) -> bytes:
-    return imagecodecs.jpegxl_encode(img, distance=float(level), effort=JXL_EFFORT)
+def quality_for_distance(distance: float) -> float:
+    """The WebP / AVIF quality (0-100, larger is finer) that stands for a distance (larger is coarser)."""
+    return min(100.0, max(0.0, 100.0 - 10.0 * float(distance)))
+
+
+def _jxl_encode(img: np.ndarray, distance: float) -> bytes:
+    return imagecodecs.jpegxl_encode(img, distance=float(distance), effort=JXL_EFFORT)
 
 
 def _jxl_decode(data: bytes) -> np.ndarray:
@@ -194,53 +207,53 @@ def _avif_size(data: bytes) -> tuple[int, int]:
     return max(w for w, _ in sizes), max(h for _, h in sizes)
 
 
-_SIZE_READERS: dict[str, Callable[[bytes], tuple[int, int]]] = {
-    "jxl": _jxl_size,
-    "webp": _webp_size,
-    "avif": _avif_size,
-}
+def _webp_encode(img: np.ndarray, distance: float) -> bytes:
+    # imagecodecs codes WebP losslessly unless told otherwise.
+    return imagecodecs.webp_encode(img, level=quality_for_distance(distance), lossless=False, method=4)
+
+
+def _avif_encode(img: np.ndarray, distance: float) -> bytes:
+    # 4:4:4 keeps chroma resolution: residual colour errors are not smooth like photos.
+    level = int(round(quality_for_distance(distance)))
+    return imagecodecs.avif_encode(img, level=level, speed=8, pixelformat="444")
+
+
+@dataclass(frozen=True)
+class ImageCodec:
+    """A still-image codec for residuals: encode at a distance, decode, read the declared size."""
+
+    name: str
+    encode: Callable[[np.ndarray, float], bytes]  # (uint8 or uint16 H x W x 3, distance) -> bytes
+    decode: Callable[[bytes], np.ndarray]
+    size: Callable[[bytes], tuple[int, int]]  # (width, height) from the header, without decoding
+    bits: tuple[int, ...]  # sample depths imagecodecs accepts (WebP is 8-bit only)
+    available: Callable[[], bool]
+
+
+_JXL = ImageCodec("jxl", _jxl_encode, _jxl_decode, _jxl_size, (8, 16), lambda: imagecodecs.JPEGXL.available)
+_WEBP = ImageCodec(
+    "webp", _webp_encode, imagecodecs.webp_decode, _webp_size, (8,), lambda: imagecodecs.WEBP.available
+)
+_AVIF = ImageCodec(
+    "avif", _avif_encode, imagecodecs.avif_decode, _avif_size, (8, 16), lambda: imagecodecs.AVIF.available
+)
+# Every codec a file may name (the SIDE chunk's codec ids: gspc/codec/sideinfo.py), and those this
+# imagecodecs build can run.
+_ALL_CODECS: dict[str, ImageCodec] = {c.name: c for c in (_JXL, _WEBP, _AVIF)}
+IMAGE_CODECS: dict[str, ImageCodec] = {k: c for k, c in _ALL_CODECS.items() if c.available()}
 
 
 def coded_size(codec: str, payload: bytes) -> tuple[int, int]:
     """(width, height) that a residual image's header declares, without decoding it; CodecError if none."""
-    if codec not in _SIZE_READERS:
+    if codec not in _ALL_CODECS:
         raise CodecError(f"residual image codec {codec!r} is not one gspc reads")
     try:
-        return _SIZE_READERS[codec](bytes(payload))
+        return _ALL_CODECS[codec].size(bytes(payload))
     except (struct.error, IndexError, KeyError):
         raise CodecError(f"residual {codec} payload ends inside its size header") from None
 
 
-def _webp_encode(img: np.ndarray, level: float) -> bytes:
-    # imagecodecs codes WebP losslessly unless told otherwise.
-    return imagecodecs.webp_encode(img, level=float(level), lossless=False, method=4)
-
-
-def _avif_encode(img: np.ndarray, level: float) -> bytes:
-    # 4:4:4 keeps chroma resolution: residual colour errors are not smooth like photos.
-    return imagecodecs.avif_encode(img, level=int(round(level)), speed=8, pixelformat="444")
-
-
-ImageCodec = tuple[Callable[[np.ndarray, float], bytes], Callable[[bytes], np.ndarray]]
-
-
-def _available_codecs() -> dict[str, ImageCodec]:
-    table = {}
-    if imagecodecs.JPEGXL.available:
-        table["jxl"] = (_jxl_encode, _jxl_decode)
-    if imagecodecs.WEBP.available:
-        table["webp"] = (_webp_encode, imagecodecs.webp_decode)
-    if imagecodecs.AVIF.available:
-        table["avif"] = (_avif_encode, imagecodecs.avif_decode)
-    return table
-
-
-IMAGE_CODECS = _available_codecs()
-# Which codecs accept 16-bit samples through imagecodecs (WebP is 8-bit only).
-_SUPPORTS_16BIT = {"jxl", "avif"}
-
-
-def _image_codec(name: str):
+def _image_codec(name: str) -> ImageCodec:
     if name not in IMAGE_CODECS:
         raise CodecError(f"residual image codec {name!r} is not available (have: {', '.join(IMAGE_CODECS)})")
     return IMAGE_CODECS[name]
@@ -277,18 +290,18 @@ def _zero_quiet_tiles(residual: np.ndarray, tile: int, zero_rms: float) -> tuple
     return out, zeroed
 
 
-def encode_residual(residual: np.ndarray, params: dict | None = None) -> tuple[bytes, dict]:
-    """Code a signed residual (H, W, 3) float. Returns (payload, meta); see DEFAULT_PARAMS for params."""
-    p = {**DEFAULT_PARAMS, **(params or {})}
+def encode_residual(residual: np.ndarray, params: ResidualParams | None = None) -> tuple[bytes, dict]:
+    """Code a signed residual (H, W, 3) float. Returns (payload, meta)."""
+    p = asdict(params or ResidualParams())
     r = np.asarray(residual, dtype=np.float32)
     if r.ndim != 3 or r.shape[2] != 3:
         raise InputError(f"residual must be HxWx3, got shape {r.shape}")
     if not np.isfinite(r).all():
         raise InputError("residual has NaN or Inf values")
     bits = int(p["bits"])
-    if bits not in (8, 16) or (bits == 16 and p["codec"] not in _SUPPORTS_16BIT):
+    codec = _image_codec(p["codec"])
+    if bits not in codec.bits:
         raise InputError(f"residual codec {p['codec']!r} does not take {bits}-bit samples")
-    encode, _ = _image_codec(p["codec"])
     full_h, full_w = r.shape[:2]
     factor = int(p["scale"])
     if not 1 <= factor <= 16:
@@ -300,7 +313,7 @@ def encode_residual(residual: np.ndarray, params: dict | None = None) -> tuple[b
     top = (1 << bits) - 1
     dtype = np.uint8 if bits == 8 else np.uint16
     q = np.clip(np.rint(r * np.float32(gain) + offset), 0, top).astype(dtype)
-    payload = encode(np.ascontiguousarray(q), float(p["level"]))
+    payload = codec.encode(np.ascontiguousarray(q), float(p["distance"]))
     meta = {
         "codec": p["codec"],
         "shape": [int(r.shape[0]), int(r.shape[1])],
@@ -354,9 +367,8 @@ def decode_residual(payload: bytes, meta: dict) -> np.ndarray:
     except (KeyError, TypeError, ValueError) as e:
         raise CodecError(f"residual metadata is incomplete: {e}") from None
     check_residual(payload, meta)
-    _, decode = _image_codec(codec)
     try:
-        q = decode(payload)
+        q = _image_codec(codec).decode(payload)
     except Exception as e:  # imagecodecs raises its own per-codec error classes
         raise CodecError(f"residual {codec} payload does not decode: {e}") from None
     if q.ndim == 2:
@@ -381,16 +393,16 @@ def decode_residual(payload: bytes, meta: dict) -> np.ndarray:
 
 def plan_residual_rates(
     residuals: list[np.ndarray],
-    base_distance: float,
+    distance: float,
     skip_rms: float = 1.0 / 255,
     strength: float = 0.5,
     clamp: tuple[float, float] = (0.5, 2.0),
 ) -> list[float | None]:
-    """JPEG XL distance per view, or None for views not worth a chunk.
+    """Distance per view (see the module's doc), or None for views not worth a chunk.
 
-    Views whose residual RMS is below ``skip_rms`` (default: a third-of-a-level in 8-bit images,
-    i.e. nothing a viewer sees) are skipped. The others get
-    ``base_distance * clip((median_rms / rms) ** strength, *clamp)``: finer coding where the
+    Views whose residual RMS is below ``skip_rms`` (default: one level of an 8-bit image, too little for a
+    viewer to see) are skipped. The others get
+    ``distance * clip((median_rms / rms) ** strength, *clamp)``: finer coding where the
     compressed scene went most wrong. Because the gain normalises each residual to the integer
     range, a fixed distance gives an error roughly proportional to the view's RMS; the exponent
     moves part of the budget from quiet views to loud ones (measured in bench/residual_codecs.md).
@@ -408,5 +420,5 @@ def plan_residual_rates(
         if v < skip_rms:
             out.append(None)
         else:
-            out.append(float(base_distance * np.clip((median / v) ** strength, lo, hi)))
+            out.append(float(distance * np.clip((median / v) ** strength, lo, hi)))
     return out

@@ -18,6 +18,7 @@ import struct
 import numpy as np
 
 from gspc.errors import CodecError
+from gspc.format.chunks import RESI, SIDE
 
 CODEC_IDS = {"jxl": 0, "webp": 1, "avif": 2}
 CODEC_NAMES = {v: k for k, v in CODEC_IDS.items()}
@@ -198,8 +199,8 @@ def side_views(side: dict, chunks: list) -> tuple[list[dict], dict[int, bytes]]:
     views = side.get("views", [])
     if not isinstance(views, list):
         raise CodecError("side_info.views is not an array")
-    res = {ch.index: ch.payload for ch in chunks if ch.type == "RESI"}
-    packed = [ch for ch in chunks if ch.type == "SIDE"]
+    res = {ch.index: ch.payload for ch in chunks if ch.type == RESI}
+    packed = [ch for ch in chunks if ch.type == SIDE]
     if packed:
         if views or res:
             raise CodecError("the file holds side information both in a SIDE chunk and in the 1.0 form")

@@ -18,12 +18,12 @@ import os
 import numpy as np
 from plyfile import PlyData
 
+from gspc.codec.quantisers import place_largest
 from gspc.errors import InputError
 from gspc.io.ply import load_plydata, rest_names
-from gspc.scene import GaussianScene, make_scene, sh_degree_from_rest, validate_named
+from gspc.scene import SH_C0, GaussianScene, make_scene, sh_degree_from_rest, validate_named
 
 CHUNK_SIZE = 256
-SH_C0 = 0.28209479177387814
 OPACITY_EPS = 1e-6  # opacity bytes 0 and 255 have infinite logits; clamp like the SOG reader
 
 _BOUNDS = ("min", "max")
@@ -53,14 +53,8 @@ def _unpack_111011(packed: np.ndarray) -> np.ndarray:
 def _unpack_rotation(packed: np.ndarray) -> np.ndarray:
     abc = np.stack([_field(packed, 20, 10), _field(packed, 10, 10), _field(packed, 0, 10)], axis=1)
     abc = (abc - 0.5) * math.sqrt(2.0)
-    largest = np.sqrt(np.maximum(0.0, 1.0 - (abc * abc).sum(1)))
     mode = (packed >> np.uint32(30)).astype(np.int64)
-    n = len(packed)
-    out = np.empty((n, 4))
-    slots = np.array([[1, 2, 3], [0, 2, 3], [0, 1, 3], [0, 1, 2]])[mode]
-    out[np.arange(n)[:, None], slots] = abc
-    out[np.arange(n), mode] = largest
-    return out
+    return place_largest(mode, abc)
 
 
 def scene_from_compressed(ply: PlyData, source: str = "PLY") -> GaussianScene:

@@ -24,6 +24,7 @@ from pathlib import Path
 import imagecodecs
 import numpy as np
 
+from gspc.codec.quantisers import place_largest
 from gspc.codec.residuals import coded_size
 from gspc.errors import CodecError, InputError
 from gspc.limits import (
@@ -182,14 +183,8 @@ def _quats(q: np.ndarray, path: Path) -> np.ndarray:
         bad = int(((mode < 0) | (mode > 3)).sum())
         raise InputError(f"{path}: {bad} quaternion(s) have an invalid mode byte (not 252-255)")
     abc = (q[:, :3].astype(np.float64) / 255.0 * 2.0 - 1.0) / math.sqrt(2.0)
-    largest = np.sqrt(np.maximum(0.0, 1.0 - (abc * abc).sum(1)))
-    out = np.empty((len(q), 4))
-    # Component order is rot_0..rot_3 (w, x, y, z); ``mode`` names the dropped one.
-    slots = np.array([[1, 2, 3], [0, 2, 3], [0, 1, 3], [0, 1, 2]])[mode]
-    rows = np.arange(len(q))[:, None]
-    out[rows, slots] = abc
-    out[np.arange(len(q)), mode] = largest
-    return out
+    # Component order is rot_0..rot_3 (w, x, y, z); ``mode`` names the dropped one, as in gspc's codec.
+    return place_largest(mode, abc)
 
 
 def _sh_rest(path: Path, load: Callable[[str], bytes], meta: dict, count: int) -> tuple[np.ndarray, int]:

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import torch
 
 from gspc.cameras import Camera
@@ -11,15 +9,9 @@ from gspc.errors import DeviceError, InputError
 from gspc.render.gsplat_backend import gsplat_available, render_gsplat
 from gspc.render.project import project
 from gspc.render.rasterize import composite
+from gspc.render.result import RenderResult
 
 BACKENDS = ("auto", "torch", "gsplat")
-
-
-@dataclass
-class RenderResult:
-    image: torch.Tensor  # (H, W, 3), not clamped
-    alpha: torch.Tensor  # (H, W) accumulated opacity, 1 - final transmittance
-    depth: torch.Tensor  # (H, W) alpha-weighted camera-space z (expected depth * alpha)
 
 
 def render(

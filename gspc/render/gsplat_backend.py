@@ -1,6 +1,6 @@
 """gsplat's CUDA rasteriser behind gspc's render() convention (imported lazily: CUDA machines only).
 
-Same conventions as the torch backend (OpenCV camera, eps2d = 0.3 low-pass, near plane 0.01, SH
+Same conventions as the torch backend (OpenCV camera, the low-pass and near plane of rules.py, SH
 from the camera centre, classic 3DGS compositing); images agree up to float32 round-off and
 gsplat's own tile culling of very faint tails. gsplat's kernels are float32: other dtypes are cast
 there and back (gradients flow through the casts).
@@ -12,6 +12,8 @@ import torch
 
 from gspc.cameras import Camera
 from gspc.errors import DeviceError
+from gspc.render.result import RenderResult
+from gspc.render.rules import LOWPASS, NEAR
 
 
 def gsplat_available() -> bool:
@@ -25,8 +27,6 @@ def gsplat_available() -> bool:
 
 def render_gsplat(scene, camera: Camera, background: torch.Tensor, sh_degree: int):
     """Render with gsplat.rasterization; returns a RenderResult in the scene's dtype."""
-    from gspc.render.api import RenderResult  # here, not at the top: api imports this module
-
     if not scene.means.is_cuda:
         raise DeviceError(
             "render backend 'gsplat' needs the scene on a CUDA device; use backend 'torch' on CPU"
@@ -48,8 +48,8 @@ def render_gsplat(scene, camera: Camera, background: torch.Tensor, sh_degree: in
         torch.as_tensor(camera.K, dtype=f32, device=dev)[None],
         camera.width,
         camera.height,
-        near_plane=0.01,
-        eps2d=0.3,
+        near_plane=NEAR,
+        eps2d=LOWPASS,
         sh_degree=sh_degree,
         packed=False,
         render_mode="RGB+D",  # accumulated depth sum_i w_i z_i, as the torch backend

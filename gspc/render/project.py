@@ -12,11 +12,9 @@ from dataclasses import dataclass
 import torch
 
 from gspc.cameras import Camera
+from gspc.render.rules import ALPHA_MIN, LOWPASS, NEAR
 from gspc.render.sh import sh_to_color
 
-NEAR = 0.01  # Gaussians whose centre has camera z <= NEAR are culled
-LOWPASS = 0.3  # added to the 2D covariance diagonal (3DGS's screen-space low-pass filter)
-ALPHA_MIN = 1.0 / 255.0  # contributions below this alpha are skipped
 FRUSTUM_SLACK = 1.3  # x/z, y/z are clamped to 1.3x the frustum before building the Jacobian
 # The box is widened slightly so that round-off in the compositor's alpha never reaches past it.
 EXTENT_REL_MARGIN = 1e-3

@@ -10,10 +10,11 @@ from __future__ import annotations
 import torch
 
 from gspc.cameras import Camera
-from gspc.render.api import RenderResult
+from gspc.render.result import RenderResult
+from gspc.render.rules import ALPHA_MAX, ALPHA_MIN, LOWPASS, NEAR, T_MIN
 from gspc.render.sh import sh_basis
 
-NEAR, LOWPASS, ALPHA_MIN, ALPHA_MAX, T_MIN, SLACK = 0.01, 0.3, 1.0 / 255.0, 0.99, 1e-4, 0.3
+SLACK = 0.3  # x/z, y/z clamped to 1.3x the frustum (project.py FRUSTUM_SLACK - 1)
 
 
 def render_reference(scene, camera: Camera, background=None, sh_degree: int | None = None) -> RenderResult:

@@ -1,10 +1,11 @@
 """Restorers: turn a degraded render I~ and decoded side information R~ into a restored image I^.
 
 ``load_restorer(name)`` returns a :class:`Restorer`. ``"none"`` is the paper's side-information-only
-mode (I^ = I~ + R~); any other name is a NAFNet whose weights live in
+mode (I^ = I~ + R~); any other name is a network whose weights live in
 ``gspc/restore/weights/<file>`` and are listed in ``weights/MANIFEST.json`` as
-``{name: {"file": ..., "sha256": ..., "config": {NAFNet kwargs}}}``. The hash is checked before
-loading, and loading uses ``torch.load(weights_only=True)`` so a weights file cannot run code.
+``{name: {"architecture": ..., "file": ..., "sha256": ..., "config": {constructor kwargs}}}``, the
+architecture one of gspc/restore/architectures.py (NAFNet when the entry names none). The hash is
+checked before loading, and loading uses ``torch.load(weights_only=True)`` so a weights file cannot run code.
 
 Inference is tiled with overlapping, feathered tiles so large views fit in memory; it runs under
 ``torch.no_grad`` in eval mode, and on one device/thread count gives the same bits every call.
@@ -23,6 +24,7 @@ import torch
 
 from gspc.atomic import atomic_write
 from gspc.errors import CodecError, InputError
+from gspc.restore.architectures import DEFAULT_ARCHITECTURE, build
 from gspc.restore.nafnet import NAFNet
 
 WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
@@ -149,14 +151,22 @@ def load_restorer(
         raise CodecError(f"restorer {name!r}: weights file {path} does not match its SHA-256 in the manifest")
     try:
         state = torch.load(path, map_location="cpu", weights_only=True)
-        model = NAFNet(**entry.get("config", {}))
+        model = build(entry.get("architecture", DEFAULT_ARCHITECTURE), entry.get("config", {}), name)
         model.load_state_dict(state)
+    except CodecError:
+        raise
     except Exception as e:  # unpickling, shape or key mismatches: all mean unusable weights
         raise CodecError(f"restorer {name!r}: weights in {path.name} do not load: {e}") from None
     return Restorer(name, model.to(device), tile, overlap)
 
 
-def save_restorer(model: NAFNet, config: dict, name: str, weights_dir: str | Path | None = None) -> Path:
+def save_restorer(
+    model: NAFNet,
+    config: dict,
+    name: str,
+    weights_dir: str | Path | None = None,
+    architecture: str = DEFAULT_ARCHITECTURE,
+) -> Path:
     """Write ``<name>.pt`` and its manifest entry (both atomically); returns the weights path."""
     if not _NAME.match(name) or name == "none":
         raise InputError(f"restorer name {name!r} must be letters, digits, '_', '.', '-' and not 'none'")
@@ -167,7 +177,12 @@ def save_restorer(model: NAFNet, config: dict, name: str, weights_dir: str | Pat
     atomic_write(path, lambda f: torch.save(state, f))
     manifest_path = weights_dir / MANIFEST
     manifest = json.loads(manifest_path.read_text()) if manifest_path.is_file() else {}
-    manifest[name] = {"file": path.name, "sha256": _sha256(path), "config": config}
+    manifest[name] = {
+        "architecture": architecture,
+        "file": path.name,
+        "sha256": _sha256(path),
+        "config": config,
+    }
     text = json.dumps(manifest, indent=2, sort_keys=True) + "\n"
     atomic_write(manifest_path, lambda f: f.write(text.encode()))
     return path

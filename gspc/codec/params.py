@@ -1,4 +1,4 @@
-"""Codec parameters and the named rate points (like CompressAI's zoo table: one place, versioned).
+"""The attribute codec's parameters; the named rate points that set them are in gspc/presets.py.
 
 Every quantisation step is ``base_step * lam`` (scales and rotations: ``geometry_lam`` beyond lam 8, SH
 rest: ``lam ** sh_lam_exponent``): ``lam`` is the one continuous rate knob (larger is smaller and coarser).
@@ -62,16 +62,3 @@ class CodecParams:
         if not lam > 0:
             raise InputError(f"rate knob lambda must be positive, got {lam}")
         return replace(self, lam=float(lam))
-
-
-PRESETS: dict[str, CodecParams] = {
-    "high": CodecParams(lam=1.0),  # 14 position bits
-    "low": CodecParams(lam=8.0),  # 11 position bits; <= 10 B/G on the SH-3 lego fit
-}
-
-
-def preset(name: str) -> CodecParams:
-    try:
-        return PRESETS[name]
-    except KeyError:
-        raise InputError(f"unknown quality preset {name!r}; choose one of {', '.join(PRESETS)}") from None

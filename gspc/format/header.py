@@ -1,16 +1,19 @@
-"""The .gspc header fields that the pipeline and the CLI read, each checked for type and range.
+"""The .gspc header (spec 10.8) as a typed value: :class:`FileHeader` with ``to_dict`` (what the encoder
+writes) and a validating ``from_dict`` (what the decoder, ``gspc info`` and the tools read).
 
 The container (gspc/codec/container.py) guarantees only a msgpack map; every field below comes from an
 untrusted file, so each is checked here before use and a bad one is refused with a CodecError that names the
-field and its value (issue 15). Payload checks (counts against payload sizes, model tables) belong to the
-codecs themselves (gspc/codec/attributes.py and friends).
+field and its value (issue 15). The attribute codec's section is checked by the codec's own check
+(gspc/codec/attribute_header.py); payload checks (counts against payload sizes, model tables) belong to the
+codecs themselves.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
+from gspc.codec.attribute_header import check_attribute_header
 from gspc.errors import CodecError
 from gspc.limits import (
     MAX_CAMERA_SIDE,
@@ -80,25 +83,6 @@ def _numbers(parent: dict, key: str, where: str, length: int, positive: bool = F
     return [_finite(x, f"{where}[{i}]", positive) for i, x in enumerate(v)]
 
 
-def check_attributes(meta: dict) -> None:
-    """The attribute codec's section (spec 10.1): every field decode_attributes and the cells read."""
-    where = "attributes"
-    _int(meta, "version", f"{where}.version", 0)
-    degree = _int(meta, "sh_degree", f"{where}.sh_degree", 0, _MAX_SH_DEGREE)
-    _int(meta, "n", f"{where}.n", 1)
-    grid = _map(meta, "position", f"{where}.position")
-    _int(grid, "bits", f"{where}.position.bits", 1)
-    _numbers(grid, "lo", f"{where}.position.lo", 3)
-    _numbers(grid, "step", f"{where}.position.step", 3, positive=True)
-    _int(meta, "opacity_levels", f"{where}.opacity_levels", 1)
-    _int(meta, "rotation_levels", f"{where}.rotation_levels", 1)
-    for key in ("scale_step", "dc_step"):
-        if key not in meta:
-            raise CodecError(f"the .gspc header lacks {where}.{key}")
-        _finite(meta[key], f"{where}.{key}", positive=True)
-    _numbers(meta, "sh_steps", f"{where}.sh_steps", (degree + 1) ** 2 - 1, positive=True)
-
-
 def _background(side: dict) -> tuple[float, float, float]:
     where = "side_info.background"
     if "background" not in side:
@@ -117,42 +101,98 @@ def _restorer(side: dict) -> str:
 
 
 @dataclass(frozen=True)
-class DecodeHeader:
-    """What the decoder takes from the header, checked."""
+class SceneSummary:
+    """The informative ``scene`` section: counts for people (``gspc info``); decoders use attributes.n."""
 
-    attributes: dict  # the attribute codec's section, for decode_attributes and quantisation_cells
-    side_info: dict  # the raw section, for side_views
+    num_gaussians: int = 0
+    sh_degree: int | None = None
+    source_gaussians: int | None = None  # the count the encoder received
+
+    def to_dict(self) -> dict:
+        out: dict = {"num_gaussians": self.num_gaussians}
+        if self.sh_degree is not None:
+            out["sh_degree"] = self.sh_degree
+        if self.source_gaussians is not None:
+            out["source_gaussians"] = self.source_gaussians
+        return out
+
+    @classmethod
+    def from_dict(cls, meta: dict) -> SceneSummary:
+        """The ``scene`` section of a header ``meta``; missing fields (files written by other tools may lack
+        the section) give zero and None, present ones must be well typed."""
+        if "scene" not in meta:
+            return cls()
+        scene = _map(meta, "scene", "scene section")
+        n = _int(scene, "num_gaussians", "scene.num_gaussians", 0, None, 0)
+        degree = _int(scene, "sh_degree", "scene.sh_degree", 0, _MAX_SH_DEGREE, -1)
+        source = scene.get("source_gaussians")  # informative only: never refused
+        return cls(n, None if degree < 0 else degree, source if _is_int(source) and source >= 0 else None)
+
+
+@dataclass(frozen=True)
+class SideInfoHeader:
+    """The ``side_info`` section: how the decoder renders, restores and refines."""
+
     background: tuple[float, float, float]
     restorer: str
     refine_iterations: int
+    views: list = field(default_factory=list)  # 1.0 layout only: per-view records (gspc/codec/sideinfo.py)
+
+    def to_dict(self) -> dict:
+        out: dict = {
+            "background": list(self.background),
+            "restorer": self.restorer,
+            "refine_iterations": self.refine_iterations,
+        }
+        if self.views:
+            out["views"] = self.views
+        return out
+
+    @classmethod
+    def from_dict(cls, side: dict) -> SideInfoHeader:
+        if "views" in side and not isinstance(side["views"], list):
+            raise CodecError(f"the .gspc header's side_info.views is {_show(side['views'])}, not an array")
+        iterations = _int(
+            side,
+            "refine_iterations",
+            "side_info.refine_iterations",
+            0,
+            MAX_REFINE_ITERATIONS,
+            DEFAULT_ITERATIONS,
+        )
+        return cls(_background(side), _restorer(side), iterations, side.get("views", []))
 
 
-def parse(meta: dict) -> DecodeHeader:
-    """The header sections gspc 1 writes (spec section 9), checked field by field; CodecError otherwise."""
-    attributes = _map(meta, "attributes", "attributes section")
-    check_attributes(attributes)
-    side = _map(meta, "side_info", "side_info section")
-    if "views" in side and not isinstance(side["views"], list):
-        raise CodecError(f"the .gspc header's side_info.views is {_show(side['views'])}, not an array")
-    if "scene" in meta:
-        scene_summary(meta)
-    iterations = _int(
-        side, "refine_iterations", "side_info.refine_iterations", 0, MAX_REFINE_ITERATIONS, DEFAULT_ITERATIONS
-    )
-    return DecodeHeader(attributes, side, _background(side), _restorer(side), iterations)
+@dataclass(frozen=True)
+class FileHeader:
+    """A .gspc file's header: the attribute codec's section (checked by the codec's own check), the side
+    information's, the informative scene summary and the writer's name."""
 
+    attributes: dict  # the attribute codec's section, for decode_attributes and quantisation_cells
+    side_info: SideInfoHeader
+    scene: SceneSummary | None = None
+    encoder: str | None = None
 
-def scene_summary(meta: dict) -> tuple[int, int | None]:
-    """(Gaussian count, SH degree or None) of the optional ``scene`` section, for ``gspc info``.
+    def to_dict(self) -> dict:
+        """The header map the container stores (key order is part of the bytes: keep it)."""
+        out: dict = {}
+        if self.encoder is not None:
+            out["encoder"] = self.encoder
+        if self.scene is not None:
+            out["scene"] = self.scene.to_dict()
+        out["attributes"] = self.attributes
+        out["side_info"] = self.side_info.to_dict()
+        return out
 
-    Missing fields give (0, None): files written by other tools may lack the section. Present ones must be
-    well typed."""
-    if "scene" not in meta:
-        return 0, None
-    scene = _map(meta, "scene", "scene section")
-    n = _int(scene, "num_gaussians", "scene.num_gaussians", 0, None, 0)
-    degree = _int(scene, "sh_degree", "scene.sh_degree", 0, _MAX_SH_DEGREE, -1)
-    return n, None if degree < 0 else degree
+    @classmethod
+    def from_dict(cls, meta: dict) -> FileHeader:
+        """The header sections gspc 1 writes (spec 10.8), checked field by field; CodecError otherwise."""
+        attributes = _map(meta, "attributes", "attributes section")
+        check_attribute_header(attributes)
+        side = SideInfoHeader.from_dict(_map(meta, "side_info", "side_info section"))
+        scene = SceneSummary.from_dict(meta) if "scene" in meta else None
+        encoder = meta.get("encoder")
+        return cls(attributes, side, scene, encoder if isinstance(encoder, str) else None)
 
 
 def check_view_sizes(views: list, file_size: int) -> None:

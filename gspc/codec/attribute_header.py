@@ -1,0 +1,64 @@
+"""The attribute codec's header section (spec 10.0, ``meta["attributes"]``): its versions, limits and the
+one check of its fields, run by the decoder (gspc/codec/attributes.py) and by the typed file header
+(gspc/format/header.py) before any payload is touched. No torch here: ``gspc info`` reads headers.
+"""
+
+from __future__ import annotations
+
+import math
+
+from gspc.codec import positions as pos
+from gspc.errors import CodecError
+
+FORMAT_VERSION = 1
+# Version 2: the position grid may lie in contracted space (positions.py, spec 10.1); written only then, so
+# bounded scenes keep version 1 and their bytes.
+CONTRACTED_VERSION = 2
+MAX_GAUSSIANS = 1 << 26
+# A Gaussian whose every symbol has a one-value model costs no bits, so the count alone could ask for any
+# allocation from a tiny file; spec 10.0 caps it at 64 per payload byte (real files: under 1 per byte).
+GAUSSIANS_PER_BYTE = 64
+
+
+def _is_int(x: object) -> bool:
+    return isinstance(x, int) and not isinstance(x, bool)
+
+
+def _is_step(x: object) -> bool:
+    return isinstance(x, float) and math.isfinite(x) and x > 0
+
+
+def check_attribute_header(meta: dict) -> None:
+    """Every field of the attribute codec's section, typed and in range; CodecError naming the first bad."""
+    try:
+        if not _is_int(meta["version"]) or meta["version"] not in (FORMAT_VERSION, CONTRACTED_VERSION):
+            raise CodecError(f"attribute codec version {meta['version']} is not supported")
+        n, degree = meta["n"], meta["sh_degree"]
+        grid = meta["position"]
+        bits, lo, step = grid["bits"], list(grid["lo"]), list(grid["step"])
+        opacity_levels, rot_levels = meta["opacity_levels"], meta["rotation_levels"]
+        scale_step, dc_step = meta["scale_step"], meta["dc_step"]
+        sh_steps = list(meta["sh_steps"])
+        if (meta["version"] == CONTRACTED_VERSION) != pos.is_contracted(grid):
+            raise CodecError("attribute codec version and position grid disagree on contraction")
+        if pos.is_contracted(grid):
+            centre, radius = list(grid["centre"]), grid["radius"]
+            finite = all(isinstance(v, float) and math.isfinite(v) for v in (*centre, radius))
+            if len(centre) != 3 or not finite or not radius > 0:
+                raise CodecError("attribute codec header's position centre or radius is not finite")
+    except (KeyError, TypeError, ValueError) as err:
+        raise CodecError(f"attribute codec header is malformed ({err})") from None
+    # Integers are msgpack integers and steps msgpack floats (spec 10.0): 300.0 Gaussians is refused.
+    if not all(_is_int(v) for v in (n, degree, bits, opacity_levels, rot_levels)):
+        raise CodecError(
+            "attribute codec header has a count, degree, bit depth or level that is not an integer"
+        )
+    if not 1 <= n <= MAX_GAUSSIANS or not 0 <= degree <= 3 or len(sh_steps) != (degree + 1) ** 2 - 1:
+        raise CodecError("attribute codec header has an impossible count, SH degree or step list")
+    max_bits = pos.CONTRACTED_MAX_BITS if meta["version"] == CONTRACTED_VERSION else pos.MAX_BITS
+    if opacity_levels < 1 or rot_levels < 1 or not 1 <= bits <= max_bits:
+        raise CodecError("attribute codec header has impossible quantiser levels")
+    if not all(_is_step(v) for v in (scale_step, dc_step, *sh_steps, *step)) or len(step) != 3:
+        raise CodecError("attribute codec header has a step that is not a positive finite float")
+    if len(lo) != 3 or not all(isinstance(v, float) and math.isfinite(v) for v in lo):
+        raise CodecError("attribute codec header has a grid origin that is not 3 finite floats")

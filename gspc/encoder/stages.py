@@ -1,0 +1,89 @@
+"""The encoder's stages before its policy: cameras, attribute coding, the side-information views and their
+candidates. gspc/pipeline.py runs them in order; tools/make_restorer_data.py runs the same ones, so the
+restorer trains on what the encoder sends.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from gspc.cameras import Camera
+from gspc.codec import residuals
+from gspc.codec.attributes import EncodedAttributes, encode_attributes, search_lambda
+from gspc.codec.params import CodecParams
+from gspc.encoder.side import SideCandidate, side_candidate
+from gspc.options import EncodeOptions
+from gspc.presets import quality_preset
+from gspc.scene import GaussianScene
+from gspc.views import limit_size, sample_views, synthesize_views
+from gspc.visibility import visible_mask
+
+
+def encoder_cameras(scene: GaussianScene, cameras: list[Camera] | None, opts: EncodeOptions) -> list[Camera]:
+    """The cameras given (or ``opts.synth_views`` synthesised around the scene), at most ``opts.max_side``."""
+    cams = cameras if cameras is not None else synthesize_views(scene, opts.synth_views)
+    return limit_size(cams, opts.max_side)
+
+
+def codec_params(opts: EncodeOptions) -> CodecParams:
+    """The preset's attribute parameters with the options' overrides."""
+    params = quality_preset(opts.quality).attributes
+    if opts.lam is not None:
+        params = replace(params, lam=opts.lam)
+    if opts.keep_invisible:
+        params = replace(params, keep_invisible=True)
+    return params
+
+
+@dataclass
+class CodedAttributes:
+    encoded: EncodedAttributes  # chunks, meta and G~ as the decoder decodes it
+    params: CodecParams
+    visible: np.ndarray  # per input Gaussian: seen by some camera
+
+
+def code_attributes(
+    scene: GaussianScene, cameras: list[Camera], params: CodecParams, target_size: int | None = None
+) -> CodedAttributes:
+    """Prune what no camera sees and code the rest (at ``target_size`` bytes when given)."""
+    visible = visible_mask(scene.means.numpy(), scene.log_scales.numpy(), cameras)
+    if target_size is not None:
+        enc = search_lambda(scene, target_size, params, visible=visible)
+    else:
+        enc = encode_attributes(scene, params, visible=visible)
+    return CodedAttributes(enc, params, visible)
+
+
+@dataclass(frozen=True)
+class Iterations:
+    check: int  # the encoder's check runs this many (0: no check)
+    refine: int  # the decoder's default, written to the header
+
+
+def iteration_counts(opts: EncodeOptions) -> Iterations:
+    preset = quality_preset(opts.quality).refine_iterations
+    check = preset if opts.check_iterations is None else opts.check_iterations
+    return Iterations(check, check or preset)  # unchecked files name the preset's
+
+
+def sample_side_views(cameras: list[Camera], opts: EncodeOptions) -> tuple[list[int], list[Camera]]:
+    """(indices, cameras) of the views that carry side information. The cameras are round-tripped through
+    their stored form, so the encoder renders exactly the cameras the decoder reads."""
+    views = sample_views(cameras, opts.views_fraction) if opts.side_info else []
+    return views, [Camera.from_dict(cameras[i].to_dict()) for i in views]
+
+
+def side_candidates(
+    opts: EncodeOptions, view_cams: list[Camera], res: list[np.ndarray], check_iterations: int
+) -> list[SideCandidate]:
+    """The preset's resolution, and half of it as a cheaper candidate for the check to weigh."""
+    q = quality_preset(opts.quality)
+    distance = opts.residual_distance if opts.residual_distance is not None else q.residual_distance
+    codec = opts.residual_codec or q.residual_codec
+    plan = residuals.plan_residual_rates(res, distance)
+    scales = [opts.residual_scale or q.residual_scale]
+    if not opts.residual_scale and check_iterations > 0:
+        scales.append(2 * q.residual_scale)
+    return [side_candidate(view_cams, res, plan, codec, sc) for sc in scales]

@@ -1,0 +1,106 @@
+"""Stages that both the encoder and the decoder run: render views, restore them, refine against them.
+
+The encoder predicts what the decoder will render and refine by running the decoder's own code, so these
+stages live here, used by gspc/pipeline.py's decoder and gspc/encoder/policy.py alike.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+
+import numpy as np
+import torch
+
+from gspc.cameras import Camera
+from gspc.codec import residuals
+from gspc.codec.cells import quantisation_cells
+from gspc.metrics import psnr, quantize8
+from gspc.progress import Progress
+from gspc.refine import refine
+from gspc.render import render
+from gspc.scene import GaussianScene
+
+
+@torch.no_grad()
+def render_images(
+    scene: GaussianScene,
+    cameras: Sequence[Camera],
+    background: Sequence[float],
+    progress: Progress | None = None,
+    stage: str = "render",
+) -> list[torch.Tensor]:
+    """Clamped renders, one per camera (what a viewer displays)."""
+    bg = torch.tensor(background, dtype=scene.means.dtype, device=scene.means.device)
+    out = []
+    if progress:
+        progress(stage, 0, len(cameras))
+    for i, cam in enumerate(cameras):
+        out.append(render(scene, cam, background=bg).image.clamp(0, 1))
+        if progress:
+            progress(stage, i + 1, len(cameras))
+    return out
+
+
+def restored_targets(
+    degraded: list[torch.Tensor],
+    views: list[dict],
+    res_chunks: dict[int, bytes],
+    restorer,
+    progress: Progress | None = None,
+) -> list[torch.Tensor]:
+    """The decoder's refinement targets: renders restored with their decoded residuals where one was sent."""
+    out = []
+    if progress:
+        progress("restore", 0, len(degraded))
+    for k, (img, v) in enumerate(zip(degraded, views)):
+        if k in res_chunks and restorer is not None:
+            r = torch.from_numpy(residuals.decode_residual(res_chunks[k], v["residual"])).to(img)
+            img = restorer.restore(img, r)
+        # A view without a residual keeps its render: the restorer alone measured no gain (bench/restorer.md).
+        out.append(img.clamp(0, 1))
+        if progress:
+            progress("restore", k + 1, len(degraded))
+    return out
+
+
+def mean_psnr(a: Sequence[torch.Tensor], b: Sequence[torch.Tensor]) -> float:
+    """Mean PSNR of 8-bit-quantised image pairs (the 3DGS convention)."""
+    return float(np.mean([float(psnr(quantize8(x), quantize8(y))) for x, y in zip(a, b)]))
+
+
+def refine_progress(
+    progress: Progress | None, stage: str, iterations: int
+) -> Callable[[int, float], None] | None:
+    """refine()'s per-iteration callback reporting to ``progress`` under ``stage`` (opened here)."""
+    if progress is None:
+        return None
+    progress(stage, 0, iterations)
+    return lambda i, loss: progress(stage, i + 1, iterations)
+
+
+def refine_in_cells(
+    decoded: GaussianScene,
+    attributes_meta: dict | None,
+    cameras: list[Camera],
+    targets: list[torch.Tensor],
+    iterations: int,
+    background: Sequence[float],
+    progress: Progress | None = None,
+    stage: str = "refine",
+    seed: int = 0,
+    lr_scale: float = 1.0,
+) -> GaussianScene:
+    """The decoder's refinement of G~ against ``targets``, inside the quantisation cells of
+    ``attributes_meta`` (None: free refinement)."""
+    bg = torch.tensor(background, dtype=decoded.means.dtype, device=decoded.means.device)
+    return refine(
+        decoded,
+        cameras,
+        targets,
+        iterations=iterations,
+        background=bg,
+        seed=seed,
+        lr_scale=lr_scale,
+        progress=refine_progress(progress, stage, iterations),
+        cells=quantisation_cells(decoded, attributes_meta) if attributes_meta is not None else None,
+    )
