@@ -13,8 +13,10 @@ when its list ends or all its pixels have stopped. In tile-centred pixel coordin
 is a quadratic, log o - q/2 = k . [1, x, y, x^2, xy, y^2], so one matmul evaluates a whole block
 (in base 2: exp2 is several times faster than exp on CPU). Elementwise work is in place and avoids
 boolean masks, which are slow on CPU. The backward pass repeats the walk (nothing per pixel and
-Gaussian is stored) and uses the closed-form gradient of compositing: with weights
-w_i = alpha_i T_i and g_i = dL/dw_i, dL/dalpha_i = g_i T_i - (sum_{j>i} w_j g_j) / (1 - alpha_i).
+Gaussian is stored; the per-pair arrays are kept from the forward) and uses the closed-form gradient of
+compositing: with weights w_i = alpha_i T_i and g_i = dL/dw_i,
+dL/dalpha_i = g_i T_i - (sum_{j>i} w_j g_j) / (1 - alpha_i). Pairs index the caller's (unsorted) rows,
+so gradients scatter straight back to them; bench/render.md says what each of these choices bought.
 """
 
 from __future__ import annotations
