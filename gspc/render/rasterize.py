@@ -16,7 +16,7 @@ boolean masks, which are slow on CPU. The backward pass repeats the walk (nothin
 Gaussian is stored; the per-pair arrays are kept from the forward) and uses the closed-form gradient of
 compositing: with weights w_i = alpha_i T_i and g_i = dL/dw_i,
 dL/dalpha_i = g_i T_i - (sum_{j>i} w_j g_j) / (1 - alpha_i). Pairs index the caller's (unsorted) rows,
-so gradients scatter straight back to them; bench/render.md says what each of these choices bought.
+so gradients scatter straight back to them (bench/render.md lists these choices beside its timings).
 """
 
 from __future__ import annotations
