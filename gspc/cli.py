@@ -53,11 +53,24 @@ def _one_line_errors(fn):
     return wrapper
 
 
+def default_threads() -> int:
+    """The cores this process may run on (its CPU affinity, else the machine's count): GSPC_THREADS's default.
+
+    On a shared 2-vCPU machine two threads measured slower than one (bench/render.md); such users set
+    GSPC_THREADS=1, and the benchmarks pin one thread.
+    """
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):  # no sched_getaffinity (macOS, Windows)
+        return max(1, os.cpu_count() or 1)
+
+
 def _use_threads() -> None:
-    """Set torch's thread count (GSPC_THREADS, default 1): called by the commands that compute."""
+    """Set torch's thread count (GSPC_THREADS, default the cores this process has): called by the
+    commands that compute."""
     import torch
 
-    torch.set_num_threads(int(os.environ.get("GSPC_THREADS", "1")))
+    torch.set_num_threads(int(os.environ.get("GSPC_THREADS", "") or default_threads()))
 
 
 def _log_line(line: str) -> None:

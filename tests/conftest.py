@@ -1,10 +1,13 @@
+import os
 from pathlib import Path
 
 import pytest
 import torch
 
-# One thread: results and timings do not depend on the machine's core count.
+# One thread: results do not depend on the machine's core count. The CLI's commands default to every
+# core (gspc/cli.py), so the tests that run them in-process pin one too.
 torch.set_num_threads(1)
+os.environ.setdefault("GSPC_THREADS", "1")
 
 SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 

@@ -129,6 +129,13 @@ def test_walk_in_small_blocks_and_chunks(monkeypatch):
     check_against_reference(scene, camera())
 
 
+def test_walk_with_looped_scans(monkeypatch):
+    # The slice-loop transmittance and remaining-sum scans (taken on large steps) give the same result.
+    monkeypatch.setattr(rast, "SCAN_LOOP_FROM", 0)
+    scene = random_scene(150, 2, seed=6, spread=0.4, opacities=torch.randn(150, dtype=F64) * 3.0 + 2.0)
+    check_against_reference(scene, camera())
+
+
 def _hard_cases() -> dict[str, tuple]:
     n = 24
     g = torch.Generator().manual_seed(1)

