@@ -194,6 +194,7 @@ def bench_scene(
     restorers: list[str],
     lines: list[str],
     curves: dict,
+    gain_lams: list[float] | None = None,
 ) -> None:
     scene = read_scene(s.scene_path)
     n_in = scene.num_gaussians
@@ -223,21 +224,27 @@ def bench_scene(
     lines.append(
         fmt_row("original (PLY)" if s.scene_path.suffix == ".ply" else "original", orig, n_in, photos)
     )
+    rows: list[tuple[str, dict]] = []  # (label, result) of every coded row, for the equal-bytes gains
+
+    def add(label: str, r: dict) -> None:
+        rows.append((label, r))
+        lines.append(fmt_row(label, r, n_in, photos))
+        print(lines[-1], flush=True)
+
     for q in ("low", "high"):
         r = run_point(s, tmp, ref, quality=q, refine=False, restore=False, tag=f"{q}_plain")
-        lines.append(fmt_row(f"{q}: G~ only", r, n_in, photos))
+        add(f"{q}: G~ only", r)
         r = run_point(s, tmp, ref, quality=q, iterations=iterations, tag=f"{q}_none")
-        lines.append(fmt_row(f"{q}: G~ refined on I~ + R~ (refine: {r['refine']})", r, n_in, photos))
+        add(f"{q}: G~ refined on I~ + R~ (refine: {r['refine']})", r)
         if q == "low" and r["side"]:  # the quantisation cells' share of the gain
             r = run_point(s, tmp, ref, quality=q, iterations=iterations, cells=False, tag=f"{q}_free")
-            lines.append(fmt_row(f"{q}: G~ refined on I~ + R~ (refine: {r['refine']})", r, n_in, photos))
+            add(f"{q}: G~ refined on I~ + R~ (refine: {r['refine']})", r)
         for name in restorers:
             r = run_point(s, tmp, ref, quality=q, iterations=iterations, restorer=name, tag=f"{q}_{name}")
-            lines.append(
-                fmt_row(f"{q}: G~ refined on restorer '{name}' (refine: {r['refine']})", r, n_in, photos)
-            )
-        print("\n".join(lines[-2 - len(restorers) :]), flush=True)
+            add(f"{q}: G~ refined on restorer '{name}' (refine: {r['refine']})", r)
     lines.append("")
+    if gain_lams:
+        _equal_bytes_gains(s, tmp, ref, gain_lams, rows, lines)
 
     if lams:
         lines += [
@@ -316,6 +323,44 @@ def bench_scene(
         lines.append("")
 
 
+def _equal_bytes_gains(
+    s: Setup, tmp: Path, ref, lams: list[float], rows: list[tuple[str, dict]], lines: list[str]
+) -> None:
+    """Each row's PSNR against the codec-alone curve (attributes only, at ``lams``) at the row's bytes."""
+    curve = []
+    for lam in lams:
+        b = run_point(s, tmp, ref, lam=lam, side_info=False, refine=False, restore=False, tag=f"c{lam}")
+        curve.append((b["bytes"], b["psnr"], b.get("psnr_photo")))
+    curve.sort()
+    bx = np.log([c[0] for c in curve])
+    lines += [
+        "Equal-bytes gain of each row over the attribute codec alone (no side information, no refinement) at "
+        f"lambda {', '.join(f'{x:g}' for x in lams)}, interpolated in log bytes:",
+        "",
+        "| lambda | codec bytes | codec PSNR vs original |" + (" codec PSNR photos |" if s.photos else ""),
+        "|---|---|---|" + ("---|" if s.photos else ""),
+    ]
+    for lam, (nb, p, pp) in zip(sorted(lams, reverse=True), curve):
+        lines.append(f"| {lam:g} | {nb:,} | {p:.2f} |" + (f" {pp:.2f} |" if s.photos else ""))
+    lines += [
+        "",
+        "| row | bytes | gain vs original's renders |" + (" gain vs photos |" if s.photos else ""),
+        "|---|---|---|" + ("---|" if s.photos else ""),
+    ]
+    for label, r in rows:
+        x = float(np.log(r["bytes"]))
+        if not bx[0] <= x <= bx[-1]:
+            lines.append(f"| {label} | {r['bytes']:,} | outside the curve |" + (" |" if s.photos else ""))
+            continue
+        g = r["psnr"] - float(np.interp(x, bx, [c[1] for c in curve]))
+        cell = f"| {label} | {r['bytes']:,} | {g:+.2f} dB |"
+        if s.photos:
+            cell += f" {r['psnr_photo'] - float(np.interp(x, bx, [c[2] for c in curve])):+.2f} dB |"
+        lines.append(cell)
+    lines.append("")
+    print("\n".join(lines[-len(rows) - 2 :]), flush=True)
+
+
 def plot(curves: dict, path: Path) -> None:
     import matplotlib
 
@@ -349,6 +394,9 @@ def main(
     ),
     sweep_scenes: int = typer.Option(1, help="how many scenes (in order) get the iteration sweep"),
     lams: str = typer.Option("3,6,12,24", help="lambdas of the rate-distortion comparison ('' to skip)"),
+    gain_lams: str = typer.Option(
+        "", help="lambdas of a codec-alone curve for every row's equal-bytes gain ('' to skip)"
+    ),
     rd_scenes: int = typer.Option(2, help="how many scenes (in order) get the rate-distortion comparison"),
     restorers: str = typer.Option("", help="restorers of the rows table, comma-separated (default: all)"),
     out: Path = typer.Option(Path("bench/pipeline.md")),
@@ -398,6 +446,7 @@ def main(
                 restorers_l,
                 lines,
                 curves,
+                [float(x) for x in gain_lams.split(",") if x],
             )
             out.write_text("\n".join(lines) + "\n")
     lines.append(f"Benchmark time (this run): {time.perf_counter() - t0:.0f} s.")
