@@ -52,6 +52,23 @@ QUALITY: dict[str, Preset] = {
 }
 
 
+# Refinement costs about Gaussians x iterations (an iteration renders every Gaussian a view holds, and Adam
+# steps every attribute: bench/scale.md). A scene larger than REFINE_WORK / (the preset's iterations)
+# Gaussians gets REFINE_WORK / N iterations instead, never fewer than MIN_SCALED_ITERATIONS: about 140 at
+# 350k Gaussians and 50 at 1M, which keeps the default encode and decode of a million-Gaussian scene on one
+# core within 20 minutes (bench/scale_pipeline.md measures time and quality against iterations).
+REFINE_WORK = 50_000_000
+MIN_SCALED_ITERATIONS = 50
+
+
+def refine_iterations_for(preset_iterations: int, num_gaussians: int) -> int:
+    """The preset's refinement length for a scene of ``num_gaussians`` (see REFINE_WORK)."""
+    if preset_iterations <= MIN_SCALED_ITERATIONS:
+        return preset_iterations
+    scaled = REFINE_WORK // max(num_gaussians, 1)
+    return int(min(preset_iterations, max(MIN_SCALED_ITERATIONS, scaled)))
+
+
 def quality_preset(name: str) -> Preset:
     try:
         return QUALITY[name]

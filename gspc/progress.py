@@ -70,12 +70,16 @@ class ProgressLines:
     def __call__(self, stage: str, done: int, total: int) -> None:
         now = self.clock()
         st = self._stages.get(stage)
-        if st is None or done == 0 or total != st.total:
+        if st is None or done == 0:
             st = self._stages[stage] = _Stage(total, now, done, now)
             if self.lines:
                 self.write(f"{stage}: start, {total} {stage_unit(stage) if total > 1 else 'step'}")
             if done == 0:
                 return
+        elif total != st.total:  # a time budget shortened the stage
+            st.total = total
+            if self.lines:
+                self.write(f"{stage}: now {total} {stage_unit(stage)} (time budget)")
         elapsed = now - st.start
         steps = done - st.first_done
         per_step = elapsed / steps if steps > 0 else 0.0

@@ -7,7 +7,10 @@ reproducible), the Gaussian count fixed (no densification or pruning).
 
 from __future__ import annotations
 
+import math
+import time
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 
 import numpy as np
 import torch
@@ -30,6 +33,15 @@ BASE_LR = {
     "sh_rest": 2.5e-3 / 20,
 }
 SSIM_WEIGHT = 0.2
+# With a deadline, the first iterations are timed and the schedule is shortened to what fits (the cosine
+# decay then ends at the deadline instead of being cut off at full learning rate).
+PROBE_ITERATIONS = 3
+
+
+@dataclass
+class Refined:
+    scene: GaussianScene  # detached
+    iterations: int  # iterations run: the requested count, or fewer where a deadline cut the schedule
 
 
 def scene_extent(cameras: Sequence[Camera], scene: GaussianScene) -> float:
@@ -67,15 +79,19 @@ def refine(
     resolution_scale: float = 1.0,
     background: torch.Tensor | None = None,
     seed: int = 0,
-    progress: Callable[[int, float], None] | None = None,
+    progress: Callable[[int, int, float], None] | None = None,
     cells: dict[str, tuple[torch.Tensor, torch.Tensor]] | None = None,
-) -> GaussianScene:
+    deadline: float | None = None,
+) -> Refined:
     """Optimise ``attributes`` of ``scene`` so its renders at ``cameras`` match ``targets`` (H, W, 3).
 
     ``resolution_scale`` < 1 renders and compares at reduced size (targets are area-downsampled),
-    the CPU speed knob. ``progress(iteration, loss)`` is called after every step. ``cells`` (from
+    the CPU speed knob. ``progress(done, total, loss)`` is called after every step (``total`` shrinks if a
+    deadline cuts the schedule). ``cells`` (from
     :func:`gspc.codec.cells.quantisation_cells`) keeps every attribute inside its quantisation cell after
-    each step. Returns a new, detached scene; the input is left unchanged.
+    each step. ``deadline`` (a ``time.perf_counter()`` value): the schedule is shortened, after timing its
+    first iterations, to end by then, and stops there whatever happens; without it the run depends on its
+    inputs alone. Returns a new, detached scene; the input is left unchanged.
     """
     from gspc.metrics import ssim  # imported here: refinement is the only user on the decode path
     from gspc.render import render
@@ -99,8 +115,8 @@ def refine(
         _resize(t.detach().to(device=device, dtype=dtype), c.height, c.width)
         for c, t in zip(cameras, targets, strict=True)
     ]
-    if iterations <= 0:
-        return out
+    if iterations <= 0 or (deadline is not None and time.perf_counter() >= deadline):
+        return Refined(out, 0)
 
     extent = scene_extent(cameras, out)
     groups = []
@@ -112,14 +128,17 @@ def refine(
         lr = BASE_LR[name] * lr_scale * (extent if name == "means" else 1.0)
         groups.append({"params": [t], "lr": lr, "name": name})
     if not groups:
-        return out.detach()
-    opt = torch.optim.Adam(groups, eps=1e-15)
+        return Refined(out.detach(), 0)
+    # fused: one pass over each tensor per step; measured 7.6x faster than the default at 1M Gaussians on one
+    # CPU thread (0.15 vs 1.16 s a step), where the step had been a sixth of an iteration.
+    opt = torch.optim.Adam(groups, eps=1e-15, fused=True)
     base = [g["lr"] for g in opt.param_groups]
     gen = torch.Generator().manual_seed(seed)
 
-    for it in range(iterations):
+    total, it, started = iterations, 0, time.perf_counter()
+    while it < total:
         # Cosine decay to zero: late steps only polish, so the result depends little on where it stops.
-        decay = 0.5 * (1 + np.cos(np.pi * it / iterations))
+        decay = 0.5 * (1 + np.cos(np.pi * it / total))
         for g, lr0 in zip(opt.param_groups, base):
             g["lr"] = lr0 * decay
         v = int(torch.randint(len(cameras), (1,), generator=gen))
@@ -134,6 +153,14 @@ def refine(
                 for g in opt.param_groups:
                     if g["name"] in cells:
                         project(g["name"], g["params"][0], cells[g["name"]])
+        it += 1
+        if deadline is not None:
+            now = time.perf_counter()
+            if it == PROBE_ITERATIONS:
+                per_iteration = (now - started) / it
+                total = min(total, it + max(0, math.floor((deadline - now) / per_iteration)))
+            elif now >= deadline:
+                total = it
         if progress is not None:
-            progress(it, float(loss.detach()))
-    return out.detach()
+            progress(it, total, float(loss.detach()))
+    return Refined(out.detach(), it)

@@ -16,7 +16,7 @@ from gspc.codec import residuals
 from gspc.codec.cells import quantisation_cells
 from gspc.metrics import psnr, quantize8
 from gspc.progress import Progress
-from gspc.refine import refine
+from gspc.refine import Refined, refine
 from gspc.render import render
 from gspc.scene import GaussianScene
 
@@ -70,12 +70,12 @@ def mean_psnr(a: Sequence[torch.Tensor], b: Sequence[torch.Tensor]) -> float:
 
 def refine_progress(
     progress: Progress | None, stage: str, iterations: int
-) -> Callable[[int, float], None] | None:
+) -> Callable[[int, int, float], None] | None:
     """refine()'s per-iteration callback reporting to ``progress`` under ``stage`` (opened here)."""
     if progress is None:
         return None
     progress(stage, 0, iterations)
-    return lambda i, loss: progress(stage, i + 1, iterations)
+    return lambda done, total, loss: progress(stage, done, total)
 
 
 def refine_in_cells(
@@ -89,9 +89,10 @@ def refine_in_cells(
     stage: str = "refine",
     seed: int = 0,
     lr_scale: float = 1.0,
-) -> GaussianScene:
+    deadline: float | None = None,
+) -> Refined:
     """The decoder's refinement of G~ against ``targets``, inside the quantisation cells of
-    ``attributes_meta`` (None: free refinement)."""
+    ``attributes_meta`` (None: free refinement), ending by ``deadline`` when one is given."""
     bg = torch.tensor(background, dtype=decoded.means.dtype, device=decoded.means.device)
     return refine(
         decoded,
@@ -103,4 +104,5 @@ def refine_in_cells(
         lr_scale=lr_scale,
         progress=refine_progress(progress, stage, iterations),
         cells=quantisation_cells(decoded, attributes_meta) if attributes_meta is not None else None,
+        deadline=deadline,
     )

@@ -50,6 +50,6 @@ def project(name: str, value: torch.Tensor, box: Box) -> None:
         centre = (lo + hi) / 2
         unit = value / value.norm(dim=1, keepdim=True).clamp_min(1e-12)
         unit = unit * torch.where((unit * centre).sum(1, keepdim=True) < 0, -1.0, 1.0)
-        value.copy_(torch.minimum(torch.maximum(unit, lo), hi))
+        value.copy_(unit.clamp_(lo, hi))
     else:
-        value.copy_(torch.minimum(torch.maximum(value, lo), hi))
+        value.clamp_(lo, hi)

@@ -15,7 +15,7 @@ from gspc.codec.attributes import EncodedAttributes, encode_attributes, search_l
 from gspc.codec.params import CodecParams
 from gspc.encoder.side import SideCandidate, side_candidate
 from gspc.options import EncodeOptions
-from gspc.presets import quality_preset
+from gspc.presets import quality_preset, refine_iterations_for
 from gspc.scene import GaussianScene
 from gspc.views import limit_size, sample_views, synthesize_views
 from gspc.visibility import visible_mask
@@ -62,8 +62,10 @@ class Iterations:
     refine: int  # the decoder's default, written to the header
 
 
-def iteration_counts(opts: EncodeOptions) -> Iterations:
-    preset = quality_preset(opts.quality).refine_iterations
+def iteration_counts(opts: EncodeOptions, num_gaussians: int) -> Iterations:
+    """The check's and the decoder's refinement lengths: an explicit ``--check-iterations``, else the preset's
+    scaled down for large scenes (gspc/presets.py, REFINE_WORK)."""
+    preset = refine_iterations_for(quality_preset(opts.quality).refine_iterations, num_gaussians)
     check = preset if opts.check_iterations is None else opts.check_iterations
     return Iterations(check, check or preset)  # unchecked files name the preset's
 
