@@ -115,6 +115,7 @@ def refine(
         return out.detach()
     opt = torch.optim.Adam(groups, eps=1e-15)
     base = [g["lr"] for g in opt.param_groups]
+    # A CPU generator whatever the scene's device: the views are drawn in the same order on every device.
     gen = torch.Generator().manual_seed(seed)
 
     for it in range(iterations):
