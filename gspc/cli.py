@@ -152,6 +152,7 @@ def encode(
     restorer: str = _option(EncodeOptions, "restorer"),
     check_iterations: int | None = _option(EncodeOptions, "check_iterations"),
     background: tuple[float, float, float] = _option(EncodeOptions, "background"),
+    device: str = _option(EncodeOptions, "device"),
 ) -> None:
     """Compress a 3DGS scene into a .gspc file."""
     from gspc.pipeline import encode as run
@@ -170,6 +171,7 @@ def encode(
         background=background,
         check_iterations=check_iterations,
         restorer=restorer,
+        device=device,
     )
     with _progress_bars() as cb:
         rep = run(scene, output, cameras, opts, progress=cb)

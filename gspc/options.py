@@ -100,6 +100,7 @@ def check_encode_options(o: Any) -> None:
     check_iterations(o.check_iterations, "--check-iterations")
     check_int("check_views", o.check_views, 1)
     check_real("check_margin_db", o.check_margin_db, -100.0, 100.0)
+    # device: checked (DeviceError) by gspc/device.py check_device, also before any work (it needs torch)
 
 
 def check_decode_options(o: Any) -> None:
@@ -107,7 +108,7 @@ def check_decode_options(o: Any) -> None:
     check_iterations(o.iterations, "--iterations")
     if o.restorer is not None:
         _check_name("--restorer", o.restorer)
-    # device: checked (DeviceError) by gspc/pipeline.py _check_device, also before any work
+    # device: checked (DeviceError) by gspc/device.py check_device, also before any work (it needs torch)
     check_int("seed", o.seed, 0)
     check_real("lr_scale", o.lr_scale, 0.0, 1e3, lo_open=True)
 
@@ -154,6 +155,7 @@ class EncodeOptions:
     # Side information must beat its rivals by this much at the check views: a tie within the noise of
     # 8 sampled views lost 0.25 dB at 13 others on the lego fit (bench/pipeline_equal_bytes.md).
     check_margin_db: float = knob(0.15, "dB by which side information must beat its rivals at the check")
+    device: str = knob("cpu", "cpu or cuda (renders, check, restorer; the attribute codec runs on the CPU)")
 
     def validate(self) -> None:
         """InputError naming the first option out of range; called before any work."""

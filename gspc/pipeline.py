@@ -4,6 +4,9 @@ side-information policy in gspc/encoder/policy.py.
 encode:  scene -> attribute codec -> G~ (through the decoder's own path)
          cameras -> sampled views -> render G and G~ -> residuals -> image codec (JPEG XL) -> container
 decode:  container -> G~ -> render at stored views -> restore (I~ (+) R~) -> refine -> PLY
+
+Rendering, the check, restoration and refinement run on the options' device; the attribute codec runs on
+the CPU (gspc/device.py), and its decoded scene is moved to the device where it is rendered.
 """
 
 from __future__ import annotations
@@ -13,14 +16,13 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import torch
-
 from gspc import __version__
 from gspc.atomic import atomic_write_bytes
 from gspc.cameras import Camera
 from gspc.codec import container, residuals
 from gspc.codec.attributes import attribute_chunks, decode_attributes
 from gspc.codec.sideinfo import side_views
+from gspc.device import check_device, renderer_info
 from gspc.encoder.policy import CheckInputs, SideInfoDecision, check_cameras, check_side_info
 from gspc.encoder.side import SideCandidate, view_residuals
 from gspc.encoder.stages import (
@@ -31,7 +33,7 @@ from gspc.encoder.stages import (
     sample_side_views,
     side_candidates,
 )
-from gspc.errors import CodecError, DeviceError, InputError
+from gspc.errors import CodecError, InputError
 from gspc.format.chunks import ATTRIBUTE_TYPES, SIDE
 from gspc.format.header import FileHeader, SceneSummary, SideInfoHeader, check_view_sizes
 from gspc.io import read_scene, write_ply
@@ -95,6 +97,7 @@ def encode(
     """Encode the scene file at ``scene_path`` (with the cameras at ``cameras_path``) into ``out_path``."""
     opts = opts or EncodeOptions()
     opts.validate()
+    check_device(opts.device)
     refuse_output_over_input(out_path, scene_path, cameras_path)
     rep = Report()
     with _stage(rep, progress, "read"):
@@ -116,10 +119,12 @@ def encode_scene(
     """Encode a scene in memory: (the .gspc file's bytes, what was done). ``cameras`` None: synthesised."""
     opts = opts or EncodeOptions()
     opts.validate()
+    device = check_device(opts.device)
     rep = rep or Report()
     rep.num_gaussians_in = scene.num_gaussians
+    rep.info["renderer"] = renderer_info(device)
     cameras = encoder_cameras(scene, cameras, opts)
-    restorer = load_restorer(opts.restorer)  # fails early on a name the package lacks
+    restorer = load_restorer(opts.restorer, device=device)  # fails early on a name the package lacks
     with _stage(rep, progress, "attributes"):
         coded_attributes = code_attributes(scene, cameras, codec_params(opts), opts.target_size)
     enc = coded_attributes.encoded
@@ -128,8 +133,9 @@ def encode_scene(
     side: SideCandidate | None = None  # the side information sent, if any
     if views:
         with rep.timed("render"):
-            original = render_images(scene, view_cams, opts.background, progress, "render original")
-            coded = render_images(enc.decoded, view_cams, opts.background, progress, "render coded")
+            bg = opts.background
+            original = render_images(scene.to(device), view_cams, bg, progress, "render original")
+            coded = render_images(enc.decoded.to(device), view_cams, bg, progress, "render coded")
         with _stage(rep, progress, "side info"):
             candidates = side_candidates(opts, view_cams, view_residuals(original, coded), runs.check)
         # No residual anywhere: no chunk at all (cameras alone would be dead weight).
@@ -149,6 +155,7 @@ def encode_scene(
                 iterations=runs.refine,
                 background=opts.background,
                 margin_db=opts.check_margin_db,
+                device=device,
             )
             with _stage(rep, progress, "check"):
                 result = check_side_info(inputs, progress)
@@ -189,14 +196,6 @@ def _byte_budget(data: bytes) -> dict[str, int]:
     return budget
 
 
-def _check_device(device: str) -> torch.device:
-    if device not in ("cpu", "cuda"):
-        raise DeviceError(f"unknown device {device!r}; use cpu or cuda")
-    if device == "cuda" and not torch.cuda.is_available():
-        raise DeviceError("--device cuda was requested but no CUDA GPU is available")
-    return torch.device(device)
-
-
 def decode(
     in_path: str | Path,
     out_path: str | Path,
@@ -206,7 +205,7 @@ def decode(
     """Decode the .gspc file at ``in_path`` into an INRIA PLY at ``out_path``."""
     opts = opts or DecodeOptions()
     opts.validate()
-    _check_device(opts.device)
+    check_device(opts.device)
     refuse_output_over_input(out_path, in_path)
     rep = Report()
     with rep.timed("read"):
@@ -226,8 +225,9 @@ def decode_bytes(
     """Decode a .gspc file's bytes in memory: (the decoded, restored and refined scene, what was done)."""
     opts = opts or DecodeOptions()
     opts.validate()
-    device = _check_device(opts.device)
+    device = check_device(opts.device)
     rep = rep or Report()
+    rep.info["renderer"] = renderer_info(device)
     with _stage(rep, progress, "read"):
         c = container.unpack(data)
         fields = FileHeader.from_dict(c.header)
@@ -240,7 +240,7 @@ def decode_bytes(
             cam = views[k]["camera"]
             residuals.check_residual(image, views[k].get("residual"), (cam["height"], cam["width"]))
         restorer_name = opts.restorer if opts.restorer is not None else fields.side_info.restorer
-        restorer = load_restorer(restorer_name) if opts.restore else None
+        restorer = load_restorer(restorer_name, device=device) if opts.restore else None
     rep.bytes = _byte_budget(data)
     with _stage(rep, progress, "attributes"):
         scene = decode_attributes(chunks, attr_meta)

@@ -133,6 +133,7 @@ def refine(
     # CPU thread (0.15 vs 1.16 s a step), where the step had been a sixth of an iteration.
     opt = torch.optim.Adam(groups, eps=1e-15, fused=True)
     base = [g["lr"] for g in opt.param_groups]
+    # A CPU generator whatever the scene's device: the views are drawn in the same order on every device.
     gen = torch.Generator().manual_seed(seed)
 
     total, it, started = iterations, 0, time.perf_counter()

@@ -96,7 +96,10 @@ class SideInfoDecision:
 @dataclass
 class CheckInputs:
     """What the check needs: the scene and its coding, the side-information views and their renders, the
-    candidates, and the decoder's configuration it predicts (restorer, iterations, background)."""
+    candidates, and the decoder's configuration it predicts (restorer, iterations, background).
+
+    Scenes are on the CPU, where the attribute codec runs; the check renders and refines them on ``device``,
+    where the renders and the restorer already are."""
 
     scene: GaussianScene
     attributes: EncodedAttributes
@@ -111,6 +114,7 @@ class CheckInputs:
     iterations: int
     background: tuple[float, float, float]
     margin_db: float  # side information must win by this much
+    device: torch.device = torch.device("cpu")  # renders and refinement run here
 
 
 @dataclass
@@ -133,10 +137,11 @@ def check_side_info(inp: CheckInputs, progress: Progress | None = None) -> Check
     """Run the decoder's refinement and keep the side information only if it beats, at the check views, the
     coded scene and the same bytes spent on attributes, by ``margin_db``."""
     enc = inp.attributes
-    reference = render_images(inp.scene, inp.check_cameras, inp.background, progress, "check render original")
+    scene = inp.scene.to(inp.device)
+    reference = render_images(scene, inp.check_cameras, inp.background, progress, "check render original")
 
     def score(s: GaussianScene) -> float:
-        return mean_psnr(render_images(s, inp.check_cameras, inp.background), reference)
+        return mean_psnr(render_images(s.to(inp.device), inp.check_cameras, inp.background), reference)
 
     def rival(candidate: SideCandidate) -> tuple[EncodedAttributes, float]:
         """The fair rival: the same total bytes spent on attributes alone, and its PSNR."""
@@ -215,7 +220,14 @@ def _refined(
     """The decoder's refinement as the encoder predicts it (same targets, iterations and cells)."""
     enc = inp.attributes
     return refine_in_cells(
-        enc.decoded, enc.meta, inp.view_cameras, targets, iterations, inp.background, progress, stage
+        enc.decoded.to(inp.device),
+        enc.meta,
+        inp.view_cameras,
+        targets,
+        iterations,
+        inp.background,
+        progress,
+        stage,
     )
 
 

@@ -32,8 +32,8 @@ class SideCandidate:
 
 
 def view_residuals(original: list[torch.Tensor], coded: list[torch.Tensor]) -> list[np.ndarray]:
-    """R = I - I~ per view, float32 (H, W, 3)."""
-    return [(a - b).numpy().astype(np.float32) for a, b in zip(original, coded)]
+    """R = I - I~ per view, float32 (H, W, 3) on the CPU (the residual image codecs are numpy)."""
+    return [(a - b).cpu().numpy().astype(np.float32) for a, b in zip(original, coded)]
 
 
 def side_candidate(

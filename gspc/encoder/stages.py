@@ -47,8 +47,11 @@ class CodedAttributes:
 def code_attributes(
     scene: GaussianScene, cameras: list[Camera], params: CodecParams, target_size: int | None = None
 ) -> CodedAttributes:
-    """Prune what no camera sees and code the rest (at ``target_size`` bytes when given)."""
-    visible = visible_mask(scene.means.numpy(), scene.log_scales.numpy(), cameras)
+    """Prune what no camera sees and code the rest (at ``target_size`` bytes when given), on the CPU: the
+    visibility mask decides what is coded, so it is numpy like the codec."""
+    visible = visible_mask(
+        scene.means.detach().cpu().numpy(), scene.log_scales.detach().cpu().numpy(), cameras
+    )
     if target_size is not None:
         enc = search_lambda(scene, target_size, params, visible=visible)
     else:

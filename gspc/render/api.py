@@ -35,13 +35,19 @@ def render(
     return _render_torch(scene, camera, bg, deg)
 
 
+def backend_for(device: torch.device) -> str:
+    """The backend that ``backend="auto"`` picks for a scene on ``device``: gsplat on CUDA when it imports,
+    else the torch renderer (on that same device)."""
+    return "gsplat" if device.type == "cuda" and gsplat_available() else "torch"
+
+
 def _pick_backend(backend: str, ref: torch.Tensor) -> str:
     if backend not in BACKENDS:
         raise InputError(f"unknown render backend {backend!r}; choose one of {', '.join(BACKENDS)}")
     if backend == "torch":
         return "torch"
     if backend == "auto":
-        return "gsplat" if ref.is_cuda and gsplat_available() else "torch"
+        return backend_for(ref.device)
     if not ref.is_cuda:
         raise DeviceError(
             "render backend 'gsplat' needs the scene on a CUDA device; use backend 'torch' on CPU"
