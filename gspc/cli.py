@@ -153,6 +153,7 @@ def encode(
     check_iterations: int | None = _option(EncodeOptions, "check_iterations"),
     background: tuple[float, float, float] = _option(EncodeOptions, "background"),
     device: str = _option(EncodeOptions, "device"),
+    time_budget: float | None = _option(EncodeOptions, "time_budget"),
 ) -> None:
     """Compress a 3DGS scene into a .gspc file."""
     from gspc.pipeline import encode as run
@@ -172,6 +173,7 @@ def encode(
         check_iterations=check_iterations,
         restorer=restorer,
         device=device,
+        time_budget=time_budget,
     )
     with _progress_bars() as cb:
         rep = run(scene, output, cameras, opts, progress=cb)
@@ -189,6 +191,7 @@ def decode(
     restorer: str | None = _option(DecodeOptions, "restorer"),
     in_cells: bool = _option(DecodeOptions, "in_cells"),
     device: str = _option(DecodeOptions, "device"),
+    time_budget: float | None = _option(DecodeOptions, "time_budget"),
 ) -> None:
     """Decode a .gspc file into a standard 3DGS PLY."""
     from gspc.pipeline import decode as run
@@ -202,6 +205,7 @@ def decode(
         restorer=restorer,
         device=device,
         in_cells=in_cells,
+        time_budget=time_budget,
     )
     with _progress_bars() as cb:
         rep = run(source, output, opts, progress=cb)

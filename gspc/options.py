@@ -28,6 +28,7 @@ from gspc.limits import (
 from gspc.presets import DEFAULT_RESTORER, QUALITY, quality_preset
 
 _MAX_RESIDUAL_SCALE = 16  # the SIDE chunk's scale field allows 1..16 (gspc/codec/sideinfo.py)
+MAX_TIME_BUDGET_S = 1e7  # about 4 months: anything larger is a typo
 
 
 def check_int(name: str, value: Any, lo: int, hi: int | None = None) -> int:
@@ -78,6 +79,10 @@ def _check_name(name: str, value: Any) -> None:
         raise InputError(f"{name} must be a name, got {value!r}")
 
 
+def check_time_budget(value: Any) -> float | None:
+    return None if value is None else check_real("--time-budget", value, 0.0, MAX_TIME_BUDGET_S, lo_open=True)
+
+
 def check_encode_options(o: Any) -> None:
     """Every field of an EncodeOptions."""
     _check_name("--quality", o.quality)
@@ -100,6 +105,7 @@ def check_encode_options(o: Any) -> None:
     check_iterations(o.check_iterations, "--check-iterations")
     check_int("check_views", o.check_views, 1)
     check_real("check_margin_db", o.check_margin_db, -100.0, 100.0)
+    check_time_budget(o.time_budget)
     # device: checked (DeviceError) by gspc/device.py check_device, also before any work (it needs torch)
 
 
@@ -111,6 +117,7 @@ def check_decode_options(o: Any) -> None:
     # device: checked (DeviceError) by gspc/device.py check_device, also before any work (it needs torch)
     check_int("seed", o.seed, 0)
     check_real("lr_scale", o.lr_scale, 0.0, 1e3, lo_open=True)
+    check_time_budget(o.time_budget)
 
 
 def knob(default: Any, help: str, flag: str | None = None) -> Any:
@@ -155,6 +162,12 @@ class EncodeOptions:
     # Side information must beat its rivals by this much at the check views: a tie within the noise of
     # 8 sampled views lost 0.25 dB at 13 others on the lego fit (bench/pipeline_equal_bytes.md).
     check_margin_db: float = knob(0.15, "dB by which side information must beat its rivals at the check")
+    time_budget: float | None = knob(
+        None,
+        "seconds the encode may take: the check's refinement is shortened to end in time (the length it ran "
+        "is written to the file as the decoder's default; without this, large scenes get fewer iterations "
+        "by a fixed rule, gspc/presets.py)",
+    )
     device: str = knob("cpu", "cpu or cuda (renders, check, restorer; the attribute codec runs on the CPU)")
 
     def validate(self) -> None:
@@ -174,6 +187,11 @@ class DecodeOptions:
     seed: int = knob(0, "refinement's random seed")
     lr_scale: float = knob(1.0, "multiplies every refinement learning rate")
     in_cells: bool = knob(True, "keep refined attributes inside their quantisation cells", "--cells")
+    time_budget: float | None = knob(
+        None,
+        "seconds the decode may take before writing: refinement is shortened to end in time (its result "
+        "then depends on this machine's speed)",
+    )
 
     def validate(self) -> None:
         """InputError naming the first option out of range; called before any work."""

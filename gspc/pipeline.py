@@ -58,6 +58,7 @@ class Report:
     info: dict[str, object] = field(default_factory=dict)
     views: int = 0  # side-information views stored (encode) or read (decode)
     views_with_residual: int = 0
+    started: float = field(default_factory=time.perf_counter)  # a time budget counts from here
     side_info: SideInfoDecision | None = None  # the encoder's check, when it ran
     refine_iterations: int = 0  # refinement iterations the decoder ran (0: none)
 
@@ -128,7 +129,8 @@ def encode_scene(
     with _stage(rep, progress, "attributes"):
         coded_attributes = code_attributes(scene, cameras, codec_params(opts), opts.target_size)
     enc = coded_attributes.encoded
-    runs = iteration_counts(opts)
+    runs = iteration_counts(opts, enc.decoded.num_gaussians)
+    refine_iterations = runs.refine
     views, view_cams = sample_side_views(cameras, opts)
     side: SideCandidate | None = None  # the side information sent, if any
     if views:
@@ -156,11 +158,13 @@ def encode_scene(
                 background=opts.background,
                 margin_db=opts.check_margin_db,
                 device=device,
+                deadline=None if opts.time_budget is None else rep.started + opts.time_budget,
             )
             with _stage(rep, progress, "check"):
                 result = check_side_info(inputs, progress)
             side, enc, rep.side_info = result.side, result.attributes, result.decision
             rep.info.update(result.decision.summary())
+            refine_iterations = result.decision.iterations  # what the check ran (a time budget may cut it)
     rep.num_gaussians_out = enc.decoded.num_gaussians
 
     chunks = [container.Chunk(name, enc.chunks[name]) for name in ATTRIBUTE_TYPES if name in enc.chunks]
@@ -170,7 +174,7 @@ def encode_scene(
         encoder=f"gspc {__version__}",
         scene=SceneSummary(enc.decoded.num_gaussians, enc.decoded.sh_degree, scene.num_gaussians),
         attributes=enc.meta,
-        side_info=SideInfoHeader(opts.background, opts.restorer, runs.refine),
+        side_info=SideInfoHeader(opts.background, opts.restorer, refine_iterations),
     )
     with rep.timed("write"):
         data = container.pack(file_header.to_dict(), chunks)
@@ -260,11 +264,10 @@ def decode_bytes(
         if opts.refine and iterations > 0 and not has_residual:
             rep.info["refine"] = "skipped (no view carries a residual)"
         if opts.refine and iterations > 0 and has_residual:
-            rep.info["refine"] = f"{iterations} iterations" + ("" if opts.in_cells else ", cells off")
-            rep.refine_iterations = iterations
+            deadline = None if opts.time_budget is None else rep.started + opts.time_budget
             with rep.timed("refine"):
                 cells_meta = attr_meta if opts.in_cells else None
-                scene = refine_in_cells(
+                refined = refine_in_cells(
                     scene,
                     cells_meta,
                     cams,
@@ -274,7 +277,13 @@ def decode_bytes(
                     progress,
                     seed=opts.seed,
                     lr_scale=opts.lr_scale,
+                    deadline=deadline,
                 )
+            scene, rep.refine_iterations = refined.scene, refined.iterations
+            ran = f"{refined.iterations} iterations"
+            if refined.iterations < iterations:
+                ran += f" of {iterations} (time budget {opts.time_budget:g} s)"
+            rep.info["refine"] = ran + ("" if opts.in_cells else ", cells off")
     rep.info["restorer"] = restorer_name if opts.restore else "off"
     rep.views = rep.info["views"] = len(cams)
     rep.views_with_residual = len(res_chunks)

@@ -59,18 +59,20 @@ def setup():
 def test_refine_reduces_loss_and_is_deterministic(setup):
     render, cams, targets, perturbed = setup
     calls = []
-    out = refine(perturbed, cams, targets, iterations=30, progress=lambda i, loss: calls.append((i, loss)))
-    assert [i for i, _ in calls] == list(range(30))
+    run = refine(perturbed, cams, targets, iterations=30, progress=lambda *a: calls.append(a))
+    assert [(done, total) for done, total, _ in calls] == [(i + 1, 30) for i in range(30)]
+    assert run.iterations == 30
+    out = run.scene
     assert out.num_gaussians == perturbed.num_gaussians
     assert not out.means.requires_grad
     assert _loss(out, cams, targets, render) < 0.9 * _loss(perturbed, cams, targets, render)
-    assert scene_equal(out, refine(perturbed, cams, targets, iterations=30))
+    assert scene_equal(out, refine(perturbed, cams, targets, iterations=30).scene)
 
 
 def test_refine_only_chosen_attributes_and_leaves_input(setup):
     _, cams, targets, perturbed = setup
     before = perturbed.detach()
-    out = refine(perturbed, cams, targets, iterations=3, attributes=("sh_dc",), resolution_scale=0.5)
+    out = refine(perturbed, cams, targets, iterations=3, attributes=("sh_dc",), resolution_scale=0.5).scene
     assert scene_equal(perturbed, before)
     assert torch.equal(out.means, perturbed.means) and torch.equal(out.opacities, perturbed.opacities)
     assert not torch.equal(out.sh_dc, perturbed.sh_dc)
@@ -85,7 +87,23 @@ def test_refine_checks_inputs():
         refine(scene, cams, [torch.zeros(16, 32, 3)] * 2, iterations=1)
     with pytest.raises(InputError):
         refine(scene, cams, [torch.zeros(32, 32, 3)] * 2, iterations=1, attributes=("colour",))
-    assert scene_equal(refine(scene, cams, [torch.zeros(32, 32, 3)] * 2, iterations=0), scene)
+    assert scene_equal(refine(scene, cams, [torch.zeros(32, 32, 3)] * 2, iterations=0).scene, scene)
+
+
+def test_refine_deadline_shortens_the_schedule(setup, monkeypatch):
+    """A deadline: the first PROBE_ITERATIONS are timed and the schedule cut to what fits; the decay then
+    still ends at zero (no step at full rate is left for last). A clock stands in for the machine's."""
+    import gspc.refine as refine_module
+
+    _, cams, targets, perturbed = setup
+    clock = iter(range(0, 10_000))  # one "second" per reading
+    monkeypatch.setattr(refine_module.time, "perf_counter", lambda: float(next(clock)))
+    calls = []
+    run = refine(perturbed, cams, targets, iterations=100, deadline=12.0, progress=lambda *a: calls.append(a))
+    assert refine_module.PROBE_ITERATIONS < run.iterations < 100
+    assert calls[-1][:2] == (run.iterations, run.iterations)
+    # A deadline already passed: nothing runs, the scene is returned as it came.
+    assert refine(perturbed, cams, targets, iterations=100, deadline=-1.0).iterations == 0
 
 
 def test_scene_extent_from_cameras():

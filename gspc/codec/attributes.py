@@ -45,6 +45,7 @@ class EncodedAttributes:
     meta: dict
     decoded: GaussianScene  # G~, from decode_attributes on the chunks
     kept: np.ndarray  # indices into the input scene, in decoded (curve) order
+    lam: float  # the rate knob it was coded at
 
     @property
     def num_bytes(self) -> int:
@@ -140,7 +141,7 @@ def encode_attributes(
             [encode_matrix(flags[:, None].astype(np.int64)), encode_matrix(q[flags])], use_bin_type=True
         )
     decoded = decode_attributes(chunks, meta)
-    return EncodedAttributes(chunks=chunks, meta=meta, decoded=decoded, kept=kept)
+    return EncodedAttributes(chunks=chunks, meta=meta, decoded=decoded, kept=kept, lam=params.lam)
 
 
 def attribute_chunks(chunks: list) -> dict[str, bytes]:
@@ -221,15 +222,16 @@ def search_lambda(
     Searches log lambda by secant steps on log size within a bracket that bisection narrows when a step
     would not (each try is a whole encode: a million Gaussians take half a minute, so steps are few).
     Stops when a fit lands within ``rel_tol`` under the target; if even the coarsest lambda tried is too
-    big, returns that one (the caller reports the miss). ``first``: the encoding at ``params.lam``, if the
-    caller has it already.
+    big, returns that one (the caller reports the miss). ``first``: an encoding the caller already has, made
+    with ``params`` and ``visible`` at any lambda (the search starts from its lambda).
     """
     lo, hi = math.log(1e-3), math.log(1e3)  # log lambda: sizes above the target at lo, below at hi
     best: EncodedAttributes | None = None
     fallback: EncodedAttributes | None = None
     tried: list[tuple[float, float]] = []  # (log lambda, log size)
     # Aim at the middle of the accepted window [1 - rel_tol, 1] x target.
-    x, goal = math.log(params.lam), math.log(target_bytes * (1.0 - 0.5 * rel_tol))
+    x = math.log(first.lam if first is not None else params.lam)
+    goal = math.log(target_bytes * (1.0 - 0.5 * rel_tol))
     for k in range(max_iter):
         if k == 0 and first is not None:
             enc = first

@@ -7,6 +7,7 @@ measured PSNR are fields, which the pipeline reports and tests assert on.
 
 from __future__ import annotations
 
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from enum import Enum
@@ -20,6 +21,7 @@ from gspc.codec.attributes import EncodedAttributes, search_lambda
 from gspc.codec.params import CodecParams
 from gspc.encoder.side import SideCandidate
 from gspc.progress import Progress
+from gspc.refine import Refined
 from gspc.scene import GaussianScene
 from gspc.stages import mean_psnr, refine_in_cells, render_images, restored_targets
 
@@ -65,6 +67,7 @@ class SideInfoDecision:
     rival_db: float  # the chosen candidate's rival: the same bytes on attributes
     short_iterations: int  # the trial run's length
     short_check_failed: bool  # the trial run made the coded scene worse: the long run was skipped
+    iterations: int  # the refinement run that decided: the decoder's default (a time budget may cut it)
     candidates: tuple[CandidateScore, ...]
 
     def summary(self) -> dict[str, str]:
@@ -115,6 +118,9 @@ class CheckInputs:
     background: tuple[float, float, float]
     margin_db: float  # side information must win by this much
     device: torch.device = torch.device("cpu")  # renders and refinement run here
+    # time.perf_counter() by which the encode should end: refinement is shortened so that it and the final
+    # scoring fit (None: the full ``iterations``).
+    deadline: float | None = None
 
 
 @dataclass
@@ -143,15 +149,24 @@ def check_side_info(inp: CheckInputs, progress: Progress | None = None) -> Check
     def score(s: GaussianScene) -> float:
         return mean_psnr(render_images(s.to(inp.device), inp.check_cameras, inp.background), reference)
 
+    t0 = time.perf_counter()
+    before = score(enc.decoded)
+    # A refinement must leave time for the scoring after it (one more like this one) and the writing.
+    deadline = None if inp.deadline is None else inp.deadline - 1.5 * (time.perf_counter() - t0)
+
     def rival(candidate: SideCandidate) -> tuple[EncodedAttributes, float]:
         """The fair rival: the same total bytes spent on attributes alone, and its PSNR."""
         extra = len(candidate.payload) + CHUNK_ENTRY_BYTES
         alt = search_lambda(
-            inp.scene, enc.num_bytes + extra, inp.params, visible=inp.visible, rel_tol=RIVAL_TOLERANCE
+            inp.scene,
+            enc.num_bytes + extra,
+            inp.params,
+            visible=inp.visible,
+            rel_tol=RIVAL_TOLERANCE,
+            first=enc,
         )
         return alt, score(alt.decoded)
 
-    before = score(enc.decoded)
     rivals = []
     for k, c in enumerate(inp.candidates):
         if progress:
@@ -172,10 +187,12 @@ def check_side_info(inp: CheckInputs, progress: Progress | None = None) -> Check
     # A run a tenth as long first: where refinement makes the coded scene worse, the long run is not worth
     # its minutes.
     short = _short_length(inp.iterations)
-    after = score(_refined(inp, targets, short, progress, "check refine (short)"))
+    run = _refined(inp, targets, short, progress, "check refine (short)", deadline)
+    after, ran = score(run.scene), run.iterations
     failed = after < before
-    if not failed and short < inp.iterations:
-        after = score(_refined(inp, targets, inp.iterations, progress, "check refine"))
+    if not failed and short < inp.iterations and (deadline is None or time.perf_counter() < deadline):
+        run = _refined(inp, targets, inp.iterations, progress, "check refine", deadline)
+        after, ran = score(run.scene), run.iterations
     if after >= max(before, alt_psnr) + inp.margin_db:
         outcome = Outcome.SENT
     elif alt_psnr > before:
@@ -193,6 +210,7 @@ def check_side_info(inp: CheckInputs, progress: Progress | None = None) -> Check
         rival_db=alt_psnr,
         short_iterations=short,
         short_check_failed=failed,
+        iterations=ran,
         candidates=tuple(
             CandidateScore(c.scale, len(c.payload), g, r[1]) for c, g, r in zip(inp.candidates, gains, rivals)
         ),
@@ -215,8 +233,13 @@ def _target_gain(original: list[torch.Tensor], coded: list[torch.Tensor], side: 
 
 
 def _refined(
-    inp: CheckInputs, targets: list[torch.Tensor], iterations: int, progress: Progress | None, stage: str
-) -> GaussianScene:
+    inp: CheckInputs,
+    targets: list[torch.Tensor],
+    iterations: int,
+    progress: Progress | None,
+    stage: str,
+    deadline: float | None,
+) -> Refined:
     """The decoder's refinement as the encoder predicts it (same targets, iterations and cells)."""
     enc = inp.attributes
     return refine_in_cells(
@@ -228,6 +251,7 @@ def _refined(
         inp.background,
         progress,
         stage,
+        deadline=deadline,
     )
 
 
