@@ -164,7 +164,8 @@ def encode_scene(
                 result = check_side_info(inputs, progress)
             side, enc, rep.side_info = result.side, result.attributes, result.decision
             rep.info.update(result.decision.summary())
-            refine_iterations = result.decision.iterations  # what the check ran (a time budget may cut it)
+            if result.side is not None:  # the decoder runs what the check ran (a time budget may cut it)
+                refine_iterations = result.decision.iterations
     rep.num_gaussians_out = enc.decoded.num_gaussians
 
     chunks = [container.Chunk(name, enc.chunks[name]) for name in ATTRIBUTE_TYPES if name in enc.chunks]

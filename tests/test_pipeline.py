@@ -9,7 +9,7 @@ from scenes import random_scene
 from gspc.codec import container
 from gspc.codec.sideinfo import side_views
 from gspc.encoder.policy import Outcome
-from gspc.errors import CodecError
+from gspc.errors import CodecError, InputError
 from gspc.io import read_scene, write_ply
 from gspc.pipeline import DecodeOptions, EncodeOptions, decode, decode_bytes, encode, encode_scene
 
@@ -185,3 +185,34 @@ def test_memory_api_matches_the_path_api(encoded, tmp_path):
     dst = tmp_path / "d.ply"
     decode(out, dst, DecodeOptions(iterations=3))
     assert torch.equal(read_scene(dst).sh_dc, scene.sh_dc) and drep.refine_iterations == 3
+
+
+def test_decode_time_budget_shortens_refinement(encoded, tmp_path):
+    _, out, _ = encoded
+    rep = decode(out, tmp_path / "b.ply", DecodeOptions(iterations=40, time_budget=1e-6))
+    assert rep.refine_iterations < 40 and "time budget" in rep.info["refine"]
+    rep = decode(out, tmp_path / "f.ply", DecodeOptions(iterations=4, time_budget=3600))
+    assert rep.refine_iterations == 4 and rep.info["refine"] == "4 iterations"
+
+
+@pytest.mark.parametrize("value", [0, -5, float("nan"), float("inf"), "soon"])
+def test_bad_time_budgets_are_refused(encoded, tmp_path, value):
+    src, out, _ = encoded
+    with pytest.raises(InputError, match="--time-budget"):
+        decode(out, tmp_path / "x.ply", DecodeOptions(time_budget=value))
+    with pytest.raises(InputError, match="--time-budget"):
+        encode(src, tmp_path / "x.gspc", opts=EncodeOptions(time_budget=value))
+    assert not (tmp_path / "x.ply").exists() and not (tmp_path / "x.gspc").exists()
+
+
+@pytest.mark.slow
+def test_encode_time_budget_writes_the_iterations_it_checked(tmp_path):
+    src = tmp_path / "in.ply"
+    write_ply(scene(seed=4), src)
+    out = tmp_path / "c.gspc"
+    opts = EncodeOptions(lam=40, synth_views=6, max_side=40, check_iterations=400, time_budget=1e-6)
+    rep = encode(src, out, opts=opts)
+    d = rep.side_info
+    assert d is not None and d.iterations < 400
+    written = container.read(out).header["side_info"]["refine_iterations"]
+    assert written == (d.iterations if d.outcome is Outcome.SENT else 400)

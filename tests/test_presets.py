@@ -1,0 +1,34 @@
+"""The preset table's rules that depend on the scene: refinement length against the Gaussian count."""
+
+import pytest
+
+from gspc.encoder.stages import iteration_counts
+from gspc.options import EncodeOptions
+from gspc.presets import MIN_SCALED_ITERATIONS, QUALITY, REFINE_WORK, refine_iterations_for
+
+
+@pytest.mark.parametrize(
+    ("preset", "n", "expected"),
+    [
+        (1000, 20_000, 1000),  # small scenes keep the preset's
+        (1000, REFINE_WORK // 1000, 1000),
+        (1000, 100_000, 500),
+        (1000, 300_000, 166),
+        (1000, 1_000_000, MIN_SCALED_ITERATIONS),
+        (1000, 6_000_000, MIN_SCALED_ITERATIONS),  # never below the floor
+        (300, 1_000_000, MIN_SCALED_ITERATIONS),
+        (30, 1_000_000, 30),  # a preset under the floor is not raised
+        (1000, 0, 1000),
+    ],
+)
+def test_refine_iterations_scale_with_the_scene(preset, n, expected):
+    assert refine_iterations_for(preset, n) == expected
+
+
+def test_explicit_check_iterations_are_not_scaled():
+    low = QUALITY["low"].refine_iterations
+    assert iteration_counts(EncodeOptions(), 1_000_000).refine == refine_iterations_for(low, 1_000_000)
+    runs = iteration_counts(EncodeOptions(check_iterations=700), 1_000_000)
+    assert (runs.check, runs.refine) == (700, 700)
+    runs = iteration_counts(EncodeOptions(check_iterations=0), 1_000_000)
+    assert (runs.check, runs.refine) == (0, refine_iterations_for(low, 1_000_000))

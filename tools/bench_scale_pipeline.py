@@ -1,0 +1,145 @@
+"""Benchmark the full pipeline at scale: default encode and decode, and decode iterations against quality.
+
+    python tools/make_scale_scenes.py -o /work/scale      # the scenes (see that tool)
+    python tools/bench_scale_pipeline.py [--scenes /work/scale] [--sizes 1000000,300000,100000] \
+        [--out bench/scale_pipeline.md]
+
+Per size: every 4th of the scene's cameras is held out (never carries side information; quality is scored
+there, against the original's renders); `gspc encode` with the rest and no other option (the default
+low preset: side information, the encoder's check, the iterations it writes), then `gspc decode` at the
+file's iterations, at none, at half and at twice as many, and with ``--time-budget`` set to half the
+default decode's time. Each command is its own subprocess on one thread (tools/bench_scale.py's
+``measure``: wall and CPU seconds, peak RSS).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from bench_scale import measure
+
+from gspc.codec import container
+from gspc.format.chunks import SIDE
+from gspc.format.header import FileHeader
+from gspc.io import read_scene
+from gspc.io.camera_files import load_cameras
+from gspc.io.cameras_json import save_cameras_json
+from gspc.stages import mean_psnr, render_images
+from gspc.views import split_test_views
+
+
+def _psnr(ply: Path, cams, reference) -> float:
+    return mean_psnr(render_images(read_scene(ply), cams, (0.0, 0.0, 0.0)), reference)
+
+
+def _file_facts(path: Path) -> tuple[int, bool]:
+    """(the decoder's default iterations, whether side information was sent) from a .gspc file."""
+    c = container.read(path)
+    header = FileHeader.from_dict(c.header)
+    return header.side_info.refine_iterations, any(ch.type == SIDE for ch in c.chunks)
+
+
+def run_size(folder: Path, tmp: Path, extra: list[str], lines: list[str]) -> None:
+    cams = load_cameras(folder / "cameras.json")
+    train, test = split_test_views(cams, every=4)
+    eval_cams = [cams[i] for i in test]
+    save_cameras_json([cams[i] for i in train], tmp / "train.json")
+    scene = read_scene(folder / "point_cloud.ply")
+    n = scene.num_gaussians
+    reference = render_images(scene, eval_cams, (0.0, 0.0, 0.0))
+    del scene
+    coded = tmp / "scene.gspc"
+    enc = measure(
+        ["encode", str(folder / "point_cloud.ply"), "-o", str(coded), "--cameras", str(tmp / "train.json")]
+        + extra
+    )
+    default_its, sent = _file_facts(coded)
+    size = coded.stat().st_size
+    print(f"{n}: encode {enc['wall']:.0f} s, {size} B, iterations {default_its}, side {sent}", flush=True)
+    lines += [
+        f"### {n:,} Gaussians ({folder.name})",
+        "",
+        f"Encode (default low preset, {len(train)} cameras): {enc['wall']:.0f} s wall, "
+        f"{enc['cpu']:.0f} CPU s, peak {enc['peak_mb']:.0f} MB; {size:,} B ({size / n:.2f} B/G); side "
+        f"information {'sent' if sent else 'not sent'}; the file's refinement: {default_its} iterations. "
+        f"Scored at "
+        f"{len(eval_cams)} held-out views ({eval_cams[0].width}x{eval_cams[0].height}) against the "
+        "original's renders.",
+        "",
+        "| decode | iterations run | PSNR vs original | decode s | decode CPU s | peak MB |",
+        "|---|---|---|---|---|---|",
+    ]
+    runs = [("default (the file's)", [])]
+    if sent:
+        runs += [
+            ("--iterations 0 (restore only: G~)", ["--iterations", "0"]),
+            (f"--iterations {default_its // 2}", ["--iterations", str(default_its // 2)]),
+            (f"--iterations {2 * default_its}", ["--iterations", str(2 * default_its)]),
+        ]
+    default_wall = None
+    for label, args in runs + [("time budget", None)]:
+        if args is None:
+            if not sent or default_wall is None:
+                continue
+            budget = round(default_wall / 2)
+            label, args = f"--time-budget {budget}", ["--time-budget", str(budget)]
+        out = tmp / "decoded.ply"
+        dec = measure(["decode", str(coded), "-o", str(out)] + args)
+        # Progress lines on stderr (gspc/progress.py) close the refinement: "refine: done, N/N in ...".
+        ran = next(
+            (
+                line.split("refine: done, ", 1)[1].split("/")[0]
+                for line in dec["log"].splitlines()
+                if "refine: done, " in line
+            ),
+            "0",
+        )
+        if default_wall is None:
+            default_wall = dec["wall"]
+        p = _psnr(out, eval_cams, reference)
+        lines.append(
+            f"| {label} | {ran} | {p:.2f} | {dec['wall']:.0f} | {dec['cpu']:.0f} | {dec['peak_mb']:.0f} |"
+        )
+        print(lines[-1], flush=True)
+    lines.append("")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scenes", type=Path, default=Path("/work/scale"))
+    ap.add_argument("--sizes", default="1000000,300000,100000")
+    ap.add_argument("--out", type=Path, default=Path("bench/scale_pipeline.md"))
+    ap.add_argument("--encode-args", default="", help="extra encode options (for a quick smoke run)")
+    args = ap.parse_args()
+    torch.set_num_threads(1)
+    lines = [
+        "# Scale: the full pipeline (side information, check, refinement) at 100k to 1M Gaussians",
+        "",
+        f"Command: `python {' '.join(sys.argv)}`",
+        "",
+        f"Machine: {platform.machine()}, Python {platform.python_version()}, torch {torch.__version__}, "
+        "GSPC_THREADS=1 (one torch thread) in every gspc process. No GPU. Scenes: tools/make_scale_scenes.py "
+        "(bench/scale.md).",
+        "",
+    ]
+    t0 = time.perf_counter()
+    with tempfile.TemporaryDirectory() as d:
+        for s in args.sizes.split(","):
+            run_size(args.scenes / f"scale_{s}", Path(d), args.encode_args.split(), lines)
+            args.out.write_text("\n".join(lines) + "\n")
+    lines.append(f"Benchmark time: {time.perf_counter() - t0:.0f} s.")
+    args.out.write_text("\n".join(lines) + "\n")
+    print(json.dumps({"wrote": str(args.out)}))
+
+
+if __name__ == "__main__":
+    np.set_printoptions(precision=3)
+    main()
