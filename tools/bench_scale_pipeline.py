@@ -24,6 +24,7 @@ import argparse
 import json
 import math
 import platform
+import re
 import sys
 import tempfile
 import time
@@ -72,6 +73,48 @@ def closeup_cameras(meta: dict, per_copy: int, width: int = 400, height: int = 3
     return cams
 
 
+def _check_line(log: str) -> str:
+    """The encoder's check as its summary states it (gspc/encoder/policy.py), line wrapping undone."""
+    text = " ".join(log.split())
+    m = re.search(
+        r"check: (at \d+ unsent views: coded [\d.]+ dB, refined [\d.]+ dB, "
+        r"same bytes on attributes [\d.]+ dB)",
+        text,
+    )
+    return m.group(1) if m else "did not run"
+
+
+def _decode_row(
+    coded: Path, tmp: Path, label: str, args: list[str], eval_cams, reference
+) -> tuple[str, float]:
+    """One decode of ``coded`` as a table row, and its wall seconds."""
+    out = tmp / "decoded.ply"
+    dec = measure(["decode", str(coded), "-o", str(out)] + args)
+    # Progress lines on stderr (gspc/progress.py) close the refinement: "refine: done, N/N in ...".
+    ran = next(
+        (
+            line.split("refine: done, ", 1)[1].split("/")[0]
+            for line in dec["log"].splitlines()
+            if "refine: done, " in line
+        ),
+        "0",
+    )
+    p = _psnr(out, eval_cams, reference)
+    row = f"| {label} | {ran} | {p:.2f} | {dec['wall']:.0f} | {dec['cpu']:.0f} | {dec['peak_mb']:.0f} |"
+    print(row, flush=True)
+    return row, dec["wall"]
+
+
+def _encode(folder: Path, tmp: Path, name: str, args: list[str]) -> tuple[Path, dict, int, bool, str]:
+    coded = tmp / name
+    enc = measure(
+        ["encode", str(folder / "point_cloud.ply"), "-o", str(coded), "--cameras", str(tmp / "train.json")]
+        + args
+    )
+    its, sent = _file_facts(coded)
+    return coded, enc, its, sent, _check_line(enc["log"])
+
+
 def run_size(folder: Path, tmp: Path, extra: list[str], twice: bool, per_copy: int, lines: list[str]) -> None:
     cams = closeup_cameras(json.loads((folder / "scene.json").read_text()), per_copy)
     train, test = split_test_views(cams, every=4)
@@ -81,60 +124,57 @@ def run_size(folder: Path, tmp: Path, extra: list[str], twice: bool, per_copy: i
     n = scene.num_gaussians
     reference = render_images(scene, eval_cams, (0.0, 0.0, 0.0))
     del scene
-    coded = tmp / "scene.gspc"
-    enc = measure(
-        ["encode", str(folder / "point_cloud.ply"), "-o", str(coded), "--cameras", str(tmp / "train.json")]
-        + extra
-    )
-    default_its, sent = _file_facts(coded)
+    coded, enc, its, sent, check = _encode(folder, tmp, "default.gspc", extra)
     size = coded.stat().st_size
-    print(f"{n}: encode {enc['wall']:.0f} s, {size} B, iterations {default_its}, side {sent}", flush=True)
-    lines += [
-        f"### {n:,} Gaussians ({folder.name})",
-        "",
-        f"Encode (default low preset, {len(train)} cameras): {enc['wall']:.0f} s wall, "
-        f"{enc['cpu']:.0f} CPU s, peak {enc['peak_mb']:.0f} MB; {size:,} B ({size / n:.2f} B/G); side "
-        f"information {'sent' if sent else 'not sent'}; the file's refinement: {default_its} iterations. "
-        f"Scored at "
-        f"{len(eval_cams)} held-out views ({eval_cams[0].width}x{eval_cams[0].height}) against the "
-        "original's renders.",
-        "",
+    print(f"{n}: encode {enc['wall']:.0f} s, {size} B, iterations {its}, side {sent}, {check}", flush=True)
+    head = [
         "| decode | iterations run | PSNR vs original | decode s | decode CPU s | peak MB |",
         "|---|---|---|---|---|---|",
     ]
-    runs = [("default (the file's)", [])]
-    if sent:
-        runs += [
-            ("--iterations 0 (restore only: G~)", ["--iterations", "0"]),
-            (f"--iterations {default_its // 2}", ["--iterations", str(default_its // 2)]),
+    default_row, default_wall = _decode_row(coded, tmp, "default (the file's)", [], eval_cams, reference)
+    lines += [
+        f"### {n:,} Gaussians ({folder.name})",
+        "",
+        f"Default encode (low preset, {len(train)} cameras): {enc['wall']:.0f} s wall, "
+        f"{enc['cpu']:.0f} CPU s, peak {enc['peak_mb']:.0f} MB; {size:,} B ({size / n:.2f} B/G); side "
+        f"information {'sent' if sent else 'not sent'}; the check: {check}; the file's refinement: {its} "
+        f"iterations. Scored at {len(eval_cams)} held-out views ({eval_cams[0].width}x"
+        f"{eval_cams[0].height}) against the original's renders.",
+        "",
+        *head,
+        default_row,
+    ]
+    counts = [0, its // 2] + ([2 * its] if twice else [])
+    if not sent:
+        # The side-information path's speed against error all the same: the check off keeps the residuals.
+        coded, enc, its, sent, _ = _encode(folder, tmp, "forced.gspc", extra + ["--check-iterations", "0"])
+        size = coded.stat().st_size
+        lines += [
+            "",
+            f"The same with `--check-iterations 0` (no check: side information kept): encode "
+            f"{enc['wall']:.0f} s wall, {size:,} B ({size / n:.2f} B/G); the file's refinement: {its} "
+            "iterations.",
+            "",
+            *head,
         ]
-        if twice:
-            runs.append((f"--iterations {2 * default_its}", ["--iterations", str(2 * default_its)]))
-    default_wall = None
-    for label, args in runs + [("time budget", None)]:
-        if args is None:
-            if not sent or default_wall is None:
-                continue
-            budget = round(default_wall / 2)
-            label, args = f"--time-budget {budget}", ["--time-budget", str(budget)]
-        out = tmp / "decoded.ply"
-        dec = measure(["decode", str(coded), "-o", str(out)] + args)
-        # Progress lines on stderr (gspc/progress.py) close the refinement: "refine: done, N/N in ...".
-        ran = next(
-            (
-                line.split("refine: done, ", 1)[1].split("/")[0]
-                for line in dec["log"].splitlines()
-                if "refine: done, " in line
-            ),
-            "0",
+        if not sent:
+            lines += ["(no residual worth sending at any view)", ""]
+            return
+        counts.insert(2, its)
+    wall_at_its = default_wall
+    for k in counts:
+        row, wall = _decode_row(
+            coded, tmp, f"--iterations {k}", ["--iterations", str(k)], eval_cams, reference
         )
-        if default_wall is None:
-            default_wall = dec["wall"]
-        p = _psnr(out, eval_cams, reference)
-        lines.append(
-            f"| {label} | {ran} | {p:.2f} | {dec['wall']:.0f} | {dec['cpu']:.0f} | {dec['peak_mb']:.0f} |"
-        )
-        print(lines[-1], flush=True)
+        lines.append(row)
+        if k == its:
+            wall_at_its = wall
+    budget = round(wall_at_its / 2)
+    lines.append(
+        _decode_row(
+            coded, tmp, f"--time-budget {budget}", ["--time-budget", str(budget)], eval_cams, reference
+        )[0]
+    )
     lines.append("")
 
 
