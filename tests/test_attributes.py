@@ -225,3 +225,18 @@ def test_each_quantiser_owns_its_cell():
     alpha_ok = 1 / (1 + np.exp(-logits)) >= 1 / 255
     t = torch.from_numpy(logits)
     assert ((t >= lo - 1e-6) & (t <= hi + 1e-6))[torch.from_numpy(alpha_ok)].all()
+
+
+def test_sh_rest_quantised_in_blocks_as_in_one(monkeypatch):
+    """Blocks only bound the encoder's memory: the symbols are those of the whole array at once."""
+    import gspc.codec.quantisers as quantisers
+
+    rng = np.random.default_rng(3)
+    rest = (rng.standard_normal((1000, 15, 3)) * 0.2).astype(np.float32)
+    q = quantisers.SHRestQuantiser(tuple(np.linspace(0.01, 0.05, 15)), deadzone=0.2)
+    whole = q.quantise(rest)
+    monkeypatch.setattr(quantisers, "SH_REST_BLOCK", 7)
+    assert np.array_equal(q.quantise(rest), whole) and whole.dtype == np.int64 and whole.shape == (1000, 45)
+    x = rest.astype(np.float64) / np.asarray(q.steps)[None, :, None]
+    expected = np.sign(x) * np.maximum(np.floor(np.abs(x) + 0.5 - 0.2), 0.0)
+    assert np.array_equal(whole, expected.reshape(1000, -1).astype(np.int64))

@@ -146,6 +146,9 @@ class SmallestThreeQuantiser:
         return 4.0 * math.asin(min(1.0, chord / 2.0))
 
 
+SH_REST_BLOCK = 1 << 16  # rows per block of SHRestQuantiser.quantise
+
+
 @dataclass(frozen=True)
 class SHRestQuantiser:
     """SH rest coefficients, one step per coefficient (``steps``, coefficient-major), rounded with a dead
@@ -156,9 +159,15 @@ class SHRestQuantiser:
 
     def quantise(self, rest: np.ndarray) -> np.ndarray:
         """(n, K, 3) -> (n, 3K) symbols; values within ``0.5 + deadzone`` steps of zero go to zero."""
-        x = rest / np.asarray(self.steps)[None, :, None]
-        mag = np.maximum(np.floor(np.abs(x) + 0.5 - self.deadzone), 0.0)
-        return (np.sign(x) * mag).astype(np.int64).reshape(len(rest), -1)
+        out = np.empty((len(rest), 3 * len(self.steps)), np.int64)
+        steps = np.asarray(self.steps)[None, :, None]
+        # In blocks of rows: the float64 temporaries of a whole SH-3 scene took about 1 KB per Gaussian of
+        # the encoder's peak memory (bench/scale.md).
+        for a in range(0, len(rest), SH_REST_BLOCK):
+            x = rest[a : a + SH_REST_BLOCK].astype(np.float64) / steps
+            mag = np.maximum(np.floor(np.abs(x) + 0.5 - self.deadzone), 0.0)
+            out[a : a + SH_REST_BLOCK] = (np.sign(x) * mag).reshape(len(x), -1)
+        return out
 
     def dequantise(self, q: np.ndarray) -> np.ndarray:
         k = len(self.steps)
