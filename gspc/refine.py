@@ -91,7 +91,8 @@ def refine(
     :func:`gspc.codec.cells.quantisation_cells`) keeps every attribute inside its quantisation cell after
     each step. ``deadline`` (a ``time.perf_counter()`` value): the schedule is shortened, after timing its
     first iterations, to end by then, and stops there whatever happens; without it the run depends on its
-    inputs alone. Returns a new, detached scene; the input is left unchanged.
+    inputs alone. Returns the new, detached scene and the iterations run; the input is left
+    unchanged.
     """
     from gspc.metrics import ssim  # imported here: refinement is the only user on the decode path
     from gspc.render import render
