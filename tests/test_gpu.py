@@ -75,20 +75,15 @@ def test_encode_on_cuda_without_gpu_is_refused_before_any_work(tmp_path, monkeyp
         encode_scene(scene(), opts=EncodeOptions(device="cuda"))
 
 
-@without_cuda
-def test_cli_encode_on_cuda_without_gpu_is_one_line(tmp_path):
+@pytest.mark.parametrize(
+    ("device", "message"),
+    [pytest.param("cuda", "no CUDA GPU", marks=without_cuda), ("tpu", "unknown device")],
+)
+def test_cli_encode_refuses_a_device_in_one_line(tmp_path, device, message):
     src = tmp_path / "scene.ply"
     write_ply(scene(), src)
     out = tmp_path / "s.gspc"
-    assert_one_line_error(run("encode", src, "-o", out, "--device", "cuda"), "no CUDA GPU")
-    assert not out.exists()
-
-
-def test_cli_encode_unknown_device_is_one_line(tmp_path):
-    src = tmp_path / "scene.ply"
-    write_ply(scene(), src)
-    out = tmp_path / "s.gspc"
-    assert_one_line_error(run("encode", src, "-o", out, "--device", "tpu"), "unknown device")
+    assert_one_line_error(run("encode", src, "-o", out, "--device", device), message)
     assert not out.exists()
 
 
