@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from functools import partial
 
 import numpy as np
 import pytest
@@ -10,8 +11,8 @@ import torch
 
 from gspc.cameras import Camera
 from gspc.errors import DeviceError, InputError
+from gspc.render import api, composite_cpu, render
 from gspc.render import rasterize as rast
-from gspc.render import render
 from gspc.render.reference import render_reference
 from gspc.render.sh import sh_basis
 from gspc.scene import ATTRIBUTE_NAMES, make_scene, num_sh_rest
@@ -86,6 +87,13 @@ def assert_close(a: torch.Tensor, b: torch.Tensor, tol: float, what: str) -> Non
     assert err <= tol * scale, f"{what}: max error {err:.3g} (scale {scale:.3g})"
 
 
+@pytest.fixture(params=["compiled", "torch"])
+def kernel(request, monkeypatch):
+    """Both compositors: the compiled CPU kernel (the CPU default) and the torch walk (other devices)."""
+    monkeypatch.setattr(api, "composite", partial(rast.composite, kernel=request.param))
+    return request.param
+
+
 def check_against_reference(scene, cam, tol=1e-10, **kw):
     out, grads = run(render, scene, cam, backend="torch", **kw)
     ref, ref_grads = run(render_reference, scene, cam, **kw)
@@ -98,22 +106,22 @@ def check_against_reference(scene, cam, tol=1e-10, **kw):
 
 
 @pytest.mark.parametrize("deg", [0, 1, 2, 3])
-def test_random_scenes_match_reference(deg):
+def test_random_scenes_match_reference(deg, kernel):
     out, _ = check_against_reference(random_scene(120, deg, seed=deg), camera(), background=[0.2, 0.5, 0.9])
     assert 0.2 < float(out.alpha.detach().mean()) < 0.95  # the scene really covers the image
 
 
-def test_image_size_not_a_multiple_of_the_tile():
+def test_image_size_not_a_multiple_of_the_tile(kernel):
     cam = camera().scaled(0.9)  # 29 x 22: partial tiles on the right and bottom edges
     assert cam.width % 8 and cam.height % 8
     check_against_reference(random_scene(80, 1, seed=12), cam)
 
 
-def test_lower_sh_degree_matches_reference():
+def test_lower_sh_degree_matches_reference(kernel):
     check_against_reference(random_scene(60, 3, seed=11), camera(), sh_degree=1)
 
 
-def test_dense_opaque_scene_hits_transmittance_stop():
+def test_dense_opaque_scene_hits_transmittance_stop(kernel):
     scene = random_scene(
         200, 1, seed=3, spread=0.3, log_scale=-1.5, opacities=torch.full((200,), 3.0, dtype=F64)
     )
@@ -122,6 +130,7 @@ def test_dense_opaque_scene_hits_transmittance_stop():
 
 
 def test_walk_in_small_blocks_and_chunks(monkeypatch):
+    monkeypatch.setattr(api, "composite", partial(rast.composite, kernel="torch"))
     # Many steps and chunks, tiles leaving the walk at different times: same result.
     monkeypatch.setattr(rast, "BLOCK", 3)
     monkeypatch.setattr(rast, "STEP_BUDGET", 64 * 3 * 2)
@@ -130,6 +139,7 @@ def test_walk_in_small_blocks_and_chunks(monkeypatch):
 
 
 def test_walk_with_looped_scans(monkeypatch):
+    monkeypatch.setattr(api, "composite", partial(rast.composite, kernel="torch"))
     # The slice-loop transmittance and remaining-sum scans (taken on large steps) give the same result.
     monkeypatch.setattr(rast, "SCAN_LOOP_FROM", 0)
     scene = random_scene(150, 2, seed=6, spread=0.4, opacities=torch.randn(150, dtype=F64) * 3.0 + 2.0)
@@ -184,7 +194,7 @@ def _hard_cases() -> dict[str, tuple]:
 
 
 @pytest.mark.parametrize("case", list(_hard_cases()))
-def test_hard_cases_match_reference(case):
+def test_hard_cases_match_reference(case, kernel):
     override = _hard_cases()[case]
     n = 24 if "means" not in override else len(override["means"])
     scene = random_scene(n, 3, seed=2, **override)
@@ -192,7 +202,7 @@ def test_hard_cases_match_reference(case):
     check_against_reference(scene, cam, background=[0.1, 0.2, 0.3])
 
 
-def test_point_at_pixel_centre_is_drawn_in_float32():
+def test_point_at_pixel_centre_is_drawn_in_float32(kernel):
     # q rounds slightly negative at the centre; the Gaussian must still be drawn there with alpha = o.
     cam = axis_camera()
     u, v = 10.5, 7.5  # a pixel centre
@@ -204,7 +214,7 @@ def test_point_at_pixel_centre_is_drawn_in_float32():
     assert abs(float(out.depth[7, 10]) - 0.5 * 3.0) < 1e-5
 
 
-def test_float32_agrees_with_reference():
+def test_float32_agrees_with_reference(kernel):
     scene = random_scene(150, 3, seed=4, dtype=torch.float32)
     out, grads = run(render, scene, camera(), backend="torch", background=[0.3, 0.3, 0.3])
     ref, ref_grads = run(render_reference, scene, camera(), background=[0.3, 0.3, 0.3])
@@ -217,7 +227,7 @@ def test_float32_agrees_with_reference():
         assert float((a - b).norm() / b.norm()) < 1e-4, name
 
 
-def test_background_alpha_and_depth():
+def test_background_alpha_and_depth(kernel):
     cam = axis_camera()
     bg = torch.tensor([0.25, 0.5, 0.75])
     # Nothing visible (all behind the camera): background everywhere, alpha and depth zero.
@@ -271,3 +281,68 @@ def test_sh_basis_is_orthonormal_on_the_sphere():
     # INRIA's sign convention for band 1: Y = (-C1 y, C1 z, -C1 x).
     b = sh_basis(torch.tensor([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]], dtype=F64), 1)
     assert b[0, 1] < 0 and b[1, 2] > 0 and b[2, 3] < 0
+
+
+def test_compiled_kernel_on_several_threads_matches_one():
+    # Tiles in parallel: the image is bit-identical (each tile is walked alone); gradients differ only by
+    # the order of the per-Gaussian sums.
+    scene = random_scene(300, 2, seed=9, spread=0.5)
+    before = torch.get_num_threads()
+    try:
+        torch.set_num_threads(1)
+        one, g_one = run(render, scene, camera())
+        torch.set_num_threads(2)
+        two, g_two = run(render, scene, camera())
+    finally:
+        torch.set_num_threads(before)
+    assert torch.equal(one.image, two.image) and torch.equal(one.alpha, two.alpha)
+    for name in ATTRIBUTE_NAMES:
+        assert_close(g_two[name], g_one[name], 1e-12, f"d/d {name}")
+
+
+def test_compiled_tile_lists_equal_the_torch_ones():
+    g = torch.Generator().manual_seed(3)
+    means = torch.rand(400, 2, generator=g, dtype=F64) * torch.tensor([60.0, 40.0]) - 10.0  # some off-image
+    extents = torch.rand(400, 2, generator=g, dtype=F64) * 12.0
+    extents[::7] = -1.0  # never drawn
+    a = rast.bin_tiles(means, extents, 45, 29)
+    b = rast.bin_tiles(means, extents, 45, 29, compiled=True)
+    for field in ("gauss", "tile", "start", "count"):
+        assert torch.equal(getattr(a, field), getattr(b, field)), field
+    assert len(a.gauss) > 400
+
+
+def test_compiled_row_spans_cover_every_drawn_pixel():
+    # The pixels a pair visits (per row: the ellipse's span, widened by SPAN_MARGIN) hold every pixel whose
+    # alpha reaches 1/255, also for thin, rotated and sub-pixel ellipses.
+    g = torch.Generator().manual_seed(4)
+    for _ in range(200):
+        sx, sy = (torch.rand(2, generator=g, dtype=F64) * 4.0 + 0.3).tolist()
+        rot = float(torch.rand(1, generator=g)) * math.pi
+        c, s = math.cos(rot), math.sin(rot)
+        cov = np.array([[c, -s], [s, c]]) @ np.diag([sx * sx, sy * sy]) @ np.array([[c, s], [-s, c]])
+        cov += 0.3 * np.eye(2)
+        a, b, cc = np.linalg.inv(cov)[[0, 0, 1], [0, 1, 1]]
+        o = float(torch.rand(1, generator=g)) * 0.98 + 0.01
+        record = composite_cpu.pack(np.zeros((1, 2)), np.ones((1, 3)), np.array([o]), np.zeros((1, 1)))
+        thr = float(record[0, 6])
+        mx, my = (torch.rand(2, generator=g, dtype=F64) * 8.0).tolist()
+        row_lo, row_hi = composite_cpu._row_range(my, a, b, cc, thr, 0)
+        for row in range(8):
+            dy = row + 0.5 - my
+            lo, hi = composite_cpu._row_span(mx, a, b, cc, thr, dy, 0)
+            for col in range(8):
+                dx = col + 0.5 - mx
+                alpha = o * math.exp(-0.5 * (a * dx * dx + 2 * b * dx * dy + cc * dy * dy))
+                if alpha >= rast.ALPHA_MIN:
+                    assert row_lo <= row <= row_hi and lo <= col <= hi
+
+
+def test_kernel_choice_and_errors():
+    with pytest.raises(ValueError, match="kernel"):
+        rast._pick_kernel("opencl", torch.zeros(1))
+    assert rast._pick_kernel("auto", torch.zeros(1)) == "compiled"
+    assert rast._pick_kernel("torch", torch.zeros(1)) == "torch"
+    assert rast._pick_kernel("auto", torch.zeros(1, device="meta")) == "torch"
+    with pytest.raises(ValueError, match="CPU"):
+        rast._pick_kernel("compiled", torch.zeros(1, device="meta"))

@@ -79,6 +79,8 @@ def run_case(n: int, width: int, height: int, dist: float, repeats: int, threads
         pairs = len(bin_tiles(p.means2d[order], p.extents[order], width, height).gauss)
     for t in scene.tensors().values():
         t.requires_grad_(True)
+    # One untimed call: compiled kernels load (or compile) on first use, once per process.
+    render(scene, cam, backend="torch").image.sum().backward()
     base = _rss_mb()
     runs = {"fwd": [], "both": [], "fwd_cpu": [], "both_cpu": []}
     for i in range(repeats):
@@ -168,17 +170,17 @@ def main() -> None:
     for c in names:
         head += f" {c} before | {c} after |" if before else f" {c} |"
     lines = [
-        "# Torch renderer speed (CPU, one thread), before and after",
+        "# CPU renderer speed (one thread), before and after",
         "",
         f"Command: `python tools/bench_render.py --before {args.before or '-'} --repeats {args.repeats}`"
         + (" with `--before` a `git archive` of the base commit's `gspc/`" if before else ""),
         "",
         f"Machine: {platform.machine()}, {os.cpu_count()} vCPUs (AMD EPYC), torch {torch.__version__}, "
-        "one torch thread (`torch.set_num_threads(1)`) unless stated. No GPU. The machine was shared "
-        "with two other busy processes (a fitting job and another engineer's tests) while this ran, so "
-        "wall times carry their load; CPU seconds (this process's user + system time) are less "
-        "disturbed, though still inflated by the shared cores and caches. Before and after ran "
-        "alternately, one subprocess per round, so both saw the same load.",
+        f"one torch thread (`torch.set_num_threads(1)`) unless stated. No GPU. Load average when the run "
+        f"started: {os.getloadavg()[0]:.2f} (other processes on the machine: see the reading below); wall "
+        "times carry their load, CPU seconds (this process's user + system time) less so, though shared "
+        "cores and caches still inflate them. Before and after ran alternately, one subprocess per round, "
+        "so both saw the same load. Each process renders once untimed first (compiled kernels load then).",
         "",
         "Scene: N Gaussians uniform in the unit cube, log-scales log(0.01) + 0.5 randn, random rotations, "
         "opacity logits 1.5 randn, SH degree 3; focal = image width; camera 3 units from the centre (the "

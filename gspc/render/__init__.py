@@ -2,7 +2,8 @@
 
 ``render(scene, camera)`` is the only entry point the rest of gspc uses. Backends share one
 convention (OpenCV camera, INRIA 3DGS projection and compositing):
-- ``"torch"``: tile-based pure PyTorch, runs anywhere (the CPU path);
+- ``"torch"``: gspc's own tile renderer on the scene's device: PyTorch projection, and compositing compiled
+  for the CPU (numba) or a pure PyTorch walk elsewhere;
 - ``"gsplat"``: gsplat's CUDA rasteriser, only for CUDA tensors when gsplat is installed;
 - ``"auto"``: gsplat for CUDA tensors when importable, else torch.
 """

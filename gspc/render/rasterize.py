@@ -1,6 +1,8 @@
-"""Tile-based front-to-back alpha compositing in pure PyTorch, with a recomputing backward.
+"""Tile-based front-to-back alpha compositing: tile lists, and the walk in pure PyTorch.
 
-``composite`` is the only entry point, so a compiled kernel can replace it. Rules (3DGS):
+``composite`` is the only entry point. On the CPU it runs the compiled kernels of composite_cpu.py over
+the same tile lists (several times faster: bench/render.md); the torch walk below serves every other
+device and is the tests' second implementation. Rules (3DGS):
 alpha = min(0.99, o * exp(-q / 2)) with q = d^T conic d, d = pixel centre - mean; alphas below
 1/255 are skipped; Gaussians are composited in increasing depth; a pixel stops before the Gaussian
 that would take its transmittance below 1e-4. There is deliberately no "skip if q < 0" rule: q
@@ -24,6 +26,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 
@@ -64,28 +67,51 @@ def composite(
     extents: torch.Tensor,
     width: int,
     height: int,
+    kernel: str = "auto",
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Composite Gaussians front to back; returns (sum_i w_i features_i (H, W, C), alpha (H, W)).
 
     means2d (M, 2) pixels, conics (M, 3) as (a, b, c), opacities (M,), features (M, C), depths (M,)
     sort key (ties keep input order), extents (M, 2) half-sizes of the box outside which alpha < 1/255,
     negative for Gaussians never drawn (others need opacity >= 1/255). Differentiable w.r.t. means2d,
-    conics, opacities and features.
+    conics, opacities and features. ``kernel``: "auto" (compiled on the CPU, the torch walk elsewhere),
+    "torch" or "compiled"; both give the same image up to round-off.
     """
     c = features.shape[1]
     order = torch.sort(depths.detach(), stable=True).indices
     order = order[extents.detach()[order, 0] >= 0]  # drop the never-drawn (extents -1)
     ext = extents.detach().index_select(0, order)
-    bins = bin_tiles(means2d.detach().index_select(0, order), ext, width, height)
-    # Pairs index the caller's rows directly: no depth-sorted copies of the inputs (nor their
-    # scatter-backward) are needed, only of the two detached columns binning reads.
-    bins.gauss = order.index_select(0, bins.gauss)
-    out = _Composite.apply(means2d, conics, opacities, features, bins, width, height)
+    compiled = _pick_kernel(kernel, means2d) == "compiled"
+    bins = bin_tiles(means2d.detach().index_select(0, order), ext, width, height, compiled)
+    if compiled:  # its records are copied out in depth order (a tile's list then reads them in order)
+        out = _CompositeCompiled.apply(means2d, conics, opacities, features, order, bins, width, height)
+    else:
+        # Pairs index the caller's rows directly: no depth-sorted copies of the inputs (nor their
+        # scatter-backward) are needed, only of the two detached columns binning reads.
+        bins.gauss = order.index_select(0, bins.gauss)
+        out = _Composite.apply(means2d, conics, opacities, features, bins, width, height)
     return out[..., :c], out[..., c]
 
 
-def bin_tiles(means2d: torch.Tensor, extents: torch.Tensor, width: int, height: int) -> TileBins:
-    """List every Gaussian in each tile whose pixel centres its box reaches, keeping input order."""
+KERNELS = ("auto", "torch", "compiled")
+
+
+def _pick_kernel(kernel: str, ref: torch.Tensor) -> str:
+    """ "compiled" (gspc/render/composite_cpu.py) for CPU tensors under "auto", else the torch walk."""
+    if kernel not in KERNELS:
+        raise ValueError(f"unknown compositing kernel {kernel!r}; choose one of {', '.join(KERNELS)}")
+    if kernel == "auto":
+        return "compiled" if ref.device.type == "cpu" else "torch"
+    if kernel == "compiled" and ref.device.type != "cpu":
+        raise ValueError("the compiled compositing kernel runs on the CPU only")
+    return kernel
+
+
+def bin_tiles(
+    means2d: torch.Tensor, extents: torch.Tensor, width: int, height: int, compiled: bool = False
+) -> TileBins:
+    """List every Gaussian in each tile whose pixel centres its box reaches, keeping input order
+    (``compiled``: by gspc/render/composite_cpu.py's counting sort, CPU only; the same lists)."""
     tiles_x, tiles_y = -(-width // TILE), -(-height // TILE)
     dev = means2d.device
     # Tile i holds pixel centres i*TILE + 0.5 ... i*TILE + TILE - 0.5.
@@ -93,6 +119,11 @@ def bin_tiles(means2d: torch.Tensor, extents: torch.Tensor, width: int, height: 
     hi = torch.floor((means2d + extents - 0.5) / TILE)
     lo = torch.maximum(lo, torch.zeros_like(lo)).long()
     hi = torch.minimum(hi, torch.tensor([tiles_x - 1, tiles_y - 1], device=dev, dtype=hi.dtype)).long()
+    if compiled:
+        from gspc.render.composite_cpu import bin_boxes
+
+        lists = bin_boxes(lo.numpy(), hi.numpy(), tiles_x, tiles_x * tiles_y)
+        return TileBins(*(torch.from_numpy(x) for x in lists), tiles_x, tiles_y)
     span = (hi - lo + 1).clamp_min(0)
     n = span[:, 0] * span[:, 1]
     gauss = torch.repeat_interleave(torch.arange(len(n), device=dev), n)
@@ -176,6 +207,40 @@ class _Composite(torch.autograd.Function):
         d_coef, d_feat = _walk(coef, feat, cap, bins, (grad_pix, out))
         grads = _chain_to_gaussians(d_coef, d_feat, params, opacities, features, bins)
         return (*grads, None, None, None)
+
+
+class _CompositeCompiled(torch.autograd.Function):
+    """The compiled CPU kernels (gspc/render/composite_cpu.py) on the same tile lists, whose entries here
+    index the depth-sorted rows ``order``."""
+
+    @staticmethod
+    def forward(ctx, means2d, conics, opacities, features, order, bins: TileBins, width: int, height: int):
+        from gspc.render import composite_cpu as kern
+
+        def host(x: torch.Tensor) -> np.ndarray:
+            return x.detach().index_select(0, order).to(torch.float64).numpy()
+
+        ones = torch.ones(len(order), 1, dtype=torch.float64)  # its composite is the alpha image
+        records = kern.pack(host(means2d), host(conics), host(opacities), torch.cat([
+            features.detach().index_select(0, order).to(torch.float64), ones], 1).numpy())  # fmt: skip
+        lists = (bins.gauss.numpy(), bins.start.numpy(), bins.count.numpy())
+        out = np.zeros((len(bins.count), features.shape[1] + 1, PIXELS))
+        kern.composite_forward(records, lists, bins.tiles_x, out, torch.get_num_threads())
+        if any(ctx.needs_input_grad[:4]):
+            ctx.saved = (records, lists, out, order, bins, len(opacities))
+        return _tiles_to_image(torch.from_numpy(out), bins, width, height).to(means2d.dtype)
+
+    @staticmethod
+    def backward(ctx, grad_out):
+        from gspc.render import composite_cpu as kern
+
+        records, lists, out, order, bins, num = ctx.saved
+        grad_pix = _image_to_tiles(grad_out.detach().to(torch.float64), bins).contiguous().numpy()
+        grads = kern.composite_backward(records, lists, bins.tiles_x, grad_pix, out, torch.get_num_threads())
+        g = torch.zeros(num, grads.shape[1], dtype=grad_out.dtype)
+        g.index_copy_(0, order, torch.from_numpy(grads).to(grad_out.dtype))
+        nf = grads.shape[1] - kern.GRADS - 1  # the last column is the alpha channel's
+        return g[:, :2], g[:, 2:5], g[:, 5], g[:, kern.GRADS : kern.GRADS + nf], None, None, None, None
 
 
 def _pair_features(features: torch.Tensor, bins: TileBins) -> torch.Tensor:

@@ -1,0 +1,287 @@
+"""The compositor compiled for the CPU (numba): the same rules and tile lists as rasterize.py's torch walk.
+
+Why a second implementation: the torch walk evaluates every listed Gaussian at all 64 pixels of its tile
+in many full-size passes (one per elementwise op), while most pairs reach few of them (bench/render.md's
+100k-Gaussian 400x300 case: 2.6 million pixel visits for 482,545 pairs, 5.4 of 64 each). Here each
+(tile, Gaussian) pair visits only the pixels of the rows and columns its alpha >= 1/255 ellipse reaches
+(along a row, exp(-q / 2) by two multiplications per pixel), and every pixel's state (transmittance, what
+the Gaussians after it still add) stays in cache instead of full-size arrays. The torch walk remains for
+other devices (and as the tests' second opinion).
+
+Rules (rasterize.py's docstring, reference.py): alpha = min(0.99, o exp(-q / 2)), q = d^T conic d,
+d = pixel centre - mean; alpha < 1/255 skipped; a pixel stops before the Gaussian that would take its
+transmittance below 1e-4. Arithmetic is float64 whatever the input dtype; results are cast back.
+
+Backward: the closed form of compositing (rasterize.py), walked front to back as the forward walked:
+dL/dalpha_i = g_i T_i - R_i / (1 - alpha_i), g_i = dL/dw_i, R_i = sum_{j > i} w_j g_j, which starts as
+the pixel's grad . output. On one thread each pair adds its gradient straight into its Gaussian's; on
+several, tiles run in parallel, each pair writes its own row (a pair belongs to one tile: no races) and
+the rows are summed per Gaussian afterwards. Either way the result does not depend on scheduling.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+from gspc.render.rules import ALPHA_MAX, ALPHA_MIN, T_MIN
+
+TILE = 8  # must equal rasterize.TILE (the tile lists are built there)
+PIXELS = TILE * TILE
+# The ellipse q <= 2 ln(255 o) bounds the pixels a pair visits; widened so that round-off never leaves out
+# a pixel whose computed alpha reaches 1/255 (alpha itself is then tested exactly as the rules say).
+SPAN_MARGIN = 1e-3  # pixels
+THRESHOLD_REL_MARGIN = 1e-6
+FIELDS = 7  # pack(): mean x, mean y, conic a, b, c, opacity, threshold; then the features
+GRADS = 6  # gradient columns before the features: d mean x, d mean y, d a, d b, d c, d opacity
+# Compiled once per machine (numba's cache; the first run takes some seconds). error_model "numpy": no
+# zero check per division; every divisor here is bounded away from 0 (conic a and its determinant by the
+# low-pass filter, 1 - alpha >= 0.01 by the cap, opacity >= 1/255 for a listed Gaussian).
+JIT = {"cache": True, "error_model": "numpy"}
+
+
+@numba.njit(inline="always", error_model="numpy")
+def _row_span(mx, a, b, c, thr, dy, x0):
+    """First and last pixel column (0..TILE-1) of the tile starting at x0 whose centre can lie inside the
+    ellipse a dx^2 + 2 b dx dy + c dy^2 <= thr on this row; (1, 0) when none does."""
+    disc = (b * dy) * (b * dy) - a * (c * dy * dy - thr)
+    if disc < 0.0:
+        return 1, 0
+    half = math.sqrt(disc) / a
+    centre = mx - b * dy / a
+    lo = math.ceil(centre - half - SPAN_MARGIN - 0.5 - x0)
+    hi = math.floor(centre + half + SPAN_MARGIN - 0.5 - x0)
+    return max(int(lo), 0), min(int(hi), TILE - 1)
+
+
+@numba.njit(inline="always", error_model="numpy")
+def _row_range(my, a, b, c, thr, y0):
+    """First and last pixel row (0..TILE-1) of the tile starting at y0 that the ellipse
+    a dx^2 + 2 b dx dy + c dy^2 <= thr can reach: |dy| <= sqrt(thr a / (a c - b^2))."""
+    half = math.sqrt(max(thr, 0.0) * a / (a * c - b * b))
+    lo = math.ceil(my - half - SPAN_MARGIN - 0.5 - y0)
+    hi = math.floor(my + half + SPAN_MARGIN - 0.5 - y0)
+    return max(int(lo), 0), min(int(hi), TILE - 1)
+
+
+@numba.njit(**JIT)
+def _tile_forward(t, gaussians, gauss, start, count, tiles_x, out):
+    """Tile t of composite_forward."""
+    n = count[t]
+    if n == 0:
+        return
+    k_feat = gaussians.shape[1] - FIELDS
+    x0, y0 = (t % tiles_x) * TILE, (t // tiles_x) * TILE
+    trans = np.ones(PIXELS)
+    acc = np.zeros((PIXELS, k_feat))
+    live = PIXELS
+    for p in range(start[t], start[t] + n):
+        rec = gaussians[gauss[p]]
+        mx, my, a, b, c, o, thr = rec[0], rec[1], rec[2], rec[3], rec[4], rec[5], rec[6]
+        step2 = math.exp(-a)
+        row_lo, row_hi = _row_range(my, a, b, c, thr, y0)
+        for row in range(row_lo, row_hi + 1):
+            dy = y0 + row + 0.5 - my
+            lo, hi = _row_span(mx, a, b, c, thr, dy, x0)
+            if lo > hi:
+                continue
+            # Along a row, exp(-q / 2) changes by a factor that itself changes by exp(-a) per pixel.
+            dx = x0 + lo + 0.5 - mx
+            e = o * math.exp(-0.5 * (a * dx * dx + 2.0 * b * dx * dy + c * dy * dy))
+            step = math.exp(-0.5 * (a * (2.0 * dx + 1.0) + 2.0 * b * dy))
+            for col in range(lo, hi + 1):
+                raw = e
+                e *= step
+                step *= step2
+                pix = row * TILE + col
+                tr = trans[pix]
+                if tr < 0.0:  # stopped
+                    continue
+                alpha = min(ALPHA_MAX, raw)
+                if alpha < ALPHA_MIN:
+                    continue
+                after = tr * (1.0 - alpha)
+                if after < T_MIN:
+                    trans[pix] = -1.0
+                    live -= 1
+                    continue
+                w = alpha * tr
+                for k in range(k_feat):
+                    acc[pix, k] += w * rec[FIELDS + k]
+                trans[pix] = after
+        if live == 0:
+            break
+    out[t] = acc.T
+
+
+@numba.njit(**JIT)
+def _forward_serial(gaussians, gauss, start, count, tiles_x, out):
+    for t in range(len(start)):
+        _tile_forward(t, gaussians, gauss, start, count, tiles_x, out)
+
+
+@numba.njit(parallel=True, **JIT)
+def _forward_parallel(gaussians, gauss, start, count, tiles_x, out):
+    for t in numba.prange(len(start)):
+        _tile_forward(t, gaussians, gauss, start, count, tiles_x, out)
+
+
+@numba.njit(**JIT)
+def _tile_backward(t, gaussians, gauss, start, count, tiles_x, grad_pix, out, dest, grads):
+    """Tile t of composite_backward."""
+    n = count[t]
+    if n == 0:
+        return
+    k_feat = gaussians.shape[1] - FIELDS
+    x0, y0 = (t % tiles_x) * TILE, (t // tiles_x) * TILE
+    trans = np.ones(PIXELS)
+    gpix = np.ascontiguousarray(grad_pix[t].T)  # (64, K)
+    remaining = np.zeros(PIXELS)  # R: what the Gaussians not yet walked add to grad . output
+    for pix in range(PIXELS):
+        s = 0.0
+        for k in range(k_feat):
+            s += gpix[pix, k] * out[t, k, pix]
+        remaining[pix] = s
+    d_feat = np.zeros(k_feat)
+    live = PIXELS
+    for p in range(start[t], start[t] + n):
+        rec = gaussians[gauss[p]]
+        mx, my, a, b, c, o, thr = rec[0], rec[1], rec[2], rec[3], rec[4], rec[5], rec[6]
+        d_mx = d_my = d_a = d_b = d_c = d_pow = 0.0
+        d_feat[:] = 0.0
+        step2 = math.exp(-a)
+        row_lo, row_hi = _row_range(my, a, b, c, thr, y0)
+        for row in range(row_lo, row_hi + 1):
+            dy = y0 + row + 0.5 - my
+            lo, hi = _row_span(mx, a, b, c, thr, dy, x0)
+            if lo > hi:
+                continue
+            dx0 = x0 + lo + 0.5 - mx
+            e = o * math.exp(-0.5 * (a * dx0 * dx0 + 2.0 * b * dx0 * dy + c * dy * dy))
+            step = math.exp(-0.5 * (a * (2.0 * dx0 + 1.0) + 2.0 * b * dy))
+            for col in range(lo, hi + 1):
+                raw = e
+                e *= step
+                step *= step2
+                pix = row * TILE + col
+                tr = trans[pix]
+                if tr < 0.0:
+                    continue
+                alpha = min(ALPHA_MAX, raw)
+                if alpha < ALPHA_MIN:
+                    continue
+                after = tr * (1.0 - alpha)
+                if after < T_MIN:
+                    trans[pix] = -1.0
+                    live -= 1
+                    continue
+                w = alpha * tr
+                gw = 0.0
+                for k in range(k_feat):
+                    gk = gpix[pix, k]
+                    gw += gk * rec[FIELDS + k]
+                    d_feat[k] += w * gk
+                rem = remaining[pix] - w * gw
+                remaining[pix] = rem
+                trans[pix] = after
+                if raw < ALPHA_MAX:  # above the cap alpha does not move
+                    gp = (gw * tr - rem / (1.0 - alpha)) * alpha  # dL/d power, power = ln o - q / 2
+                    dx = dx0 + (col - lo)
+                    d_pow += gp
+                    d_mx += gp * (a * dx + b * dy)
+                    d_my += gp * (b * dx + c * dy)
+                    d_a += gp * dx * dx
+                    d_b += gp * dx * dy
+                    d_c += gp * dy * dy
+        out_row = grads[dest[p]]
+        out_row[0] += d_mx
+        out_row[1] += d_my
+        out_row[2] -= 0.5 * d_a
+        out_row[3] -= d_b
+        out_row[4] -= 0.5 * d_c
+        out_row[5] += d_pow / o
+        for k in range(k_feat):
+            out_row[GRADS + k] += d_feat[k]
+        if live == 0:  # the pairs after this one touch no pixel: their gradients are zero
+            break
+
+
+@numba.njit(**JIT)
+def _backward_serial(gaussians, gauss, start, count, tiles_x, grad_pix, out, dest, grads):
+    for t in range(len(start)):
+        _tile_backward(t, gaussians, gauss, start, count, tiles_x, grad_pix, out, dest, grads)
+
+
+@numba.njit(parallel=True, **JIT)
+def _backward_parallel(gaussians, gauss, start, count, tiles_x, grad_pix, out, dest, grads):
+    for t in numba.prange(len(start)):
+        _tile_backward(t, gaussians, gauss, start, count, tiles_x, grad_pix, out, dest, grads)
+
+
+@numba.njit(**JIT)
+def bin_boxes(lo, hi, tiles_x, num_tiles):
+    """Tile lists by a counting sort: (gauss, tile, start, count), pairs grouped by tile, Gaussians in input
+    order inside each tile, for Gaussian i covering tiles lo[i]..hi[i] (x, y; empty when hi < lo)."""
+    count = np.zeros(num_tiles, np.int64)
+    for i in range(len(lo)):
+        for ty in range(lo[i, 1], hi[i, 1] + 1):
+            for tx in range(lo[i, 0], hi[i, 0] + 1):
+                count[ty * tiles_x + tx] += 1
+    start = np.cumsum(count) - count
+    fill = start.copy()
+    total = start[-1] + count[-1] if num_tiles else 0
+    gauss, tile = np.empty(total, np.int64), np.empty(total, np.int64)
+    for i in range(len(lo)):
+        for ty in range(lo[i, 1], hi[i, 1] + 1):
+            for tx in range(lo[i, 0], hi[i, 0] + 1):
+                t = ty * tiles_x + tx
+                gauss[fill[t]], tile[fill[t]] = i, t
+                fill[t] += 1
+    return gauss, tile, start, count
+
+
+def pack(means2d: np.ndarray, conics: np.ndarray, opacities: np.ndarray, features: np.ndarray) -> np.ndarray:
+    """(M, FIELDS + K) float64 records mean x, mean y, conic a, b, c, opacity, threshold, features: one
+    Gaussian's data in one or two cache lines (the kernels read Gaussians in tile order, scattered)."""
+    out = np.empty((len(opacities), FIELDS + features.shape[1]))
+    out[:, 0:2], out[:, 2:5], out[:, 5], out[:, FIELDS:] = means2d, conics, opacities, features
+    with np.errstate(divide="ignore"):
+        thr = 2.0 * np.log(out[:, 5] / ALPHA_MIN)
+    out[:, 6] = thr * (1.0 + THRESHOLD_REL_MARGIN) + THRESHOLD_REL_MARGIN
+    return out
+
+
+def composite_forward(
+    gaussians: np.ndarray, lists: tuple, tiles_x: int, out: np.ndarray, threads: int
+) -> None:
+    """out (tiles, K, 64) = sum_i w_i feat_i per pixel, for records from pack() and the tile lists
+    (gauss, start, count) of gspc/render/rasterize.py's TileBins."""
+    if threads > 1:
+        _set_threads(threads)
+        _forward_parallel(gaussians, *lists, tiles_x, out)
+    else:
+        _forward_serial(gaussians, *lists, tiles_x, out)
+
+
+def composite_backward(
+    gaussians: np.ndarray, lists: tuple, tiles_x: int, grad_pix: np.ndarray, out: np.ndarray, threads: int
+) -> np.ndarray:
+    """(M, GRADS + K): dL/d (mean x, mean y, conic a, b, c, opacity, features) of every record, for
+    dL/d out = grad_pix (tiles, K, 64) and the forward's ``out``."""
+    gauss = lists[0]
+    cols = GRADS + gaussians.shape[1] - FIELDS
+    if threads <= 1:  # one thread: every pair adds straight into its Gaussian's row
+        grads = np.zeros((len(gaussians), cols))
+        _backward_serial(gaussians, *lists, tiles_x, grad_pix, out, gauss, grads)
+        return grads
+    # Threads own tiles, and a Gaussian's pairs lie in several: each pair gets its own row, summed after.
+    _set_threads(threads)
+    per_pair = np.zeros((len(gauss), cols))
+    _backward_parallel(gaussians, *lists, tiles_x, grad_pix, out, np.arange(len(gauss)), per_pair)
+    return np.stack([np.bincount(gauss, weights=col, minlength=len(gaussians)) for col in per_pair.T], 1)
+
+
+def _set_threads(n: int) -> None:
+    numba.set_num_threads(max(1, min(int(n), numba.config.NUMBA_NUM_THREADS)))
