@@ -111,6 +111,40 @@ def run_case(n: int, width: int, height: int, dist: float, repeats: int, threads
     return res | {"fwd_mb": fwd_peak, "both_mb": both_peak}
 
 
+def fit_scene_case(folder: str, every: int, repeats: int) -> None:
+    """A tools/fit_scene.py fit, every ``every``-th training view: forward+backward CPU s per render with the
+    compiled compositor and the torch walk, alternating in this process; prints a Markdown table."""
+    from functools import partial
+
+    from gspc.io import read_scene
+    from gspc.io.camera_files import load_cameras
+    from gspc.render import api, rasterize
+
+    torch.set_num_threads(1)
+    scene = read_scene(os.path.join(folder, "point_cloud.ply"))
+    for t in scene.tensors().values():
+        t.requires_grad_(True)
+    cams = load_cameras(os.path.join(folder, "cameras.json"))[::every]
+    composite = rasterize.composite
+
+    def per_render(kernel: str) -> float:
+        api.composite = partial(composite, kernel=kernel)
+        c0 = time.process_time()
+        for cam in cams:
+            api.render(scene, cam).image.sum().backward()
+        return (time.process_time() - c0) / len(cams)
+
+    per_render("compiled"), per_render("torch")  # compile / warm up
+    runs = {"compiled": [], "torch": []}
+    for _ in range(repeats):
+        for k in runs:
+            runs[k].append(per_render(k))
+    api.composite = composite
+    print(f"| scene | views | compiled fwd+bwd CPU s | torch walk fwd+bwd CPU s |\n|---|---|---|---|\n"
+          f"| {os.path.basename(folder)} | {len(cams)} ({cams[0].width}x{cams[0].height}) | "
+          f"{np.median(runs['compiled']):.3f} | {np.median(runs['torch']):.3f} |")  # fmt: skip
+
+
 def _case(spec: str, repeats: int, threads: int, path: str) -> dict:
     """One case in a fresh subprocess with ``path`` first on PYTHONPATH (the gspc it imports)."""
     cmd = [sys.executable, __file__, "--case", spec, "--repeats", str(repeats), "--threads", str(threads)]
@@ -142,9 +176,14 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=3, help="alternating rounds per case")
     ap.add_argument("--before", required=False, help="folder holding the gspc package to compare against")
     ap.add_argument("--max-n", type=int, default=10**9, help="skip cases with more Gaussians")
+    ap.add_argument("--fit", help="instead: a fit_scene.py folder, compiled vs torch compositor (Markdown)")
+    ap.add_argument("--every", type=int, default=20, help="with --fit: every n-th view")
     ap.add_argument("--case", help=argparse.SUPPRESS)  # "n,w,h,dist": run one case, print JSON
     ap.add_argument("--threads", type=int, default=1, help=argparse.SUPPRESS)
     args = ap.parse_args()
+    if args.fit:
+        fit_scene_case(args.fit, args.every, args.repeats)
+        return
     if args.case:
         n, w, h, dist = args.case.split(",")
         print(json.dumps(run_case(int(n), int(w), int(h), float(dist), args.repeats, args.threads)))
