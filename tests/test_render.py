@@ -324,7 +324,7 @@ def test_compiled_row_spans_cover_every_drawn_pixel():
         cov += 0.3 * np.eye(2)
         a, b, cc = np.linalg.inv(cov)[[0, 0, 1], [0, 1, 1]]
         o = float(torch.rand(1, generator=g)) * 0.98 + 0.01
-        record = composite_cpu.pack(np.zeros((1, 2)), np.ones((1, 3)), np.array([o]), np.zeros((1, 1)))
+        record = composite_cpu.pack(np.array([[0.0, 0.0, 1.0, 0.0, 1.0, o, 0.0]]))
         thr = float(record[0, 6])
         mx, my = (torch.rand(2, generator=g, dtype=F64) * 8.0).tolist()
         row_lo, row_hi = composite_cpu._row_range(my, a, b, cc, thr, 0)
@@ -346,3 +346,14 @@ def test_kernel_choice_and_errors():
     assert rast._pick_kernel("auto", torch.zeros(1, device="meta")) == "torch"
     with pytest.raises(ValueError, match="CPU"):
         rast._pick_kernel("compiled", torch.zeros(1, device="meta"))
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_depth_order_is_torchs_stable_sort(dtype):
+    g = np.random.default_rng(0)
+    depths = np.concatenate([g.normal(size=500) * 3, np.repeat([0.5, 2.0, -1.0, 1e-3, 1e6], 40)]).astype(
+        dtype
+    )
+    g.shuffle(depths)
+    expected = torch.sort(torch.from_numpy(depths), stable=True).indices.numpy()
+    assert np.array_equal(composite_cpu.depth_order(depths), expected)

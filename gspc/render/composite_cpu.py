@@ -242,15 +242,48 @@ def bin_boxes(lo, hi, tiles_x, num_tiles):
     return gauss, tile, start, count
 
 
-def pack(means2d: np.ndarray, conics: np.ndarray, opacities: np.ndarray, features: np.ndarray) -> np.ndarray:
-    """(M, FIELDS + K) float64 records mean x, mean y, conic a, b, c, opacity, threshold, features: one
-    Gaussian's data in one or two cache lines (the kernels read Gaussians in tile order, scattered)."""
-    out = np.empty((len(opacities), FIELDS + features.shape[1]))
-    out[:, 0:2], out[:, 2:5], out[:, 5], out[:, FIELDS:] = means2d, conics, opacities, features
+def pack(rows: np.ndarray) -> np.ndarray:
+    """(M, FIELDS + C + 1) float64 records mean x, mean y, conic a, b, c, opacity, threshold, the C features
+    and a 1 (its composite is the alpha image), from rows (M, 6 + C) = mean x, mean y, a, b, c, opacity,
+    features: one Gaussian's data in one or two cache lines (the kernels read Gaussians scattered)."""
+    out = np.empty((len(rows), FIELDS + rows.shape[1] - 6 + 1))
+    out[:, :6], out[:, FIELDS:-1], out[:, -1] = rows[:, :6], rows[:, 6:], 1.0
     with np.errstate(divide="ignore"):
         thr = 2.0 * np.log(out[:, 5] / ALPHA_MIN)
     out[:, 6] = thr * (1.0 + THRESHOLD_REL_MARGIN) + THRESHOLD_REL_MARGIN
     return out
+
+
+@numba.njit(**JIT)
+def _radix_order(keys):
+    """Stable ascending order of unsigned 64-bit keys: least-significant-byte radix sort, 8 passes (a pass
+    whose byte is the same for every key is skipped)."""
+    n = len(keys)
+    idx, tmp = np.arange(n), np.empty(n, np.int64)
+    for shift in range(0, 64, 8):
+        count = np.zeros(257, np.int64)
+        for i in range(n):
+            count[((keys[idx[i]] >> shift) & 255) + 1] += 1
+        if count.max() == n:
+            continue
+        for b in range(256):
+            count[b + 1] += count[b]
+        for i in range(n):
+            j = idx[i]
+            b = (keys[j] >> shift) & 255
+            tmp[count[b]] = j
+            count[b] += 1
+        idx, tmp = tmp, idx
+    return idx
+
+
+def depth_order(depths: np.ndarray) -> np.ndarray:
+    """Indices sorting ``depths`` (finite floats) ascending, ties in input order: torch.sort(stable=True)'s
+    result, by a radix sort on the float64 bit patterns made order-preserving (negative: all bits flipped;
+    otherwise the sign bit set). Several times faster than the comparison sort at 100k depths."""
+    bits = depths.astype(np.float64).view(np.uint64)
+    keys = np.where(bits >> np.uint64(63), ~bits, bits | np.uint64(1 << 63))
+    return _radix_order(keys)
 
 
 def composite_forward(
@@ -266,21 +299,29 @@ def composite_forward(
 
 
 def composite_backward(
-    gaussians: np.ndarray, lists: tuple, tiles_x: int, grad_pix: np.ndarray, out: np.ndarray, threads: int
+    gaussians: np.ndarray,
+    lists: tuple,
+    rows: np.ndarray,
+    num: int,
+    tiles_x: int,
+    grad_pix: np.ndarray,
+    out: np.ndarray,
+    threads: int,
 ) -> np.ndarray:
-    """(M, GRADS + K): dL/d (mean x, mean y, conic a, b, c, opacity, features) of every record, for
-    dL/d out = grad_pix (tiles, K, 64) and the forward's ``out``."""
-    gauss = lists[0]
+    """(num, GRADS + K): dL/d (mean x, mean y, conic a, b, c, opacity, features) of every Gaussian, record r
+    being the caller's Gaussian rows[r] (the others get zeros), for dL/d out = grad_pix (tiles, K, 64) and
+    the forward's ``out``."""
+    dest = rows[lists[0]]  # the caller's row of each pair
     cols = GRADS + gaussians.shape[1] - FIELDS
     if threads <= 1:  # one thread: every pair adds straight into its Gaussian's row
-        grads = np.zeros((len(gaussians), cols))
-        _backward_serial(gaussians, *lists, tiles_x, grad_pix, out, gauss, grads)
+        grads = np.zeros((num, cols))
+        _backward_serial(gaussians, *lists, tiles_x, grad_pix, out, dest, grads)
         return grads
     # Threads own tiles, and a Gaussian's pairs lie in several: each pair gets its own row, summed after.
     _set_threads(threads)
-    per_pair = np.zeros((len(gauss), cols))
-    _backward_parallel(gaussians, *lists, tiles_x, grad_pix, out, np.arange(len(gauss)), per_pair)
-    return np.stack([np.bincount(gauss, weights=col, minlength=len(gaussians)) for col in per_pair.T], 1)
+    per_pair = np.zeros((len(dest), cols))
+    _backward_parallel(gaussians, *lists, tiles_x, grad_pix, out, np.arange(len(dest)), per_pair)
+    return np.stack([np.bincount(dest, weights=col, minlength=num) for col in per_pair.T], 1)
 
 
 def _set_threads(n: int) -> None:

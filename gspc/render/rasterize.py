@@ -78,10 +78,17 @@ def composite(
     "torch" or "compiled"; both give the same image up to round-off.
     """
     c = features.shape[1]
-    order = torch.sort(depths.detach(), stable=True).indices
-    order = order[extents.detach()[order, 0] >= 0]  # drop the never-drawn (extents -1)
-    ext = extents.detach().index_select(0, order)
     compiled = _pick_kernel(kernel, means2d) == "compiled"
+    drawn = torch.nonzero(extents.detach()[:, 0] >= 0).squeeze(1)  # drop the never-drawn (extents -1)
+    if compiled:
+        from gspc.render.composite_cpu import depth_order
+
+        order = drawn.index_select(
+            0, torch.from_numpy(depth_order(depths.detach().index_select(0, drawn).numpy()))
+        )
+    else:
+        order = drawn.index_select(0, torch.sort(depths.detach().index_select(0, drawn), stable=True).indices)
+    ext = extents.detach().index_select(0, order)
     bins = bin_tiles(means2d.detach().index_select(0, order), ext, width, height, compiled)
     if compiled:  # its records are copied out in depth order (a tile's list then reads them in order)
         out = _CompositeCompiled.apply(means2d, conics, opacities, features, order, bins, width, height)
@@ -217,12 +224,10 @@ class _CompositeCompiled(torch.autograd.Function):
     def forward(ctx, means2d, conics, opacities, features, order, bins: TileBins, width: int, height: int):
         from gspc.render import composite_cpu as kern
 
-        def host(x: torch.Tensor) -> np.ndarray:
-            return x.detach().index_select(0, order).to(torch.float64).numpy()
-
-        ones = torch.ones(len(order), 1, dtype=torch.float64)  # its composite is the alpha image
-        records = kern.pack(host(means2d), host(conics), host(opacities), torch.cat([
-            features.detach().index_select(0, order).to(torch.float64), ones], 1).numpy())  # fmt: skip
+        rows = torch.cat(
+            [means2d.detach(), conics.detach(), opacities.detach()[:, None], features.detach()], 1
+        )
+        records = kern.pack(rows.index_select(0, order).to(torch.float64).numpy())
         lists = (bins.gauss.numpy(), bins.start.numpy(), bins.count.numpy())
         out = np.zeros((len(bins.count), features.shape[1] + 1, PIXELS))
         kern.composite_forward(records, lists, bins.tiles_x, out, torch.get_num_threads())
@@ -236,9 +241,10 @@ class _CompositeCompiled(torch.autograd.Function):
 
         records, lists, out, order, bins, num = ctx.saved
         grad_pix = _image_to_tiles(grad_out.detach().to(torch.float64), bins).contiguous().numpy()
-        grads = kern.composite_backward(records, lists, bins.tiles_x, grad_pix, out, torch.get_num_threads())
-        g = torch.zeros(num, grads.shape[1], dtype=grad_out.dtype)
-        g.index_copy_(0, order, torch.from_numpy(grads).to(grad_out.dtype))
+        grads = kern.composite_backward(
+            records, lists, order.numpy(), num, bins.tiles_x, grad_pix, out, torch.get_num_threads()
+        )
+        g = torch.from_numpy(grads).to(grad_out.dtype)
         nf = grads.shape[1] - kern.GRADS - 1  # the last column is the alpha channel's
         return g[:, :2], g[:, 2:5], g[:, 5], g[:, kern.GRADS : kern.GRADS + nf], None, None, None, None
 
