@@ -112,7 +112,7 @@ def run_case(n: int, width: int, height: int, dist: float, repeats: int, threads
 
 
 def fit_scene_case(folder: str, every: int, repeats: int) -> None:
-    """A tools/fit_scene.py fit, every ``every``-th training view: forward+backward CPU s per render with the
+    """A tools/fit_scene.py fit, every ``every``-th of its cameras: forward+backward CPU s per render with the
     compiled compositor and the torch walk, alternating in this process; prints a Markdown table."""
     from functools import partial
 

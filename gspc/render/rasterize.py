@@ -104,7 +104,8 @@ KERNELS = ("auto", "torch", "compiled")
 
 
 def _pick_kernel(kernel: str, ref: torch.Tensor) -> str:
-    """ "compiled" (gspc/render/composite_cpu.py) for CPU tensors under "auto", else the torch walk."""
+    """The compositor to run: under "auto", the compiled one (gspc/render/composite_cpu.py) for CPU tensors,
+    else the torch walk."""
     if kernel not in KERNELS:
         raise ValueError(f"unknown compositing kernel {kernel!r}; choose one of {', '.join(KERNELS)}")
     if kernel == "auto":
