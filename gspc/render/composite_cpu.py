@@ -66,6 +66,36 @@ def _row_range(my, a, b, c, thr, y0):
     return max(int(lo), 0), min(int(hi), TILE - 1)
 
 
+@numba.njit(inline="always", error_model="numpy")
+def _row_start(mx, my, a, b, c, o, thr, row, x0, y0):
+    """A pair's walk along one pixel row: (dy, first column, last column, dx at the first column, o exp(-q/2)
+    there, its factor to the next column); lo > hi when the row is out of reach."""
+    dy = y0 + row + 0.5 - my
+    lo, hi = _row_span(mx, a, b, c, thr, dy, x0)
+    dx = x0 + lo + 0.5 - mx
+    e = o * math.exp(-0.5 * (a * dx * dx + 2.0 * b * dx * dy + c * dy * dy)) if lo <= hi else 0.0
+    step = math.exp(-0.5 * (a * (2.0 * dx + 1.0) + 2.0 * b * dy)) if lo <= hi else 0.0
+    return dy, lo, hi, dx, e, step
+
+
+@numba.njit(inline="always", error_model="numpy")
+def _visit(trans, pix, raw):
+    """One Gaussian at one pixel by the rules: (alpha, T before it, whether the pixel stops here); alpha 0
+    when it is not composited (pixel stopped, alpha < 1/255, or it would take T below 1e-4). Updates T."""
+    tr = trans[pix]
+    if tr < 0.0:  # stopped earlier
+        return 0.0, tr, False
+    alpha = min(ALPHA_MAX, raw)
+    if alpha < ALPHA_MIN:
+        return 0.0, tr, False
+    after = tr * (1.0 - alpha)
+    if after < T_MIN:
+        trans[pix] = -1.0
+        return 0.0, tr, True
+    trans[pix] = after
+    return alpha, tr, False
+
+
 @numba.njit(**JIT)
 def _tile_forward(t, gaussians, gauss, start, count, tiles_x, out):
     """Tile t of composite_forward."""
@@ -80,37 +110,22 @@ def _tile_forward(t, gaussians, gauss, start, count, tiles_x, out):
     for p in range(start[t], start[t] + n):
         rec = gaussians[gauss[p]]
         mx, my, a, b, c, o, thr = rec[0], rec[1], rec[2], rec[3], rec[4], rec[5], rec[6]
-        step2 = math.exp(-a)
+        step2 = math.exp(-a)  # along a row, exp(-q / 2)'s factor to the next pixel changes by this
         row_lo, row_hi = _row_range(my, a, b, c, thr, y0)
         for row in range(row_lo, row_hi + 1):
-            dy = y0 + row + 0.5 - my
-            lo, hi = _row_span(mx, a, b, c, thr, dy, x0)
-            if lo > hi:
-                continue
-            # Along a row, exp(-q / 2) changes by a factor that itself changes by exp(-a) per pixel.
-            dx = x0 + lo + 0.5 - mx
-            e = o * math.exp(-0.5 * (a * dx * dx + 2.0 * b * dx * dy + c * dy * dy))
-            step = math.exp(-0.5 * (a * (2.0 * dx + 1.0) + 2.0 * b * dy))
+            _, lo, hi, _, e, step = _row_start(mx, my, a, b, c, o, thr, row, x0, y0)
             for col in range(lo, hi + 1):
                 raw = e
                 e *= step
                 step *= step2
                 pix = row * TILE + col
-                tr = trans[pix]
-                if tr < 0.0:  # stopped
-                    continue
-                alpha = min(ALPHA_MAX, raw)
-                if alpha < ALPHA_MIN:
-                    continue
-                after = tr * (1.0 - alpha)
-                if after < T_MIN:
-                    trans[pix] = -1.0
-                    live -= 1
+                alpha, tr, stopped = _visit(trans, pix, raw)
+                live -= stopped
+                if alpha == 0.0:
                     continue
                 w = alpha * tr
                 for k in range(k_feat):
                     acc[pix, k] += w * rec[FIELDS + k]
-                trans[pix] = after
         if live == 0:
             break
     out[t] = acc.T
@@ -154,28 +169,15 @@ def _tile_backward(t, gaussians, gauss, start, count, tiles_x, grad_pix, out, de
         step2 = math.exp(-a)
         row_lo, row_hi = _row_range(my, a, b, c, thr, y0)
         for row in range(row_lo, row_hi + 1):
-            dy = y0 + row + 0.5 - my
-            lo, hi = _row_span(mx, a, b, c, thr, dy, x0)
-            if lo > hi:
-                continue
-            dx0 = x0 + lo + 0.5 - mx
-            e = o * math.exp(-0.5 * (a * dx0 * dx0 + 2.0 * b * dx0 * dy + c * dy * dy))
-            step = math.exp(-0.5 * (a * (2.0 * dx0 + 1.0) + 2.0 * b * dy))
+            dy, lo, hi, dx0, e, step = _row_start(mx, my, a, b, c, o, thr, row, x0, y0)
             for col in range(lo, hi + 1):
                 raw = e
                 e *= step
                 step *= step2
                 pix = row * TILE + col
-                tr = trans[pix]
-                if tr < 0.0:
-                    continue
-                alpha = min(ALPHA_MAX, raw)
-                if alpha < ALPHA_MIN:
-                    continue
-                after = tr * (1.0 - alpha)
-                if after < T_MIN:
-                    trans[pix] = -1.0
-                    live -= 1
+                alpha, tr, stopped = _visit(trans, pix, raw)
+                live -= stopped
+                if alpha == 0.0:
                     continue
                 w = alpha * tr
                 gw = 0.0
@@ -185,7 +187,6 @@ def _tile_backward(t, gaussians, gauss, start, count, tiles_x, grad_pix, out, de
                     d_feat[k] += w * gk
                 rem = remaining[pix] - w * gw
                 remaining[pix] = rem
-                trans[pix] = after
                 if raw < ALPHA_MAX:  # above the cap alpha does not move
                     gp = (gw * tr - rem / (1.0 - alpha)) * alpha  # dL/d power, power = ln o - q / 2
                     dx = dx0 + (col - lo)

@@ -229,25 +229,29 @@ class _CompositeCompiled(torch.autograd.Function):
             [means2d.detach(), conics.detach(), opacities.detach()[:, None], features.detach()], 1
         )
         records = kern.pack(rows.index_select(0, order).to(torch.float64).numpy())
-        lists = (bins.gauss.numpy(), bins.start.numpy(), bins.count.numpy())
         out = np.zeros((len(bins.count), features.shape[1] + 1, PIXELS))
-        kern.composite_forward(records, lists, bins.tiles_x, out, torch.get_num_threads())
+        kern.composite_forward(records, _lists(bins), bins.tiles_x, out, torch.get_num_threads())
         if any(ctx.needs_input_grad[:4]):
-            ctx.saved = (records, lists, out, order, bins, len(opacities))
+            ctx.saved = (records, out, order, bins, len(opacities))
         return _tiles_to_image(torch.from_numpy(out), bins, width, height).to(means2d.dtype)
 
     @staticmethod
     def backward(ctx, grad_out):
         from gspc.render import composite_cpu as kern
 
-        records, lists, out, order, bins, num = ctx.saved
+        records, out, order, bins, num = ctx.saved
         grad_pix = _image_to_tiles(grad_out.detach().to(torch.float64), bins).contiguous().numpy()
         grads = kern.composite_backward(
-            records, lists, order.numpy(), num, bins.tiles_x, grad_pix, out, torch.get_num_threads()
+            records, _lists(bins), order.numpy(), num, bins.tiles_x, grad_pix, out, torch.get_num_threads()
         )
         g = torch.from_numpy(grads).to(grad_out.dtype)
         nf = grads.shape[1] - kern.GRADS - 1  # the last column is the alpha channel's
         return g[:, :2], g[:, 2:5], g[:, 5], g[:, kern.GRADS : kern.GRADS + nf], None, None, None, None
+
+
+def _lists(bins: TileBins) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The tile lists as the compiled kernels read them (gauss, start, count; views, no copies)."""
+    return bins.gauss.numpy(), bins.start.numpy(), bins.count.numpy()
 
 
 def _pair_features(features: torch.Tensor, bins: TileBins) -> torch.Tensor:
