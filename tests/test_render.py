@@ -12,7 +12,9 @@ import torch
 from gspc.cameras import Camera
 from gspc.errors import DeviceError, InputError
 from gspc.render import api, composite_cpu, render
+from gspc.render import project as proj
 from gspc.render import rasterize as rast
+from gspc.render.kernels import pick_kernel
 from gspc.render.reference import render_reference
 from gspc.render.sh import sh_basis
 from gspc.scene import ATTRIBUTE_NAMES, make_scene, num_sh_rest
@@ -89,7 +91,9 @@ def assert_close(a: torch.Tensor, b: torch.Tensor, tol: float, what: str) -> Non
 
 @pytest.fixture(params=["compiled", "torch"])
 def kernel(request, monkeypatch):
-    """Both compositors: the compiled CPU kernel (the CPU default) and the torch walk (other devices)."""
+    """Both implementations of projection and compositing: the compiled CPU kernels (the CPU default) and
+    the PyTorch code (other devices)."""
+    monkeypatch.setattr(api, "project", partial(proj.project, kernel=request.param))
     monkeypatch.setattr(api, "composite", partial(rast.composite, kernel=request.param))
     return request.param
 
@@ -340,12 +344,53 @@ def test_compiled_row_spans_cover_every_drawn_pixel():
 
 def test_kernel_choice_and_errors():
     with pytest.raises(ValueError, match="kernel"):
-        rast._pick_kernel("opencl", torch.zeros(1))
-    assert rast._pick_kernel("auto", torch.zeros(1)) == "compiled"
-    assert rast._pick_kernel("torch", torch.zeros(1)) == "torch"
-    assert rast._pick_kernel("auto", torch.zeros(1, device="meta")) == "torch"
+        pick_kernel("opencl", torch.zeros(1))
+    assert pick_kernel("auto", torch.zeros(1)) == "compiled"
+    assert pick_kernel("torch", torch.zeros(1)) == "torch"
+    assert pick_kernel("auto", torch.zeros(1, device="meta")) == "torch"
     with pytest.raises(ValueError, match="CPU"):
-        rast._pick_kernel("compiled", torch.zeros(1, device="meta"))
+        pick_kernel("compiled", torch.zeros(1, device="meta"))
+
+
+def projected_and_grads(scene, cam, deg: int, kernel: str):
+    """project()'s outputs and the gradients of a fixed random linear loss of every differentiable one."""
+    s = scene.detach()
+    params = [s.tensors()[k].requires_grad_(True) for k in ATTRIBUTE_NAMES]
+    p = proj.project(*params, cam, deg, kernel=kernel)
+    g = torch.Generator().manual_seed(5)
+    drawn = p.drawn.to(p.means2d.dtype)
+    loss = sum(
+        (
+            t
+            * torch.randn(t.shape, generator=g, dtype=F64).to(t.dtype)
+            * drawn.reshape(-1, *[1] * (t.dim() - 1))
+        ).sum()
+        for t in (p.means2d, p.conics, p.opacities, p.colors, p.depths)
+    )
+    return p, torch.autograd.grad(loss, params)
+
+
+@pytest.mark.parametrize("behind", [3, 40])  # few behind the camera (projected, marked) and many (subset)
+@pytest.mark.parametrize("dtype", [F64, torch.float32])
+def test_compiled_projection_matches_pytorch(behind, dtype):
+    # Every output and gradient of the compiled projection against autograd through the PyTorch code: to
+    # round-off in float64, to float32's in float32 (the kernels compute in float64 from float32 inputs).
+    # Degree 1 of a degree-3 scene: the unused coefficients get zero gradients. Some Gaussians lie behind
+    # the camera, some off-screen, some below 1/255 opaque.
+    scene = random_scene(200, 3, seed=11, spread=1.2, dtype=dtype)
+    scene.means[:behind, 2] = -4.0  # camera() sits 3 units away along -z
+    scene.opacities[-5:] = -8.0
+    tol = 1e-12 if dtype == F64 else 2e-5
+    a, ga = projected_and_grads(scene, camera(), 1, "torch")
+    b, gb = projected_and_grads(scene, camera(), 1, "compiled")
+    assert torch.equal(a.index, b.index) and torch.equal(a.drawn, b.drawn)
+    assert (~b.drawn).sum() > behind and b.means2d.dtype == dtype
+    for name in ("means2d", "conics", "opacities", "colors", "depths", "extents"):
+        assert_close(getattr(b, name), getattr(a, name), tol, name)
+    for name, x, y in zip(ATTRIBUTE_NAMES, gb, ga, strict=True):
+        assert x.dtype == dtype and torch.isfinite(x).all(), name
+        assert_close(x, y, tol, f"d/d {name}")
+    assert not gb[5][:, 3:].any() and not gb[0][:behind].any()
 
 
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])

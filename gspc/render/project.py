@@ -1,17 +1,21 @@
-"""EWA projection of 3D Gaussians to screen space (INRIA 3DGS / gsplat conventions), plain autograd.
+"""EWA projection of 3D Gaussians to screen space (INRIA 3DGS / gsplat conventions).
 
 Everything the compositor needs per visible Gaussian: 2D mean, inverse 2D covariance (conic),
 opacity, RGB from SH, camera-space depth, and the half-extents of the screen box outside which
-the Gaussian's alpha is below 1/255 (so tile culling never changes the image).
+the Gaussian's alpha is below 1/255 (so tile culling never changes the image). On the CPU the compiled
+kernels of project_cpu.py compute it (bench/render.md); the PyTorch code below, differentiated by autograd,
+serves every other device and is the tests' second implementation.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 
 from gspc.cameras import Camera
+from gspc.render.kernels import pick_kernel
 from gspc.render.rules import ALPHA_MIN, LOWPASS, NEAR
 from gspc.render.sh import C0, sh_basis
 
@@ -96,11 +100,13 @@ def project(
     sh_rest: torch.Tensor,
     camera: Camera,
     sh_degree: int,
+    kernel: str = "auto",
 ) -> Projected:
-    """Project Gaussians to the screen; differentiable by autograd.
+    """Project Gaussians to the screen; differentiable w.r.t. every input tensor.
 
     Those that cannot reach a pixel centre with alpha >= 1/255 (centre at z <= NEAR, opacity below
-    1/255, box off-screen) get extents -1 and zero gradients; the compositor skips them.
+    1/255, box off-screen) get extents -1 and zero gradients; the compositor skips them. ``kernel``:
+    "auto" (compiled on the CPU, PyTorch elsewhere), "torch" or "compiled"; the same up to round-off.
     """
     R, t, centre = camera_tensors(camera, means)
     with torch.no_grad():
@@ -114,6 +120,11 @@ def project(
         in_front = torch.ones_like(in_front[index])
     else:
         index = torch.arange(len(means), device=means.device)
+    if pick_kernel(kernel, means) == "compiled":
+        out = _ProjectCompiled.apply(
+            means, quats, log_scales, opacity_logits, sh_dc, sh_rest, camera, sh_degree
+        )
+        return Projected(index, *out)
 
     x, y, z = (means @ R.T + t).unbind(1)
     if n_front < len(x):  # stand-in depth for the culled: finite values, so their zero gradients stay 0
@@ -180,3 +191,44 @@ class _BandSum(torch.autograd.Function):
         d_basis = torch.bmm(coeffs, grad[:, :, None]).squeeze(2) if ctx.needs_input_grad[0] else None
         d_coeffs = basis[:, :, None] * grad[:, None, :] if ctx.needs_input_grad[1] else None
         return d_basis, d_coeffs
+
+
+class _ProjectCompiled(torch.autograd.Function):
+    """project() by the compiled CPU kernels of project_cpu.py; outputs in the inputs' dtype."""
+
+    @staticmethod
+    def forward(ctx, means, quats, log_scales, logits, sh_dc, sh_rest, camera: Camera, degree: int):
+        from gspc.render import project_cpu as kern
+
+        arrays = tuple(
+            x.detach().contiguous().numpy() for x in (means, quats, log_scales, logits, sh_dc, sh_rest)
+        )
+        rot, t, centre = (x.numpy() for x in camera_tensors(camera, torch.zeros((), dtype=torch.float64)))
+        intrinsics = (camera.fx, camera.fy, camera.cx, camera.cy)
+        cam = kern.camera_numbers(
+            rot, t, centre, intrinsics, frustum_limits(camera), (camera.width, camera.height)
+        )
+        outs = [
+            torch.from_numpy(a) for a in kern.project_forward(arrays, cam, degree, torch.get_num_threads())
+        ]
+        ctx.mark_non_differentiable(outs[-1])
+        ctx.saved = (arrays, cam, degree)
+        return tuple(outs)
+
+    @staticmethod
+    def backward(ctx, g_means2d, g_conics, g_opacities, g_colors, g_depths, _g_extents):
+        from gspc.render import project_cpu as kern
+
+        arrays, cam, degree = ctx.saved
+        grad_out = np.zeros((len(arrays[0]), kern.OUTPUTS))
+        for cols, g in (
+            (slice(0, 2), g_means2d),
+            (slice(2, 5), g_conics),
+            (5, g_opacities),
+            (slice(6, 9), g_colors),
+            (9, g_depths),
+        ):
+            if g is not None:
+                grad_out[:, cols] = g.detach().numpy()
+        grads = kern.project_backward(arrays, cam, degree, grad_out, torch.get_num_threads())
+        return (*(torch.from_numpy(g) for g in grads), None, None)

@@ -30,13 +30,13 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from gspc.render.kernels import pick_kernel
+from gspc.render.rules import ALPHA_MAX, ALPHA_MIN, T_MIN
+
 TILE = 8
 PIXELS = TILE * TILE
 BLOCK = 32  # Gaussians per tile per step
 STEP_BUDGET = 1 << 19  # elements of one (tiles, BLOCK, pixels) array; bounds memory
-ALPHA_MIN = 1.0 / 255.0
-ALPHA_MAX = 0.99
-T_MIN = 1e-4
 DEAD_POWER = -1e4  # exponent of padding entries: exp2() is exactly 0
 LOG2_E = 1.4426950408889634
 # torch's CPU cumprod/cumsum along the middle axis of a (tiles, BLOCK, 64) array cost about 1 ns per
@@ -78,7 +78,7 @@ def composite(
     "torch" or "compiled"; both give the same image up to round-off.
     """
     c = features.shape[1]
-    compiled = _pick_kernel(kernel, means2d) == "compiled"
+    compiled = pick_kernel(kernel, means2d) == "compiled"
     drawn = torch.nonzero(extents.detach()[:, 0] >= 0).squeeze(1)  # drop the never-drawn (extents -1)
     if compiled:
         from gspc.render.composite_cpu import depth_order
@@ -98,21 +98,6 @@ def composite(
         bins.gauss = order.index_select(0, bins.gauss)
         out = _Composite.apply(means2d, conics, opacities, features, bins, width, height)
     return out[..., :c], out[..., c]
-
-
-KERNELS = ("auto", "torch", "compiled")
-
-
-def _pick_kernel(kernel: str, ref: torch.Tensor) -> str:
-    """The compositor to run: under "auto", the compiled one (gspc/render/composite_cpu.py) for CPU tensors,
-    else the torch walk."""
-    if kernel not in KERNELS:
-        raise ValueError(f"unknown compositing kernel {kernel!r}; choose one of {', '.join(KERNELS)}")
-    if kernel == "auto":
-        return "compiled" if ref.device.type == "cpu" else "torch"
-    if kernel == "compiled" and ref.device.type != "cpu":
-        raise ValueError("the compiled compositing kernel runs on the CPU only")
-    return kernel
 
 
 def bin_tiles(
