@@ -1,6 +1,6 @@
 """gspc: a codec for 3D Gaussian Splatting scenes.
 
-The public names below are imported on first use (PEP 562), so ``import gspc.codec.container`` and the
+The public names below are imported on first use (PEP 562), so ``import gspc.format.container`` and the
 command line's ``--help`` and ``info FILE.gspc`` do not pay for torch (bench/startup.md).
 """
 

@@ -28,6 +28,7 @@ app = typer.Typer(
 )
 out = Console()
 err = Console(stderr=True)
+RENDER_DEVICE_HELP = "cpu or cuda (where the renders run)"
 
 
 def _one_line_errors(fn):
@@ -213,7 +214,7 @@ def decode(
 
 
 def _is_gspc(path: Path) -> bool:
-    from gspc.codec.container import MAGIC
+    from gspc.format.container import MAGIC
 
     try:
         with open(path, "rb") as f:
@@ -231,8 +232,8 @@ def info(
     if not path.exists():
         raise GspcError(f"{path}: no such file")
     if _is_gspc(path):
-        from gspc.codec.container import describe, read
         from gspc.codec.sideinfo import side_views
+        from gspc.format.container import describe, read
         from gspc.format.header import SceneSummary
 
         d = describe(path)
@@ -314,6 +315,7 @@ def render(
     cameras: Path | None = typer.Option(None, help="camera file; default: synthesised views"),
     views: int = typer.Option(8, help="views to synthesise when no cameras are given"),
     max_side: int = typer.Option(800, help="longest image side in pixels"),
+    device: str = typer.Option("cpu", help=RENDER_DEVICE_HELP),
 ) -> None:
     """Render a scene to PNGs."""
     from gspc.paths import refuse_output_over_input
@@ -323,10 +325,12 @@ def render(
     _use_threads()
     import imagecodecs
 
+    from gspc.device import check_device
     from gspc.io import read_scene
     from gspc.stages import render_images
 
-    sc = read_scene(scene)
+    dev = check_device(device)
+    sc = read_scene(scene).to(dev)
     cams = _cameras_for(sc, cameras, views, max_side)
     output.mkdir(parents=True, exist_ok=True)
     with _progress_bars() as cb:
@@ -334,7 +338,7 @@ def render(
     for i, (cam, img) in enumerate(zip(cams, imgs)):
         name = (cam.name or f"view_{i:03d}").replace("/", "_")
         tmp = output / f".{name}.png.tmp"
-        tmp.write_bytes(imagecodecs.png_encode((img.numpy() * 255 + 0.5).astype("uint8")))
+        tmp.write_bytes(imagecodecs.png_encode((img.cpu().numpy() * 255 + 0.5).astype("uint8")))
         os.replace(tmp, output / f"{name}.png")
     out.print(f"wrote {len(imgs)} images to {output}")
 
@@ -350,6 +354,7 @@ def evaluate(
     background: tuple[float, float, float] = typer.Option(
         (0.0, 0.0, 0.0), help="render background RGB in [0, 1] (use the one the scene was encoded with)"
     ),
+    device: str = typer.Option("cpu", help=RENDER_DEVICE_HELP),
 ) -> None:
     """PSNR and SSIM of one scene's renders against another's (8-bit, 3DGS convention)."""
     from gspc.options import check_background
@@ -357,11 +362,13 @@ def evaluate(
     _check_view_options(views, max_side)
     background = check_background(background)
     _use_threads()
+    from gspc.device import check_device
     from gspc.io import read_scene
     from gspc.metrics import psnr, quantize8, ssim
     from gspc.stages import render_images
 
-    ref, tst = read_scene(reference), read_scene(test)
+    dev = check_device(device)
+    ref, tst = read_scene(reference).to(dev), read_scene(test).to(dev)
     cams = _cameras_for(ref, cameras, views, max_side)
     with _progress_bars() as cb:
         a = render_images(ref, cams, background, cb, "render reference")

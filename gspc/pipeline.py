@@ -19,7 +19,7 @@ from pathlib import Path
 from gspc import __version__
 from gspc.atomic import atomic_write_bytes
 from gspc.cameras import Camera
-from gspc.codec import container, residuals
+from gspc.codec import residuals
 from gspc.codec.attributes import attribute_chunks, decode_attributes
 from gspc.codec.sideinfo import side_views
 from gspc.device import check_device, renderer_info
@@ -34,6 +34,7 @@ from gspc.encoder.stages import (
     side_candidates,
 )
 from gspc.errors import CodecError, InputError
+from gspc.format import container
 from gspc.format.chunks import ATTRIBUTE_TYPES, SIDE
 from gspc.format.header import FileHeader, SceneSummary, SideInfoHeader, check_view_sizes
 from gspc.io import read_scene, write_ply

@@ -21,8 +21,8 @@ from pathlib import Path
 import imagecodecs
 import numpy as np
 
-from gspc.codec import container
 from gspc.codec.sideinfo import pack_side, unpack_side
+from gspc.format import container
 
 
 @dataclass(frozen=True)

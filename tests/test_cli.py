@@ -101,10 +101,14 @@ def test_cuda_request_without_gpu(tmp_path, scene_file):
     assert run("encode", scene_file, "-o", gspc_file, "--views", 4, "--max-side", 32).exit_code == 0
     assert_one_line_error(run("decode", gspc_file, "-o", tmp_path / "o.ply", "--device", "cuda"), "cuda")
     assert not (tmp_path / "o.ply").exists()
+    assert_one_line_error(run("render", scene_file, "-o", tmp_path / "imgs", "--device", "cuda"), "cuda")
+    assert not (tmp_path / "imgs").exists()
+    assert_one_line_error(run("eval", scene_file, scene_file, "--device", "cuda"), "cuda")
+    assert_one_line_error(run("render", scene_file, "-o", tmp_path / "imgs", "--device", "tpu"), "tpu")
 
 
 def test_corrupt_file_and_missing_restorer_give_one_line_errors(tmp_path, scene_file):
-    from gspc.codec import container
+    from gspc.format import container
 
     gspc_file = tmp_path / "s.gspc"
     assert run("encode", scene_file, "-o", gspc_file, "--views", 4, "--max-side", 32).exit_code == 0

@@ -19,9 +19,9 @@ import numpy as np
 import pytest
 import spec_reader
 
-from gspc.codec import container
-from gspc.codec.container import Chunk, pack, unpack
 from gspc.errors import CodecError, FormatError, InputError
+from gspc.format import container
+from gspc.format.container import Chunk, pack, unpack
 
 ROOT = Path(__file__).resolve().parents[1]
 VECTORS = ROOT / "spec" / "vectors"

@@ -15,8 +15,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from gspc.codec import container
 from gspc.errors import FormatError
+from gspc.format import container
 
 ROOT = Path(__file__).resolve().parents[1]
 SLACK = 64 * 1024  # bytes a read may allocate whatever the file size (exception, traceback, small objects)

@@ -16,10 +16,10 @@ from test_cli import assert_one_line_error, run
 
 import gspc.pipeline as pipeline
 from gspc.cameras import Camera
-from gspc.codec import container
 from gspc.codec.attributes import attribute_chunks, decode_attributes, encode_attributes
 from gspc.device import check_device, renderer_info
 from gspc.errors import DeviceError
+from gspc.format import container
 from gspc.io import write_ply
 from gspc.pipeline import DecodeOptions, EncodeOptions, decode_bytes, encode, encode_scene
 from gspc.presets import DEFAULT_RESTORER, QUALITY

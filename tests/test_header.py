@@ -2,8 +2,8 @@
 
 import pytest
 
-from gspc.codec import container
 from gspc.errors import CodecError
+from gspc.format import container
 from gspc.format.chunks import ATTRIBUTE_TYPES, KNOWN_TYPES, REGISTRY
 from gspc.format.header import FileHeader, SceneSummary, SideInfoHeader
 

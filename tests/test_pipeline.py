@@ -6,10 +6,10 @@ import pytest
 import torch
 from scenes import random_scene
 
-from gspc.codec import container
 from gspc.codec.sideinfo import side_views
 from gspc.encoder.policy import Outcome
 from gspc.errors import CodecError, InputError
+from gspc.format import container
 from gspc.io import read_scene, write_ply
 from gspc.pipeline import DecodeOptions, EncodeOptions, decode, decode_bytes, encode, encode_scene
 

@@ -92,7 +92,7 @@ def test_an_unbounded_scene_round_trips_through_the_file(tmp_path):
     """A scene with far Gaussians through the file: codec version 2, positions within their cells."""
     from scenes import random_scene
 
-    from gspc.codec import container
+    from gspc.format import container
     from gspc.io import read_scene, write_ply
     from gspc.pipeline import DecodeOptions, EncodeOptions, decode, encode
 

@@ -124,7 +124,7 @@ def test_conformance_vector_payload():
     """spec/vectors/valid_chunk_SIDE.gspc: the SIDE payload decodes to the two views 10.9 describes."""
     from pathlib import Path
 
-    from gspc.codec import container
+    from gspc.format import container
 
     c = container.read(Path(__file__).parents[1] / "spec" / "vectors" / "valid_chunk_SIDE.gspc")
     assert c.version == (1, 1)

@@ -16,11 +16,11 @@ import torch
 import zstandard
 from scenes import random_scene
 
-from gspc.codec import container
 from gspc.codec.attributes import decode_attributes, encode_attributes
 from gspc.codec.entropy import _categorical, decode_matrix, encode_matrix, fixed_point_table
 from gspc.codec.sideinfo import side_views
 from gspc.errors import CodecError
+from gspc.format import container
 from gspc.io import read_scene
 from gspc.pipeline import EncodeOptions, encode
 from gspc.presets import QUALITY

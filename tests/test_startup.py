@@ -34,7 +34,7 @@ def heavy_modules(body: str) -> str:
 
 
 def test_container_import_needs_no_torch():
-    assert heavy_modules("import gspc.codec.container\nimport gspc") == ""
+    assert heavy_modules("import gspc.format.container\nimport gspc") == ""
 
 
 def test_help_and_info_on_a_gspc_file_need_no_torch(tmp_path):

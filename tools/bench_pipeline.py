@@ -27,8 +27,8 @@ import torch
 import typer
 
 from gspc.cameras import Camera
-from gspc.codec import container
 from gspc.codec.sideinfo import side_views
+from gspc.format import container
 from gspc.format.chunks import RESI, SIDE
 from gspc.format.header import FileHeader
 from gspc.io import read_scene

@@ -21,13 +21,31 @@ import time
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parent.parent
-CLI = "import sys; from gspc.cli import app; sys.argv[0] = 'gspc'; app()"
+# The child writes its own peak RSS (VmHWM) at exit: the ru_maxrss that wait4 reports for a child counts
+# the parent's RSS at the fork too (Linux keeps it across exec), which hid the child's peak behind a parent
+# holding scenes (bench/scale_pipeline.md's 300k column once repeated its parent's 1481 MB).
+CLI = """import atexit, os, re, sys
+from gspc.cli import app
+
+
+def peak():
+    with open("/proc/self/status") as f:
+        kb = re.search(r"VmHWM:\\s+(\\d+)", f.read()).group(1)
+    with open(os.environ["GSPC_BENCH_PEAK"], "w") as f:
+        f.write(kb)
+
+
+atexit.register(peak)
+sys.argv[0] = "gspc"
+app()
+"""
 
 
 def measure(args: list[str]) -> dict:
     """Run ``gspc ARGS`` from this checkout on one thread; wall s, CPU s, peak RSS MB and its stderr."""
-    env = dict(os.environ, GSPC_THREADS="1", PYTHONPATH=str(REPO))
-    with tempfile.TemporaryFile() as err:
+    with tempfile.TemporaryDirectory() as tmp, tempfile.TemporaryFile() as err:
+        peak_file = Path(tmp) / "peak_kb"
+        env = dict(os.environ, GSPC_THREADS="1", PYTHONPATH=str(REPO), GSPC_BENCH_PEAK=str(peak_file))
         t0 = time.perf_counter()
         proc = subprocess.Popen([sys.executable, "-c", CLI, *args], env=env, stdout=err, stderr=err)
         _, status, ru = os.wait4(proc.pid, 0)
@@ -35,9 +53,10 @@ def measure(args: list[str]) -> dict:
         proc.returncode = os.waitstatus_to_exitcode(status)
         err.seek(0)
         log = err.read().decode("utf-8", "replace")
+        peak_kb = int(peak_file.read_text()) if peak_file.exists() else ru.ru_maxrss  # (not Linux)
     if proc.returncode:
         raise SystemExit(f"gspc {' '.join(args)} failed ({proc.returncode}):\n{log[-2000:]}")
-    return {"wall": wall, "cpu": ru.ru_utime + ru.ru_stime, "peak_mb": ru.ru_maxrss / 1024.0, "log": log}
+    return {"wall": wall, "cpu": ru.ru_utime + ru.ru_stime, "peak_mb": peak_kb / 1024.0, "log": log}
 
 
 def run_size(folder: Path, tmp: Path) -> dict:

@@ -35,7 +35,7 @@ import torch
 from bench_scale import measure
 
 from gspc.cameras import Camera
-from gspc.codec import container
+from gspc.format import container
 from gspc.format.chunks import SIDE
 from gspc.format.header import FileHeader
 from gspc.io import read_scene

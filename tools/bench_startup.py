@@ -67,7 +67,7 @@ def main(
         check=True,
     )
     entries = {
-        "`import gspc.codec.container`": PROBE.format(body="import gspc.codec.container"),
+        "`import gspc.format.container`": PROBE.format(body="import gspc.format.container"),
         "`gspc --help`": PROBE.format(body=CLI.format(args=["--help"])),
         "`gspc info FILE.gspc`": PROBE.format(body=CLI.format(args=["info", str(gspc_file)])),
         "`python -c pass` (interpreter alone)": PROBE.format(body="pass"),

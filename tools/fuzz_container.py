@@ -26,8 +26,8 @@ import msgpack
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from gspc.codec import container  # noqa: E402
 from gspc.errors import FormatError  # noqa: E402
+from gspc.format import container  # noqa: E402
 
 INTERESTING = [
     0,

@@ -3,7 +3,7 @@
     python tools/make_vectors.py            # (re)write spec/vectors/
     python tools/make_vectors.py --check    # exit 1 if spec/vectors/ differs from what this script makes
 
-Files are assembled here byte by byte from spec/gspc-format.md, not with gspc.codec.container, so the vectors
+Files are assembled here byte by byte from spec/gspc-format.md, not with gspc.format.container, so the vectors
 and the reader are two independent readings of the spec. The expected outcome of each vector is stated here;
 generation fails if the reader disagrees with it. The codec vectors (codec_*) hold payloads from gspc's
 encoder; their expected decoded values come from gspc's decoder, and tests/test_conformance.py requires the
@@ -770,11 +770,11 @@ def digest(a: np.ndarray) -> dict:
 def reference_decode(data: bytes) -> tuple[dict[str, np.ndarray], list[dict]]:
     """gspc's decoder up to the decoded attributes and residuals (what gspc decode does before rendering)."""
     sys.path.insert(0, str(ROOT))
-    from gspc.codec import container
     from gspc.codec.attributes import attribute_chunks, decode_attributes
     from gspc.codec.residuals import decode_residual
     from gspc.codec.sideinfo import side_views
     from gspc.errors import CodecError
+    from gspc.format import container
 
     c = container.unpack(data)
     if not isinstance(c.header.get("attributes"), dict) or not isinstance(c.header.get("side_info"), dict):
@@ -1124,7 +1124,7 @@ def readme(vs: list[Vector]) -> str:
 def check_with_reader(vs: list[Vector]) -> list[str]:
     """Problems where the reference reader disagrees with a vector's stated outcome."""
     sys.path.insert(0, str(ROOT))
-    from gspc.codec import container
+    from gspc.format import container
 
     problems = []
     for v in vs:

@@ -19,6 +19,7 @@ import numpy as np
 
 from gspc.errors import CodecError
 from gspc.format.chunks import RESI, SIDE
+from gspc.limits import MAX_CAMERA_SIDE, MAX_TOTAL_PIXELS, MAX_VIEW_PIXELS
 
 CODEC_IDS = {"jxl": 0, "webp": 1, "avif": 2}
 CODEC_NAMES = {v: k for k, v in CODEC_IDS.items()}
@@ -29,11 +30,8 @@ _CAMERA = struct.Struct("<II16s")  # width, height, intrinsics (4 x binary32: fx
 _VIEW = struct.Struct("<48sI")  # pose (12 x binary32), image length
 _GAIN = struct.Struct("<f")
 MAX_VIEWS = 1 << 20
-MAX_SIDE = 1 << 16  # width and height of a view
-# The decoder renders every view and keeps its target for refinement: memory grows with the pixels, which a
-# view without residual names in 24-52 bytes. Spec 10.8 bounds them, checked before anything is rendered.
-MAX_VIEW_PIXELS = 1 << 24
-MAX_TOTAL_PIXELS = 1 << 28
+# Width, height and pixels of the views (spec 10.8): each limit's reason is in gspc/limits.py.
+MAX_SIDE = MAX_CAMERA_SIDE
 
 
 def _camera_key(camera: dict) -> tuple[int, int, bytes]:

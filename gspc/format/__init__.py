@@ -1,2 +1,2 @@
-"""The .gspc file's own structure above the container: the typed header (header.py) and the registry of
-chunk types (chunks.py). The byte framing itself is gspc/codec/container.py."""
+"""The bytes of a .gspc file: the container's framing (container.py: typed, versioned, checksummed chunks),
+the typed header (header.py) and the registry of chunk types (chunks.py). Nothing here knows a codec."""

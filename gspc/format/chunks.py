@@ -1,6 +1,6 @@
 """Every chunk type a .gspc file may hold, in one registry (spec section 6; layouts in section 10).
 
-The container (gspc/codec/container.py) stores any 4-character type; the names below are the ones gspc
+The container (gspc/format/container.py) stores any 4-character type; the names below are the ones gspc
 writes or reads, and every module that names a chunk takes it from here.
 """
 

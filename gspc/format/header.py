@@ -1,7 +1,7 @@
 """The .gspc header (spec 10.8) as a typed value: :class:`FileHeader` with ``to_dict`` (what the encoder
 writes) and a validating ``from_dict`` (what the decoder, ``gspc info`` and the tools read).
 
-The container (gspc/codec/container.py) guarantees only a msgpack map; every field below comes from an
+The container (gspc/format/container.py) guarantees only a msgpack map; every field below comes from an
 untrusted file, so each is checked here before use and a bad one is refused with a CodecError that names the
 field and its value (issue 15). The attribute codec's section is checked by the codec's own check
 (gspc/codec/attribute_header.py); payload checks (counts against payload sizes, model tables) belong to the
