@@ -57,8 +57,8 @@ def _one_line_errors(fn):
 def default_threads() -> int:
     """The cores this process may run on (its CPU affinity, else the machine's count): GSPC_THREADS's default.
 
-    On a shared 2-vCPU machine two threads measured slower than one (bench/render.md); such users set
-    GSPC_THREADS=1, and the benchmarks pin one thread.
+    On a 2-vCPU machine whose other core was busy two threads measured slower than one (quiet, slightly
+    faster: bench/render.md); users of shared machines set GSPC_THREADS=1, and the benchmarks pin one thread.
     """
     try:
         return max(1, len(os.sched_getaffinity(0)))
