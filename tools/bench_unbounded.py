@@ -37,12 +37,14 @@ from gspc.render import render
 from gspc.scene import GaussianScene
 from gspc.views import robust_bounds, synthesize_views
 
+FLOATERS = 20
+
 
 def add_background(
     scene: GaussianScene,
     fraction: float,
     shell_radius: float,
-    floaters: int = 20,
+    floaters: int = FLOATERS,
     floater_radius: float = 300.0,
     seed: int = 0,
 ) -> GaussianScene:
@@ -110,6 +112,56 @@ def per_added(world: Score, alone: Score, added: int) -> str:
     return f"{(world.bytes - alone.bytes) / added:.2f} ({positions:.2f})"
 
 
+def shell_position_bound(scene: GaussianScene, world: GaussianScene, lam: float) -> tuple:
+    """(shell Gaussians, bytes per shell Gaussian that any lossless coder needs for their voxels, bytes per
+    shell Gaussian of gspc's position coder on the shell alone, median size / voxel of the object's and of
+    the shell's Gaussians), on the grid the codec picks for ``world``.
+
+    The bound: m points spread uniformly over V voxels (the shell's volume in grid space) form a set of
+    C(V, m) possibilities, log2 C(V, m) ~ m (log2(V / m) + log2 e) bits for V >> m. Size / voxel: each
+    Gaussian's median scale over the voxel's world size across the line of sight from the region of interest
+    (grid step x R x |u| / |y|, the contraction's tangential stretch).
+    """
+    n, m = scene.num_gaussians, world.num_gaussians - scene.num_gaussians - FLOATERS
+    bits = QUALITY["low"].attributes.with_lambda(lam).effective_position_bits
+    grid = positions.curve_order(world.means.numpy(), bits)[2]
+    y = positions.contract(world.means.numpy()[n : n + m], grid["centre"], grid["radius"])
+    rho = np.sqrt((y * y).sum(1))
+    volume = 4.0 / 3.0 * np.pi * (rho.max() ** 3 - rho.min() ** 3) / float(np.prod(grid["step"]))
+    bound = (np.log2(volume / m) + np.log2(np.e)) / 8.0
+    v = positions.voxelise(y, grid["lo"], grid["step"], grid["bits"])
+    v = v[np.argsort(positions.morton_encode(v, grid["bits"]), kind="stable")]
+    coded = len(positions.encode_positions(v, grid["bits"])) / m
+    means = world.means.numpy().astype(np.float64)
+    r = np.sqrt(((means - grid["centre"]) ** 2).sum(1)) / grid["radius"]
+    y_all = positions.contract(means, grid["centre"], grid["radius"])
+    stretch = np.where(r > 1.0, r / np.maximum(np.sqrt((y_all * y_all).sum(1)), 1e-12), 1.0)
+    voxel = max(grid["step"]) * grid["radius"] * stretch
+    size = np.exp(np.median(world.log_scales.numpy().astype(np.float64), 1)) / voxel
+    return m, float(bound), coded, float(np.median(size[:n])), float(np.median(size[n : n + m]))
+
+
+def bound_table(scenes: list[str], lam: float, shells: list[float], fractions: list[float]) -> str:
+    lines = [
+        "| scene | lambda | shell | fraction | shell Gaussians | bound B/G "
+        "| gspc's coder, shell alone, B/G | size / voxel, object | size / voxel, shell |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for path in scenes:
+        obj = read_scene(path)
+        for shell in shells:
+            for frac in fractions:
+                m, bound, coded, size_obj, size_shell = shell_position_bound(
+                    obj, add_background(obj, frac, shell), lam
+                )
+                lines.append(
+                    f"| {Path(path).name} | {lam:g} | {shell:g} | {frac:.0%} | {m:,} | {bound:.2f} "
+                    f"| {coded:.2f} | {size_obj:.2f} | {size_shell:.2f} |"
+                )
+                print(lines[-1], flush=True)
+    return "\n".join(lines) + "\n"
+
+
 SCENES = [
     "../shared/data/statues/massa.sog",
     "../shared/data/donut/fused.ply",
@@ -125,8 +177,13 @@ def main(
     views: int = typer.Option(16),
     size: int = typer.Option(256),
     out: Path = typer.Option(Path("bench/unbounded.md"), "-o"),
+    bound: bool = typer.Option(False, help="only the shell's position bound at the low preset (to stdout)"),
 ) -> None:
     torch.set_num_threads(1)
+    if bound:
+        floats = [float(x) for x in shells.split(",")], [float(x) for x in fractions.split(",")]
+        bound_table(scenes, float(lams.split(",")[-1]), *floats)
+        return
     rows = []
     for path in scenes:
         obj = read_scene(path)
