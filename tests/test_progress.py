@@ -26,11 +26,11 @@ def test_lines_at_start_end_and_every_30_seconds():
         log("refine", i, 100)
     assert lines[0] == "refine: start, 100 refinement iterations"
     assert lines[-1] == "refine: done, 100/100 in 3 min 20 s"
-    # The forecast comes once, after the first 3 iterations, from their measured time.
+    # The forecast comes once, after the first 3 iterations, from the time of those after the first.
     forecasts = [ln for ln in lines if "on this machine" in ln]
     assert forecasts == [
         "refine: 100 refinement iterations, ~3 min 20 s on this machine "
-        "(2.00 s each, measured on the first 3)"
+        "(2.00 s each, measured on 2 after the first)"
     ]
     ticks = [ln for ln in lines if "elapsed" in ln]
     # A line at least every 30 s of a 200 s stage, each with done/total and the time left.
@@ -49,12 +49,31 @@ def test_short_stages_get_no_forecast_and_announcements_alone_beside_bars():
     quiet = []
     bars = ProgressLines(quiet.append, lines=False, clock=clock)
     bars("check refine", 0, 1000)
-    clock.t += 6.0  # one slow first iteration: the forecast waits for 5 s or 3 iterations
+    clock.t += 6.0  # slow iterations: the forecast waits for 5 s or 3 iterations, and for a second one
     bars("check refine", 1, 1000)
+    assert quiet == []
+    clock.t += 6.0
+    bars("check refine", 2, 1000)
     assert quiet == [
         "check refine: 1000 refinement iterations, ~1 h 40 min on this machine "
-        "(6.00 s each, measured on the first 1)"
+        "(6.00 s each, measured on 1 after the first)"
     ]
+
+
+def test_a_slow_first_step_does_not_inflate_the_forecast():
+    # Refinement's first iteration loads the compiled renderer; the forecast times the iterations after it.
+    clock, lines = FakeClock(), []
+    log = ProgressLines(lines.append, every=1e9, clock=clock)
+    log("refine", 0, 100)
+    clock.t = 10.0
+    log("refine", 1, 100)
+    for i in range(2, 4):
+        clock.t = 10.0 + (i - 1)
+        log("refine", i, 100)
+    assert lines[1] == (
+        "refine: 100 refinement iterations, ~1 min 49 s on this machine "
+        "(1.00 s each, measured on 1 after the first)"
+    )
 
 
 def test_a_stage_reported_without_its_opening_measures_from_its_first_report():
@@ -65,7 +84,10 @@ def test_a_stage_reported_without_its_opening_measures_from_its_first_report():
     clock.t = 40.0
     log("tool stage", 8, 50)
     assert lines[0] == "tool stage: start, 50 steps"
-    assert "10.00 s each" in lines[1]  # (40 - 10) s over 3 steps, not over 8
+    clock.t = 70.0
+    log("tool stage", 11, 50)
+    forecast = [ln for ln in lines if "on this machine" in ln]
+    assert "10.00 s each" in forecast[0]  # (70 - 40) s over the 3 steps after the first report, not over 11
 
 
 @pytest.mark.parametrize(
