@@ -275,6 +275,27 @@ def unpack_bin_pair(payload: bytes, what: str) -> tuple[bytes, bytes]:
     return pair[0], pair[1]
 
 
+def curve_voxels(classes: bytes, raw: bytes, n: int, bits: int) -> list[list[int]]:
+    """10.1: the voxels (x, y, z) of one curve of ``n`` codes of ``bits`` bits per axis."""
+    lengths = decode_ecm(classes, n, 1)[0]
+    need(all(0 <= x <= 3 * bits for x in lengths), "position class")
+    total = sum(max(x - 1, 0) for x in lengths)
+    need(len(raw) == (total + 7) // 8, "raw bits length")
+    bitstr = int.from_bytes(raw, "big") if raw else 0
+    pad = 8 * len(raw) - total
+    need(bitstr & ((1 << pad) - 1) == 0, "raw padding bits")
+    bitstr >>= pad
+    used, code, out = 0, 0, []
+    for x in lengths:
+        if x:
+            low = (bitstr >> (total - used - (x - 1))) & ((1 << (x - 1)) - 1)
+            used += x - 1
+            code += (1 << (x - 1)) + low
+        need(code < 1 << (3 * bits), "Morton code past 3 x bits")
+        out.append([sum(((code >> (3 * b + ax)) & 1) << b for b in range(bits)) for ax in range(3)])
+    return out
+
+
 def finite_float(x: object) -> bool:
     return isinstance(x, float) and math.isfinite(x)
 
@@ -283,7 +304,8 @@ def decode_attributes(meta: dict, chunks: dict[str, bytes]) -> dict[str, np.ndar
     """float32 arrays: means (n,3), quats (n,4), log_scales (n,3), opacities (n,), sh_dc (n,3), sh_rest
     (n,K,3)."""
     a = meta["attributes"]
-    need(is_int(a["version"]) and a["version"] in (1, 2), "codec version")
+    version = a["version"]
+    need(is_int(version) and version in (1, 2, 3), "codec version")
     n, deg = a["n"], a["sh_degree"]
     need(is_int(n) and 1 <= n <= MAX_GAUSSIANS, "Gaussian count")
     need(is_int(deg) and 0 <= deg <= 3, "SH degree")
@@ -291,9 +313,14 @@ def decode_attributes(meta: dict, chunks: dict[str, bytes]) -> dict[str, np.ndar
     need(n <= GAUSSIANS_PER_BYTE * sum(len(p) for p in chunks.values()), "Gaussian count vs payload")
     grid = a["position"]
     bits, lo, step = grid["bits"], grid["lo"], grid["step"]
-    need(is_int(bits) and 1 <= bits <= (21 if a["version"] == 2 else 17), "position bits")
-    contracted = a["version"] == 2
+    need(is_int(bits) and 1 <= bits <= (17 if version == 1 else 21), "position bits")
+    contracted = version >= 2
     need(contracted == ("radius" in grid) == ("centre" in grid), "contraction keys")
+    need((version == 3) == ("far_count" in grid) == ("far_shift" in grid), "far set keys")
+    far, shift = (grid["far_count"], grid["far_shift"]) if version == 3 else (0, 0)
+    need(is_int(far) and is_int(shift), "far set integers")
+    if version == 3:
+        need(1 <= far <= n - 1 and 1 <= shift <= bits - 1, "far set range")
     if contracted:
         centre, radius = grid["centre"], grid["radius"]
         need(len(centre) == 3 and all(map(finite_float, [*centre, radius])) and radius > 0, "centre, radius")
@@ -305,27 +332,19 @@ def decode_attributes(meta: dict, chunks: dict[str, bytes]) -> dict[str, np.ndar
     need(len(a["sh_steps"]) == k and all(finite_float(s) and s > 0 for s in steps), "steps")
     need(set(chunks) == {"POSN", "OPAC", "SCAL", "ROTN", "SHDC"} | ({"SHRS"} if deg else set()), "chunks")
 
-    # 10.1 positions
-    classes, raw = unpack_bin_pair(chunks["POSN"], "POSN")
-    lengths = decode_ecm(classes, n, 1)[0]
-    need(all(0 <= x <= 3 * bits for x in lengths), "position class")
-    total = sum(max(x - 1, 0) for x in lengths)
-    need(len(raw) == (total + 7) // 8, "raw bits length")
-    bitstr = int.from_bytes(raw, "big") if raw else 0
-    pad = 8 * len(raw) - total
-    need(bitstr & ((1 << pad) - 1) == 0, "raw padding bits")
-    bitstr >>= pad
-    used, code = 0, 0
+    # 10.1 positions: one curve, or the near curve and the far set's (version 3)
+    try:
+        parts = msgpack.unpackb(chunks["POSN"], raw=False)
+    except Exception:
+        raise SpecError("POSN is not one msgpack value") from None
+    need(isinstance(parts, list) and len(parts) == (4 if version == 3 else 2), "POSN array length")
+    need(all(isinstance(x, bytes) for x in parts), "POSN bins")
+    voxels = curve_voxels(parts[0], parts[1], n - far, bits)
+    if version == 3:
+        voxels += [[w << shift for w in v] for v in curve_voxels(parts[2], parts[3], far, bits - shift)]
     means = np.zeros((n, 3), np.float32)
-    for i, x in enumerate(lengths):
-        if x:
-            low = (bitstr >> (total - used - (x - 1))) & ((1 << (x - 1)) - 1)
-            used += x - 1
-            code += (1 << (x - 1)) + low
-        need(code < 1 << (3 * bits), "Morton code past 3 x bits")
-        y = [
-            lo[ax] + sum(((code >> (3 * b + ax)) & 1) << b for b in range(bits)) * step[ax] for ax in range(3)
-        ]
+    for i, v in enumerate(voxels):
+        y = [lo[ax] + v[ax] * step[ax] for ax in range(3)]
         if not contracted:
             means[i] = np.array(y, np.float32)
             continue

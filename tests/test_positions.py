@@ -16,7 +16,7 @@ def test_positions_roundtrip(bits):
     means = rng.uniform(-1, 1, size=(3000, 3)) * [1, 10, 0.1]
     voxels, order, grid = pos.curve_order(means, bits)
     assert not pos.is_contracted(grid)  # a bounded box: the plain grid
-    out = pos.decode_positions(pos.encode_positions(voxels, bits), bits, len(voxels))
+    out = pos.decode_positions(pos.encode_positions(voxels, grid), grid, len(voxels))
     assert np.array_equal(out, voxels)
     codes = pos.morton_encode(out, bits)
     assert (np.diff(codes) >= 0).all()  # decoded order is the curve order
@@ -27,7 +27,7 @@ def test_positions_roundtrip(bits):
 def test_degenerate_points():
     means = np.full((50, 3), 1e6)
     voxels, order, grid = pos.curve_order(means, 16)
-    out = pos.decode_positions(pos.encode_positions(voxels, 16), 16, 50)
+    out = pos.decode_positions(pos.encode_positions(voxels, grid), grid, 50)
     assert np.array_equal(out, voxels)
     assert (pos.dequantise(out, grid["lo"], grid["step"]) == np.float32(1e6)).all()
 
@@ -66,7 +66,7 @@ def test_far_gaussians_keep_the_foreground_voxel_size(bits):
     _, _, plain = pos.curve_order(obj, bits)
     voxels, order, grid = pos.curve_order(x, bits)
     assert pos.is_contracted(grid) and grid["bits"] > bits
-    out = pos.decode_positions(pos.encode_positions(voxels, grid["bits"]), grid["bits"], len(voxels))
+    out = pos.decode_positions(pos.encode_positions(voxels, grid), grid, len(voxels))
     assert np.array_equal(out, voxels)
     dec = pos.positions(voxels, grid)
     err = np.abs(dec - x[order])
@@ -79,6 +79,62 @@ def test_far_gaussians_keep_the_foreground_voxel_size(bits):
     dist = np.linalg.norm(x[order] - grid["centre"], axis=1)
     rel = err.max(1)[~is_obj] / dist[~is_obj]
     assert rel.max() < 2.0 * max(grid["step"]) * grid["radius"] / (0.5 * grid["radius"])
+
+
+def far_sizes(x: np.ndarray, centre, grow: float) -> np.ndarray:
+    """World sizes: 0.02 inside (the object's), growing as ``grow`` x the distance beyond 2 radii."""
+    d = np.linalg.norm(x - centre, axis=1)
+    return np.where(d > 2.0, grow * d, 0.02)
+
+
+@pytest.mark.parametrize("bits", [8, 11, 14])
+def test_large_far_gaussians_form_a_far_set_on_a_coarser_grid(bits):
+    x = unbounded()
+    centre = x[:4000].mean(0)
+    plain_v, plain_order, plain_grid = pos.curve_order(x, bits)  # no sizes: no far set
+    assert "far_count" not in plain_grid
+    voxels, order, grid = pos.curve_order(x, bits, far_sizes(x, centre, 0.05))
+    near, shift = pos.far_split(grid, len(x))
+    assert 1 <= shift <= pos.FAR_MAX_SHIFT and 0 < near < len(x)
+    # Far voxels lie on the coarse grid; the payload round-trips and costs less than without a far set.
+    assert not (voxels[near:] % (1 << shift)).any()
+    payload = pos.encode_positions(voxels, grid)
+    assert np.array_equal(pos.decode_positions(payload, grid, len(x)), voxels)
+    assert len(payload) < len(pos.encode_positions(plain_v, plain_grid))
+    # The near Gaussians are the same voxels, in the same order, as without a far set.
+    far_rows = set(order[near:].tolist())
+    keep = np.array([i not in far_rows for i in plain_order])
+    assert np.array_equal(voxels[:near], plain_v[keep]) and np.array_equal(order[:near], plain_order[keep])
+    # The far set holds only Gaussians beyond 2 R (the object is never coarsened), and every Gaussian
+    # stays inside the cell refinement keeps it in.
+    dec = pos.positions(voxels, grid)
+    u = np.linalg.norm(x[order] - grid["centre"], axis=1) / grid["radius"]
+    assert (u[near:] > pos.IDENTITY_RADIUS).all()
+    err = np.abs(dec - x[order])
+    assert (err <= pos.cell_half_widths(dec, grid) * 1.0001 + 1e-6).all()
+
+
+def test_small_far_gaussians_keep_the_fine_grid():
+    # Beyond 2 R but no larger than the object's Gaussians: coarser voxels would be visible, so no far set.
+    x = unbounded()
+    _, _, grid = pos.curve_order(x, 11, np.full(len(x), 0.02))
+    assert pos.is_contracted(grid) and "far_count" not in grid
+
+
+def test_far_set_payload_errors():
+    x = unbounded()
+    voxels, _, grid = pos.curve_order(x, 11, far_sizes(x, x[:4000].mean(0), 0.05))
+    payload = pos.encode_positions(voxels, grid)
+    import msgpack
+
+    from gspc.errors import CodecError
+
+    two = msgpack.packb(msgpack.unpackb(payload)[:2], use_bin_type=True)
+    with pytest.raises(CodecError, match="4 msgpack bins"):
+        pos.decode_positions(two, grid, len(x))
+    without = {k: v for k, v in grid.items() if not k.startswith("far_")}
+    with pytest.raises(CodecError, match="2 msgpack bins"):
+        pos.decode_positions(payload, without, len(x))
 
 
 def test_bit_length_is_exact_to_int64():
@@ -105,11 +161,75 @@ def test_an_unbounded_scene_round_trips_through_the_file(tmp_path):
     encode(src, out, opts=EncodeOptions(side_info=False, synth_views=4, keep_invisible=True))
     meta = container.read(out).header["attributes"]
     assert (
-        meta["version"] == 2 and pos.is_contracted(meta["position"]) and container.read(out).version == (1, 2)
+        meta["version"] == 2 and pos.is_contracted(meta["position"]) and container.read(out).version == (1, 3)
     )
     decode(out, dec, DecodeOptions(refine=False, restore=False))
     got = read_scene(dec).means.numpy().astype(np.float64)
     ref = scene.means.numpy().astype(np.float64)
     # Match each decoded Gaussian to its source (curve order differs from input order) by nearest neighbour.
+    d = np.sqrt(((got[:, None, :] - ref[None, :, :]) ** 2).sum(-1)).min(1)
+    assert (d <= np.linalg.norm(pos.cell_half_widths(got, meta["position"]), axis=1) + 1e-5).all()
+
+
+def far_scene(seed: int = 4):
+    """An object with a background of large Gaussians (their size grows with their distance): version 3."""
+    import torch
+    from scenes import random_scene
+
+    x = unbounded(seed, n=800)
+    scene = random_scene(len(x), sh_degree=1, seed=seed)
+    scene.means[:] = torch.from_numpy(x.astype(np.float32))
+    sizes = far_sizes(x, x[:800].mean(0), 0.05)
+    scene.log_scales[:] = torch.from_numpy(np.log(sizes).astype(np.float32))[:, None]
+    return scene
+
+
+def test_far_set_header_is_checked():
+    from gspc.codec.attribute_header import FAR_VERSION, check_attribute_header
+    from gspc.codec.attributes import encode_attributes
+    from gspc.errors import CodecError
+    from gspc.presets import QUALITY
+
+    enc = encode_attributes(far_scene(), QUALITY["low"].attributes)
+    meta = enc.meta
+    assert meta["version"] == FAR_VERSION
+    check_attribute_header(meta)
+    grid, n = meta["position"], meta["n"]
+    bad = [
+        ({"far_count": n}, "far set"),
+        ({"far_count": 0}, "far set"),
+        ({"far_shift": grid["bits"]}, "far set"),
+        ({"far_shift": 1.0}, "far set"),
+    ]
+    for change, message in bad:
+        with pytest.raises(CodecError, match=message):
+            check_attribute_header({**meta, "position": {**grid, **change}})
+    without = {k: v for k, v in grid.items() if k != "far_shift"}
+    with pytest.raises(CodecError, match="far_shift"):
+        check_attribute_header({**meta, "position": without})
+    with pytest.raises(CodecError, match="far set"):
+        check_attribute_header({**meta, "version": 2})
+
+
+def test_a_far_set_round_trips_through_the_file(tmp_path):
+    """Large background Gaussians through gspc encode and decode: codec version 3, positions in their cells,
+    the spec's second decoder agrees."""
+    import spec_reader as sr
+
+    from gspc.format import container
+    from gspc.io import read_scene, write_ply
+    from gspc.pipeline import DecodeOptions, EncodeOptions, decode, encode
+
+    scene = far_scene()
+    src, out, dec = tmp_path / "s.ply", tmp_path / "s.gspc", tmp_path / "d.ply"
+    write_ply(scene, src)
+    encode(src, out, opts=EncodeOptions(side_info=False, synth_views=4, keep_invisible=True))
+    meta = container.read(out).header["attributes"]
+    assert meta["version"] == 3 and meta["position"]["far_count"] > 0
+    decode(out, dec, DecodeOptions(refine=False, restore=False))
+    got = read_scene(dec).means.numpy()
+    assert np.array_equal(sr.read_scene(out.read_bytes())[0]["means"], got)
+    ref = scene.means.numpy().astype(np.float64)
+    got = got.astype(np.float64)
     d = np.sqrt(((got[:, None, :] - ref[None, :, :]) ** 2).sum(-1)).min(1)
     assert (d <= np.linalg.norm(pos.cell_half_widths(got, meta["position"]), axis=1) + 1e-5).all()

@@ -14,26 +14,21 @@ All PSNRs: 8-bit renders at the held-out views against the original scene's rend
 
 from __future__ import annotations
 
-import json
-import os
-import platform
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
-import imagecodecs
 import numpy as np
 import torch
 import typer
+from bench_pipeline import fit_setup, held_out_line
 
 from gspc.io import read_scene
-from gspc.io.camera_files import load_cameras
 from gspc.io.cameras_json import save_cameras_json
 from gspc.metrics import psnr, quantize8
 from gspc.pipeline import DecodeOptions, EncodeOptions, decode, encode, render_images
-from gspc.views import split_test_views
 
 
 def mean_psnr(images: list[torch.Tensor], targets: list[torch.Tensor]) -> float:
@@ -58,20 +53,9 @@ def main(
     out: Path = typer.Option(Path("bench/peers.md"), "-o"),
 ) -> None:
     torch.set_num_threads(1)
-    info = json.loads((fit / "fit.json").read_text())
-    bg = (float(info.get("background", 1.0)),) * 3
-    ply = fit / "point_cloud.ply"
+    setup = fit_setup(fit)
+    ply, bg, eval_cams, photos = setup.scene_path, setup.background, setup.eval_cams, setup.photos
     scene = read_scene(ply)
-    cams = load_cameras(fit / "cameras.json")
-    train, test = split_test_views(cams, every=8)
-    eval_cams = [cams[i] for i in test]
-    photos = [
-        torch.from_numpy(
-            imagecodecs.png_decode((fit / "test" / f"{c.name}.png").read_bytes())[..., :3].astype(np.float32)
-            / 255
-        )
-        for c in eval_cams
-    ]
     ref = render_images(scene, eval_cams, bg)
     rows = [
         f"| original PLY | {ply.stat().st_size:,} | {ply.stat().st_size / scene.num_gaussians:.2f} | ∞ | "
@@ -79,8 +63,8 @@ def main(
     ]
     tmp = Path(tempfile.mkdtemp())
     cams_file = tmp / "train.json"
-    save_cameras_json([cams[i] for i in train], cams_file)
-    max_side = max(max(c.width, c.height) for c in cams)
+    save_cameras_json(setup.train_cams, cams_file)
+    max_side = max(max(c.width, c.height) for c in [*setup.train_cams, *eval_cams])
 
     curve = []
     for lam in [float(x) for x in lams.split(",")]:
@@ -124,9 +108,7 @@ def main(
             "",
             f"Command: `python {' '.join(sys.argv)}`",
             "",
-            f"{scene.num_gaussians:,} Gaussians, SH degree {scene.sh_degree}; {len(eval_cams)} held-out "
-            f"views ({eval_cams[0].width}x{eval_cams[0].height}). Machine: {platform.machine()}, "
-            f"{os.cpu_count()} vCPUs, one torch thread, other jobs running. Codec alone (no side "
+            held_out_line(scene, eval_cams) + ", other jobs running. Codec alone (no side "
             "information, no refinement).",
             "",
             "| coder | bytes | B/Gaussian | PSNR vs original | PSNR vs photos | encode s | gspc bytes at "

@@ -15,6 +15,8 @@ Writes bench/pipeline.md and bench/pipeline_rd.png.
 from __future__ import annotations
 
 import json
+import os
+import platform
 import sys
 import tempfile
 import time
@@ -71,6 +73,15 @@ def fit_setup(folder: Path) -> Setup:
         [cams[i] for i in test],
         (background,) * 3,
         photos,
+    )
+
+
+def held_out_line(scene, eval_cams: list[Camera]) -> str:
+    """The opening of a fit benchmark's description: the scene, its held-out views and the machine."""
+    return (
+        f"{scene.num_gaussians:,} Gaussians, SH degree {scene.sh_degree}; {len(eval_cams)} held-out views "
+        f"({eval_cams[0].width}x{eval_cams[0].height}). Machine: {platform.machine()}, {os.cpu_count()} "
+        "vCPUs, one torch thread"
     )
 
 

@@ -679,6 +679,22 @@ def tiny_scene(n: int, degree: int, seed: int, rest_fraction: float = 0.5):
     )
 
 
+def unbounded_scene(n: int, far: int, seed: int, far_growth: float):
+    """tiny_scene's blob (within about 2 of the origin) with ``far`` Gaussians 20-40 away, their size
+    ``far_growth`` x their distance (0: the blob's): a contracted grid (10.1), with a far set when large."""
+    import torch
+
+    scene = tiny_scene(n + far, 1, seed)
+    g = np.random.default_rng(seed + 100)
+    d = g.normal(size=(far, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    dist = g.uniform(20.0, 40.0, (far, 1))
+    scene.means[n:] = torch.from_numpy((d * dist).astype(np.float32))
+    if far_growth:
+        scene.log_scales[n:] = torch.from_numpy(np.log(far_growth * dist).astype(np.float32))
+    return scene
+
+
 def encode_scene(scene) -> tuple[dict, dict[str, bytes]]:
     """(meta["attributes"], attribute payloads) from gspc's attribute encoder at the low preset."""
     from gspc.codec.attributes import encode_attributes
@@ -869,6 +885,24 @@ def codec_vectors() -> list[Vector]:
         scene_meta(a2),
         [*attribute_entries(c2), (entry("SIDE", side), side)],
     )
+    a5, c5 = encode_scene(unbounded_scene(60, 12, 5, 0.0))
+    ok(
+        "codec_contracted",
+        "72 Gaussians, SH degree 1, 12 of them 20-40 units away (the rest within 2): attribute codec "
+        "version 2, positions on the contracted grid",
+        scene_meta(a5),
+        attribute_entries(c5),
+        minor=2,
+    )
+    a6, c6 = encode_scene(unbounded_scene(60, 30, 6, 0.05))
+    ok(
+        "codec_far_set",
+        f"90 Gaussians, SH degree 1, 30 large ones 20-40 units away: attribute codec version 3, a far set "
+        f"of {a6['position']['far_count']} on a grid {a6['position']['far_shift']} bits coarser",
+        scene_meta(a6),
+        attribute_entries(c6),
+        minor=3,
+    )
     image, gain = residual_image(20, 24, 8, "webp")
     views10 = [
         {
@@ -1030,6 +1064,20 @@ def codec_vectors() -> list[Vector]:
         scene_meta(a0),
         attribute_entries({**c0, "SHRS": c3["SHRS"]}),
         "degree 0",
+    )
+    bad_codec(
+        "codec_invalid_far_shift",
+        "a far set coarser than its grid: far_shift equal to position.bits",
+        scene_meta(dict(a6, position=dict(a6["position"], far_shift=a6["position"]["bits"]))),
+        attribute_entries(c6),
+        "far set",
+    )
+    bad_codec(
+        "codec_invalid_far_payload",
+        "attribute codec version 3 with a POSN payload of two bins (the far curve missing)",
+        scene_meta(a6),
+        attribute_entries({**c6, "POSN": msgpack.packb(msgpack.unpackb(c6["POSN"])[:2], use_bin_type=True)}),
+        "4 msgpack bins",
     )
     bad_codec(
         "codec_invalid_float_count",

@@ -27,6 +27,7 @@ import torch
 from gspc.codec import positions as pos
 from gspc.codec.attribute_header import (
     CONTRACTED_VERSION,
+    FAR_VERSION,
     FORMAT_VERSION,
     GAUSSIANS_PER_BYTE,
     check_attribute_header,
@@ -102,7 +103,8 @@ def encode_attributes(
     if keep_idx.size == 0:
         raise CodecError("every Gaussian was pruned (transparent or unseen); use the keep flags to code them")
     means = _np(scene.means, keep_idx)
-    voxels, order, grid = pos.curve_order(means, params.effective_position_bits)
+    sizes = np.exp(np.median(_np(scene.log_scales, keep_idx).astype(np.float64), axis=1))
+    voxels, order, grid = pos.curve_order(means, params.effective_position_bits, sizes)
     kept = keep_idx[order]
 
     lam = params.lam
@@ -114,7 +116,7 @@ def encode_attributes(
     dc_step = float(params.dc_step * lam)
     sh_steps = _sh_steps(params, scene.sh_degree)
     meta = {
-        "version": CONTRACTED_VERSION if pos.is_contracted(grid) else FORMAT_VERSION,
+        "version": _version(grid),
         "n": int(kept.size),
         "sh_degree": int(scene.sh_degree),
         "position": grid,
@@ -128,7 +130,7 @@ def encode_attributes(
     quant = AttributeQuantisers.from_meta(meta, params.sh_deadzone)
     opac_q = quant.opacity.quantise(_np(scene.opacities, kept))
     chunks = {
-        POSN: pos.encode_positions(voxels, grid["bits"]),
+        POSN: pos.encode_positions(voxels, grid),
         OPAC: encode_matrix(opac_q[:, None]),
         SCAL: encode_matrix(quant.scale.quantise(_np(scene.log_scales, kept))),
         ROTN: encode_matrix(quant.rotation.quantise(_np(scene.quats, kept))),
@@ -145,6 +147,13 @@ def encode_attributes(
         )
     decoded = decode_attributes(chunks, meta)
     return EncodedAttributes(chunks=chunks, meta=meta, decoded=decoded, kept=kept, lam=params.lam)
+
+
+def _version(grid: dict) -> int:
+    """The lowest attribute codec version that holds this position grid (older readers read the most)."""
+    if "far_count" in grid:
+        return FAR_VERSION
+    return CONTRACTED_VERSION if pos.is_contracted(grid) else FORMAT_VERSION
 
 
 def attribute_chunks(chunks: list) -> dict[str, bytes]:
@@ -168,7 +177,6 @@ def decode_attributes(chunks: dict[str, bytes], meta: dict) -> GaussianScene:
     """Decode chunks to a float32 scene in curve order; identical on every machine."""
     check_attribute_header(meta)
     n, degree, grid = meta["n"], meta["sh_degree"], meta["position"]
-    bits = grid["bits"]
     if degree == 0 and SHRS in chunks:
         raise CodecError("chunk SHRS in a file of SH degree 0")
     payload_bytes = sum(len(chunks.get(t, b"")) for t in ATTRIBUTE_TYPES)
@@ -178,7 +186,7 @@ def decode_attributes(chunks: dict[str, bytes], meta: dict) -> GaussianScene:
         )
     if POSN not in chunks:
         raise CodecError("chunk POSN is missing")
-    voxels = pos.decode_positions(chunks[POSN], bits, n)
+    voxels = pos.decode_positions(chunks[POSN], grid, n)
     means = pos.positions(voxels, grid)
     quant = AttributeQuantisers.from_meta(meta)
     opac = quant.opacity.dequantise(_matrix(chunks, OPAC, n, 1)[:, 0])

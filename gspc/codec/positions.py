@@ -14,6 +14,14 @@ voxel size inside the region and adds the bits it needs to span the rest: along 
 foreground's deltas are what they were, so the background costs only its own bits. The inverse uses only
 +, -, *, /, sqrt, floor and powers of two, which IEEE 754 rounds the same on every machine.
 
+The background of a real capture is large Gaussians, and the contracted grid still places them far more
+finely than their size needs (the bird fit of bench/fit.md: median size / voxel 143 beyond the region
+against 2.5 inside it, at the low preset). So the Gaussians beyond it whose size allows may form a far set
+(attribute codec version 3, spec 10.1): coded after the others as a curve of their own on the same grid
+coarsened by ``far_shift`` bits per axis, each far voxel standing for the fine voxel ``v << far_shift``. The
+encoder puts there each Gaussian that keeps, at the coarse voxel, at least twice the relative precision (size
+over voxel) of the median Gaussian inside the region, and picks the shift that saves the most bits.
+
 The sorted codes are coded as deltas: the bit length of each delta goes through the context
 coder of :mod:`gspc.codec.entropy` (spatial context along the curve), the bits below each delta's
 leading one are stored raw.
@@ -39,6 +47,11 @@ CONTRACTED_MAX_BITS = 21
 ROI_QUANTILE = 0.5
 ROI_MARGIN = 3.0
 IDENTITY_RADIUS = 2.0  # in units of R: where contraction starts
+FAR_MAX_SHIFT = 8  # the far set's coarsening is chosen among 1..8 bits per axis (spec 10.1 allows 1..bits-1)
+# Bits of relative precision a far Gaussian keeps above the median inside the region. On the bird fit at the
+# low preset (lambda 8), margins 0, 1, 2: -8.5%, -6.8%, -5.1% bytes, -0.51, -0.15, -0.05 dB against the
+# original's renders; 1 gained most at equal bytes (+0.44, +0.60, +0.51 dB; bench/far_set.md).
+FAR_MARGIN_BITS = 1
 
 
 def voxel_grid(means: np.ndarray, bits: int) -> tuple[list[float], list[float]]:
@@ -136,27 +149,80 @@ def contracted_grid(y: np.ndarray, bits: int) -> tuple[int, list[float], list[fl
     return grid_bits, [float(x) for x in lo], [float(x) for x in step]
 
 
-def curve_order(means: np.ndarray, bits: int) -> tuple[np.ndarray, np.ndarray, dict]:
-    """Voxels in curve order, the permutation of the input, and the grid meta (with ``centre`` and
-    ``radius`` where the grid lies in contracted space)."""
+def curve_order(
+    means: np.ndarray, bits: int, sizes: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray, dict]:
+    """Voxels of the (fine) grid in decoded order, the permutation of the input, and the grid meta (with
+    ``centre`` and ``radius`` where the grid lies in contracted space, and ``far_count`` and ``far_shift``
+    where a far set is coded on a coarser grid). ``sizes``: each Gaussian's world size (the encoder's choice
+    of a far set needs it; None, no far set)."""
     roi = region_of_interest(means)
     if roi is None:
         lo, step = voxel_grid(means, bits)
         v = voxelise(means, lo, step, bits)
         grid = {"bits": bits, "lo": lo, "step": step}
-    else:
-        centre, radius = roi
-        y = contract(means, centre, radius)
-        bits, lo, step = contracted_grid(y, bits)
-        v = voxelise(y, lo, step, bits)
-        grid = {"bits": bits, "lo": lo, "step": step, "centre": [float(c) for c in centre], "radius": radius}
-    code = morton_encode(v, bits)
-    order = np.argsort(code, kind="stable")
-    return v[order], order, grid
+        order = np.argsort(morton_encode(v, bits), kind="stable")
+        return v[order], order, grid
+    centre, radius = roi
+    y = contract(means, centre, radius)
+    bits, lo, step = contracted_grid(y, bits)
+    grid = {"bits": bits, "lo": lo, "step": step, "centre": [float(c) for c in centre], "radius": radius}
+    shift, far = (0, None) if sizes is None else far_set(means, y, sizes, grid)
+    v = voxelise(y, lo, step, bits)
+    if far is None:
+        order = np.argsort(morton_encode(v, bits), kind="stable")
+        return v[order], order, grid
+    near_idx, far_idx = np.flatnonzero(~far), np.flatnonzero(far)
+    coarse = voxelise(y[far_idx], lo, [s * 2.0**shift for s in step], bits - shift)
+    near_idx = near_idx[np.argsort(morton_encode(v[near_idx], bits), kind="stable")]
+    far_order = np.argsort(morton_encode(coarse, bits - shift), kind="stable")
+    grid.update(far_count=int(far.sum()), far_shift=int(shift))
+    voxels = np.concatenate([v[near_idx], np.left_shift(coarse[far_order], shift)])
+    return voxels, np.concatenate([near_idx, far_idx[far_order]]), grid
+
+
+def far_set(means: np.ndarray, y: np.ndarray, sizes: np.ndarray, grid: dict) -> tuple[int, np.ndarray | None]:
+    """(shift, mask) of the far set for a contracted grid, or (0, None) where none pays (see the module).
+
+    Relative precision is size over the voxel's world size across the line of sight from the region's
+    centre (the contraction's tangential stretch |u| / |y|). A Gaussian beyond the identity radius may join
+    the far set at shift k if its relative precision is at least 2^(k + FAR_MARGIN_BITS) times the median
+    inside; the k that saves the most bits (k bits per axis for each member) wins. Encoder-only: the file
+    states the set."""
+    u = np.sqrt(((np.asarray(means, np.float64) - np.asarray(grid["centre"])) ** 2).sum(1)) / grid["radius"]
+    rho = np.sqrt((y * y).sum(1))
+    outside = u > IDENTITY_RADIUS
+    if not outside.any() or outside.all():
+        return 0, None
+    voxel = max(grid["step"]) * grid["radius"] * np.where(outside, u / np.maximum(rho, 1e-300), 1.0)
+    precision = np.asarray(sizes, np.float64) / voxel
+    reference = float(np.median(precision[~outside]))
+    if not reference > 0:
+        return 0, None
+    with np.errstate(divide="ignore", invalid="ignore"):
+        room = np.floor(np.log2(precision / reference) - FAR_MARGIN_BITS)  # the shift each Gaussian allows
+    room = np.where(outside & np.isfinite(room), room, 0).astype(np.int64)
+    shifts = np.arange(1, min(FAR_MAX_SHIFT, grid["bits"] - 1) + 1)
+    saved = [k * int((room >= k).sum()) for k in shifts]
+    if not saved or max(saved) == 0:
+        return 0, None
+    k = int(shifts[int(np.argmax(saved))])
+    far = room >= k
+    if far.all():  # the near curve is never empty (spec 10.1)
+        return 0, None
+    return k, far
 
 
 def is_contracted(grid: dict) -> bool:
     return "radius" in grid
+
+
+def far_split(grid: dict, n: int) -> tuple[int, int]:
+    """(Gaussians on the fine grid, far shift): the first of them come first in decoded order, the far set
+    (``n`` minus them) after; (n, 0) without a far set."""
+    if "far_count" not in grid:
+        return n, 0
+    return n - int(grid["far_count"]), int(grid["far_shift"])
 
 
 def positions(v: np.ndarray, grid: dict) -> np.ndarray:
@@ -176,28 +242,51 @@ def cell_half_widths(means: np.ndarray, grid: dict) -> np.ndarray:
     r = np.sqrt(((np.asarray(means, np.float64) - np.asarray(grid["centre"])) ** 2).sum(1)) / grid["radius"]
     # The mapping stretches grid space by 2^e <= r in octave e >= 1 (none below 2 R); a cell may reach into
     # the next octave: 2 r bounds it there, and from 1.5 R on to cover cells that cross 2 R.
-    return half * grid["radius"] * np.where(r < 1.5, 1.0, np.maximum(1.0, 2.0 * r))[:, None]
+    stretch = np.where(r < 1.5, 1.0, np.maximum(1.0, 2.0 * r))
+    near, shift = far_split(grid, len(r))
+    stretch[near:] *= 2.0**shift  # the far set's voxels are 2^shift fine voxels wide
+    return half * grid["radius"] * stretch[:, None]
 
 
-def encode_positions(v_sorted: np.ndarray, bits: int) -> bytes:
-    """Code voxels already in curve order."""
+def encode_positions(voxels: np.ndarray, grid: dict) -> bytes:
+    """The POSN payload of voxels in decoded order (curve_order's): one curve, or the near curve and the far
+    set's on the coarser grid."""
+    bits = grid["bits"]
+    near, shift = far_split(grid, len(voxels))
+    parts = _encode_curve(voxels[:near], bits)
+    if near < len(voxels):
+        parts += _encode_curve(np.right_shift(voxels[near:], shift), bits - shift)
+    return msgpack.packb(parts, use_bin_type=True)
+
+
+def decode_positions(payload: bytes, grid: dict, n: int) -> np.ndarray:
+    """Voxels of the fine grid in decoded order from a POSN payload."""
+    bits = grid["bits"]
+    near, shift = far_split(grid, n)
+    try:
+        parts = msgpack.unpackb(payload, raw=False)
+    except Exception as err:
+        raise CodecError(f"corrupt position payload ({type(err).__name__})") from None
+    expected = 2 if near == n else 4
+    if not (isinstance(parts, list) and len(parts) == expected and all(isinstance(p, bytes) for p in parts)):
+        raise CodecError(f"position payload is not an array of {expected} msgpack bins")
+    v = _decode_curve(parts[0], parts[1], bits, near)
+    if near == n:
+        return v
+    far = np.left_shift(_decode_curve(parts[2], parts[3], bits - shift, n - near), shift)
+    return np.concatenate([v, far])
+
+
+def _encode_curve(v_sorted: np.ndarray, bits: int) -> list[bytes]:
+    """[classes, raw] of voxels already in curve order."""
     code = morton_encode(v_sorted, bits)
     delta = np.diff(code, prepend=0)
     lengths = bit_length(delta)
     mantissa_len = np.maximum(lengths - 1, 0)
-    classes = encode_matrix(lengths[:, None])
-    raw = pack_bits(delta.astype(np.uint64), mantissa_len)
-    return msgpack.packb([classes, raw], use_bin_type=True)
+    return [encode_matrix(lengths[:, None]), pack_bits(delta.astype(np.uint64), mantissa_len)]
 
 
-def decode_positions(payload: bytes, bits: int, n: int) -> np.ndarray:
-    """Voxels in curve order from a POSN payload."""
-    try:
-        classes, raw = msgpack.unpackb(payload, raw=False)
-    except Exception as err:
-        raise CodecError(f"corrupt position payload ({type(err).__name__})") from None
-    if not (isinstance(classes, bytes) and isinstance(raw, bytes)):
-        raise CodecError("position payload is not a pair of msgpack bins")
+def _decode_curve(classes: bytes, raw: bytes, bits: int, n: int) -> np.ndarray:
     lengths = decode_matrix(classes, (n, 1))[:, 0]
     if (lengths > 3 * bits).any() or (lengths < 0).any():
         raise CodecError("position payload does not match the header's bit depth")
