@@ -894,10 +894,10 @@ def codec_vectors() -> list[Vector]:
         attribute_entries(c5),
         minor=2,
     )
-    a6, c6 = encode_scene(unbounded_scene(60, 30, 6, 0.05))
+    a6, c6 = encode_scene(unbounded_scene(120, 50, 6, 0.5))
     ok(
         "codec_far_set",
-        f"90 Gaussians, SH degree 1, 30 large ones 20-40 units away: attribute codec version 3, a far set "
+        f"170 Gaussians, SH degree 1, 50 large ones 20-40 units away: attribute codec version 3, a far set "
         f"of {a6['position']['far_count']} on a grid {a6['position']['far_shift']} bits coarser",
         scene_meta(a6),
         attribute_entries(c6),

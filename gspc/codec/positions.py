@@ -20,7 +20,8 @@ against 2.5 inside it, at the low preset). So the Gaussians beyond it whose size
 (attribute codec version 3, spec 10.1): coded after the others as a curve of their own on the same grid
 coarsened by ``far_shift`` bits per axis, each far voxel standing for the fine voxel ``v << far_shift``. The
 encoder puts there each Gaussian that keeps, at the coarse voxel, at least twice the relative precision (size
-over voxel) of the median Gaussian inside the region, and picks the shift that saves the most bits.
+over voxel) of the median Gaussian inside the region, picks the shift that saves the most bits, and keeps the
+far set where it makes the payload smaller.
 
 The sorted codes are coded as deltas: the bit length of each delta goes through the context
 coder of :mod:`gspc.codec.entropy` (spatial context along the curve), the bits below each delta's
@@ -167,18 +168,22 @@ def curve_order(
     y = contract(means, centre, radius)
     bits, lo, step = contracted_grid(y, bits)
     grid = {"bits": bits, "lo": lo, "step": step, "centre": [float(c) for c in centre], "radius": radius}
-    shift, far = (0, None) if sizes is None else far_set(means, y, sizes, grid)
     v = voxelise(y, lo, step, bits)
+    order = np.argsort(morton_encode(v, bits), kind="stable")
+    shift, far = (0, None) if sizes is None else far_set(means, y, sizes, grid)
     if far is None:
-        order = np.argsort(morton_encode(v, bits), kind="stable")
         return v[order], order, grid
     near_idx, far_idx = np.flatnonzero(~far), np.flatnonzero(far)
     coarse = voxelise(y[far_idx], lo, [s * 2.0**shift for s in step], bits - shift)
     near_idx = near_idx[np.argsort(morton_encode(v[near_idx], bits), kind="stable")]
     far_order = np.argsort(morton_encode(coarse, bits - shift), kind="stable")
-    grid.update(far_count=int(far.sum()), far_shift=int(shift))
-    voxels = np.concatenate([v[near_idx], np.left_shift(coarse[far_order], shift)])
-    return voxels, np.concatenate([near_idx, far_idx[far_order]]), grid
+    far_grid = {**grid, "far_count": int(far.sum()), "far_shift": int(shift)}
+    far_voxels = np.concatenate([v[near_idx], np.left_shift(coarse[far_order], shift)])
+    # A second curve has its own models and restarts its gaps: a small far set can cost more than it saves,
+    # so it is kept only where the payload is smaller.
+    if len(encode_positions(far_voxels, far_grid)) >= len(encode_positions(v[order], grid)):
+        return v[order], order, grid
+    return far_voxels, np.concatenate([near_idx, far_idx[far_order]]), far_grid
 
 
 def far_set(means: np.ndarray, y: np.ndarray, sizes: np.ndarray, grid: dict) -> tuple[int, np.ndarray | None]:
