@@ -84,6 +84,7 @@ def refine(
     progress: Callable[[int, int, float], None] | None = None,
     cells: dict[str, tuple[torch.Tensor, torch.Tensor]] | None = None,
     deadline: float | None = None,
+    short_run: int = 0,
 ) -> Refined:
     """Optimise ``attributes`` of ``scene`` so its renders at ``cameras`` match ``targets`` (H, W, 3).
 
@@ -93,8 +94,9 @@ def refine(
     :func:`gspc.codec.cells.quantisation_cells`) keeps every attribute inside its quantisation cell after
     each step. ``deadline`` (a ``time.perf_counter()`` value): the schedule is shortened, after timing its
     first iterations, to end by then, and stops there whatever happens; without it the run depends on its
-    inputs alone. Returns the new, detached scene and the iterations run; the input is left
-    unchanged.
+    inputs alone. ``short_run``: a schedule shorter than this many iterations takes proportionally smaller
+    steps (rates x length / short_run), also when a deadline shortens it (0: off). Returns the new, detached
+    scene and the iterations run; the input is left unchanged.
     """
     from gspc.metrics import ssim  # imported here: refinement is the only user on the decode path
     from gspc.render import render
@@ -143,8 +145,9 @@ def refine(
     while it < total:
         # Cosine decay to zero: late steps only polish, so the result depends little on where it stops.
         decay = 0.5 * (1 + np.cos(np.pi * it / total))
+        short = min(1.0, total / short_run) if short_run > 0 else 1.0
         for g, lr0 in zip(opt.param_groups, base):
-            g["lr"] = lr0 * decay
+            g["lr"] = lr0 * short * decay
         v = int(torch.randint(len(cameras), (1,), generator=gen))
         image = render(out, cameras[v], background).image
         l1 = (image - targets[v]).abs().mean()

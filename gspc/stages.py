@@ -82,7 +82,8 @@ def refine_progress(
 # first steps move every attribute by about its full rate whatever the gradient, and a short schedule has no
 # time to undo that. Measured on the 100k scale scene at close-up views (tools/bench_scale_pipeline.py's
 # cameras, 16 per copy), 50 iterations against the unrefined 44.22 dB: rates x1 43.69, x0.3 44.16, x0.1
-# 44.48; 200 iterations at x1: 45.01. The presets' runs (300 and 1000) are unchanged.
+# 44.48; 200 iterations at x1: 45.01. The presets' runs (300 and 1000) are unchanged. A schedule that a time
+# budget cuts below SHORT_RUN takes the steps of its new length from then on (gspc/refine.py).
 SHORT_RUN = 300
 
 
@@ -101,7 +102,7 @@ def refine_in_cells(
 ) -> Refined:
     """The decoder's refinement of G~ against ``targets``, inside the quantisation cells of
     ``attributes_meta`` (None: free refinement), ending by ``deadline`` when one is given. A run shorter
-    than SHORT_RUN iterations takes proportionally smaller steps (its requested length decides)."""
+    than SHORT_RUN iterations takes proportionally smaller steps (its length after any cut decides)."""
     bg = torch.tensor(background, dtype=decoded.means.dtype, device=decoded.means.device)
     return refine(
         decoded,
@@ -110,7 +111,8 @@ def refine_in_cells(
         iterations=iterations,
         background=bg,
         seed=seed,
-        lr_scale=lr_scale * min(1.0, iterations / SHORT_RUN),
+        lr_scale=lr_scale,
+        short_run=SHORT_RUN,
         progress=refine_progress(progress, stage, iterations),
         cells=quantisation_cells(decoded, attributes_meta) if attributes_meta is not None else None,
         deadline=deadline,

@@ -106,6 +106,33 @@ def test_refine_deadline_shortens_the_schedule(setup, monkeypatch):
     assert refine(perturbed, cams, targets, iterations=100, deadline=-1.0).iterations == 0
 
 
+def test_a_cut_short_schedule_takes_the_steps_of_its_new_length(setup, monkeypatch):
+    """short_run: a run below it takes rates x length / short_run; a deadline that cuts the schedule rescales
+    the remaining steps to the new length (as if that length had been asked for)."""
+    import gspc.refine as refine_module
+
+    _, cams, targets, perturbed = setup
+    rates = []
+    step = torch.optim.Adam.step
+
+    def recording_step(self, *a, **k):
+        rates.append(self.param_groups[0]["lr"])
+        return step(self, *a, **k)
+
+    monkeypatch.setattr(torch.optim.Adam, "step", recording_step)
+    refine(perturbed, cams, targets, iterations=200, short_run=400)
+    full = rates[0] / 0.5  # the first step runs at the undecayed rate x 200 / 400
+    rates.clear()
+    clock = iter(range(0, 10_000))
+    monkeypatch.setattr(refine_module.time, "perf_counter", lambda: float(next(clock)))
+    run = refine(perturbed, cams, targets, iterations=200, short_run=400, deadline=12.0)
+    n = run.iterations
+    assert refine_module.PROBE_ITERATIONS < n < 200
+    it = n - 1  # the last step: decayed over the new length, at rates x n / 400
+    expected = full * (n / 400) * 0.5 * (1 + np.cos(np.pi * it / n))
+    assert rates[-1] == pytest.approx(expected, rel=1e-9)
+
+
 def test_scene_extent_from_cameras():
     assert np.isclose(scene_extent(_cameras(3), _scene(5)), 0.3 * 1.1)
     assert scene_extent(_cameras(1), _scene(5)) > 0
