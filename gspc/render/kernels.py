@@ -10,7 +10,8 @@ KERNELS = ("auto", "torch", "compiled")
 
 
 def pick_kernel(kernel: str, ref: torch.Tensor) -> str:
-    """ "compiled" or "torch": under "auto", compiled for CPU tensors, else the PyTorch code."""
+    """The implementation to run, "compiled" or "torch": under "auto", compiled for CPU tensors, else the
+    PyTorch code; ValueError for an unknown name, or for compiled kernels off the CPU."""
     if kernel not in KERNELS:
         raise ValueError(f"unknown render kernel {kernel!r}; choose one of {', '.join(KERNELS)}")
     if kernel == "auto":
