@@ -223,6 +223,20 @@ def _is_gspc(path: Path) -> bool:
         return False
 
 
+def _position_grid_line(attributes: object) -> str | None:
+    """How a .gspc file codes its positions (spec 10.1), for ``gspc info``; None if its header is silent."""
+    grid = attributes.get("position") if isinstance(attributes, dict) else None
+    if not isinstance(grid, dict) or not isinstance(grid.get("bits"), int):
+        return None
+    if "radius" not in grid:
+        return f"positions: a box grid of {grid['bits']} bits per axis"
+    line = f"positions: a contracted grid of {grid['bits']} bits per axis"
+    far, shift = grid.get("far_count"), grid.get("far_shift")
+    if isinstance(far, int) and isinstance(shift, int):
+        line += f"; a far set of {far:,} Gaussians on a grid {shift} bits coarser"
+    return line
+
+
 @app.command()
 @_one_line_errors
 def info(
@@ -247,6 +261,9 @@ def info(
             f"{n:,} Gaussians, SH degree {'?' if degree is None else degree}, "
             f"{len(views)} side-information views"
         )
+        grid = _position_grid_line(header.get("attributes"))
+        if grid:
+            out.print(grid)
         t = Table(show_header=True)
         for col in ("part", "chunks", "bytes", "B/Gaussian", "share"):
             t.add_column(col, justify="left" if col == "part" else "right")

@@ -226,6 +226,12 @@ def test_a_far_set_round_trips_through_the_file(tmp_path):
     encode(src, out, opts=EncodeOptions(side_info=False, synth_views=4, keep_invisible=True))
     meta = container.read(out).header["attributes"]
     assert meta["version"] == 3 and meta["position"]["far_count"] > 0
+    from typer.testing import CliRunner
+
+    from gspc.cli import app
+
+    shown = CliRunner().invoke(app, ["info", str(out)], terminal_width=200).output
+    assert f"a far set of {meta['position']['far_count']:,} Gaussians" in shown
     decode(out, dec, DecodeOptions(refine=False, restore=False))
     got = read_scene(dec).means.numpy()
     assert np.array_equal(sr.read_scene(out.read_bytes())[0]["means"], got)
