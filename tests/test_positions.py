@@ -239,3 +239,24 @@ def test_a_far_set_round_trips_through_the_file(tmp_path):
     got = got.astype(np.float64)
     d = np.sqrt(((got[:, None, :] - ref[None, :, :]) ** 2).sum(-1)).min(1)
     assert (d <= np.linalg.norm(pos.cell_half_widths(got, meta["position"]), axis=1) + 1e-5).all()
+
+
+def test_hostile_far_set_fields_and_payloads_are_codec_errors():
+    """Every bad far_count, far_shift or POSN array of a version-3 file ends in CodecError, nothing else."""
+    import msgpack
+
+    from gspc.codec.attributes import decode_attributes, encode_attributes
+    from gspc.errors import CodecError
+    from gspc.presets import QUALITY
+
+    enc = encode_attributes(far_scene(), QUALITY["low"].attributes)
+    meta, chunks, grid = enc.meta, enc.chunks, enc.meta["position"]
+    values = [-1, 0, meta["n"], meta["n"] + 1, 2**70, "x", None, 1.5, True, [1]]
+    for key in ("far_count", "far_shift"):
+        for value in values:
+            with pytest.raises(CodecError):
+                decode_attributes(chunks, {**meta, "position": {**grid, key: value}})
+    parts = msgpack.unpackb(chunks["POSN"])
+    for bad in ([*parts, b""], parts[:3], [parts[0], parts[1], parts[3], parts[2]], [*parts[:3], 7], b"\x00"):
+        with pytest.raises(CodecError):
+            decode_attributes({**chunks, "POSN": msgpack.packb(bad, use_bin_type=True)}, meta)
