@@ -1,4 +1,4 @@
-"""A gspc 1.2 reader written from spec/gspc-format.md alone, as an outside implementer would write one.
+"""A gspc 1.3 reader written from spec/gspc-format.md alone, as an outside implementer would write one.
 
 It imports numpy, msgpack, zstandard and imagecodecs only, never gspc: the range decoder, the probability
 tables, the matrix coder and every payload layout follow the spec's words (section numbers in comments), in
