@@ -4,8 +4,8 @@
     python tools/bench_scale.py [--scenes /work/scale] [--out bench/scale.md] [--sizes ...]
 
 Each command runs as its own subprocess of ``gspc`` from this checkout with GSPC_THREADS=1; its wall
-seconds, CPU seconds (user + system, from os.wait4) and peak RSS (ru_maxrss of that child alone) are
-recorded. Encoded files go to a temporary folder and are deleted.
+seconds, CPU seconds (user + system, from os.wait4) and peak resident memory (the VmHWM the child reports at
+exit) are recorded. Encoded files go to a temporary folder and are deleted.
 """
 
 from __future__ import annotations

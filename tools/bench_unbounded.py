@@ -26,10 +26,11 @@ from unittest import mock
 import numpy as np
 import torch
 import typer
+from bench_pipeline import fit_setup
 
 from gspc.cameras import Camera
 from gspc.codec import positions
-from gspc.codec.attributes import encode_attributes
+from gspc.codec.attributes import EncodedAttributes, encode_attributes
 from gspc.io import read_scene
 from gspc.metrics import psnr, quantize8
 from gspc.presets import QUALITY
@@ -77,6 +78,7 @@ class Score:
     psnr: float
     object_psnr: float
     seconds: float
+    encoded: EncodedAttributes
 
 
 def masked_psnr(a: torch.Tensor, b: torch.Tensor, mask: torch.Tensor) -> float:
@@ -91,6 +93,7 @@ def code(
     reference: list[torch.Tensor],
     masks: list[torch.Tensor],
     plain: bool,
+    background: torch.Tensor | None = None,
 ) -> Score:
     params = QUALITY["low"].attributes.with_lambda(lam)
     t0 = time.perf_counter()
@@ -101,10 +104,10 @@ def code(
         enc = encode_attributes(scene, params)
     seconds = time.perf_counter() - t0
     with torch.no_grad():
-        imgs = [quantize8(render(enc.decoded, c).image.clamp(0, 1)) for c in cams]
+        imgs = [quantize8(render(enc.decoded, c, background=background).image.clamp(0, 1)) for c in cams]
     p = float(np.mean([float(psnr(a, r)) for a, r in zip(imgs, reference)]))
     q = float(np.mean([masked_psnr(a, r, m) for a, r, m in zip(imgs, reference, masks)]))
-    return Score(enc.num_bytes, len(enc.chunks["POSN"]), p, q, seconds)
+    return Score(enc.num_bytes, len(enc.chunks["POSN"]), p, q, seconds, enc)
 
 
 def per_added(world: Score, alone: Score, added: int) -> str:
@@ -162,6 +165,56 @@ def bound_table(scenes: list[str], lam: float, shells: list[float], fractions: l
     return "\n".join(lines) + "\n"
 
 
+def capture_table(fit: Path, lams: list[float], splits: list[float]) -> str:
+    """A real capture split in two at ``split`` x the radius of the region of interest the codec picks for it:
+    the Gaussians inside are the object, the rest (its room, floaters) the added ones. The same scores as the
+    generator's table, at the fit's held-out views."""
+    setup = fit_setup(fit)
+    world = read_scene(setup.scene_path)
+    means = world.means.numpy().astype(np.float64)
+    centre, radius = positions.region_of_interest(means)
+    dist = np.sqrt(((means - centre) ** 2).sum(1)) / radius
+    cams, bg = setup.eval_cams, torch.tensor(setup.background)
+    with torch.no_grad():
+        ref = [quantize8(render(world, c, background=bg).image.clamp(0, 1)) for c in cams]
+    lines = [
+        "| split (x R) | lambda | object Gaussians | added Gaussians | object alone dB | contracted dB "
+        "| contracted vs alone, object pixels | object's Gaussians coded in the whole, rendered alone dB "
+        "| object B/G | contracted B per added G |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for split in splits:
+        obj = world.subset(np.flatnonzero(dist <= split))
+        with torch.no_grad():
+            renders = [render(obj, c, background=bg) for c in cams]
+        ref_obj = [quantize8(r.image.clamp(0, 1)) for r in renders]
+        masks = [(r.alpha > 0.5)[..., None].expand(-1, -1, 3) for r in renders]
+        n, added = obj.num_gaussians, world.num_gaussians - obj.num_gaussians
+        for lam in lams:
+            alone = code(obj, lam, cams, ref_obj, masks, plain=False, background=bg)
+            whole = code(world, lam, cams, ref, masks, plain=False, background=bg)
+            # the object's own Gaussians as the whole scene coded them, rendered without the room
+            part = whole.encoded.decoded.subset(np.flatnonzero(dist[whole.encoded.kept] <= split))
+            with torch.no_grad():
+                imgs = [quantize8(render(part, c, background=bg).image.clamp(0, 1)) for c in cams]
+            within = float(np.mean([float(psnr(a, r)) for a, r in zip(imgs, ref_obj)]))
+            cells = [
+                f"{split:g}",
+                f"{lam:g}",
+                f"{n:,}",
+                f"{added:,}",
+                f"{alone.psnr:.2f} / {alone.object_psnr:.2f}",
+                f"{whole.psnr:.2f} / {whole.object_psnr:.2f}",
+                f"{whole.object_psnr - alone.object_psnr:+.2f}",
+                f"{within:.2f} ({within - alone.psnr:+.2f})",
+                f"{alone.bytes / n:.2f} ({alone.position_bytes / n:.2f})",
+                per_added(whole, alone, added),
+            ]
+            lines.append("| " + " | ".join(cells) + " |")
+            print(lines[-1], flush=True)
+    return "\n".join(lines) + "\n"
+
+
 SCENES = [
     "../shared/data/statues/massa.sog",
     "../shared/data/donut/fused.ply",
@@ -178,8 +231,16 @@ def main(
     size: int = typer.Option(256),
     out: Path = typer.Option(Path("bench/unbounded.md"), "-o"),
     bound: bool = typer.Option(False, help="only the shell's position bound at the low preset (to stdout)"),
+    capture: Path | None = typer.Option(
+        None,
+        help="only a real capture (a tools/fit_scene.py folder) split at its region of interest (to stdout)",
+    ),
+    splits: str = typer.Option("1,4", help="with --capture: object = Gaussians within these multiples of R"),
 ) -> None:
     torch.set_num_threads(1)
+    if capture is not None:
+        capture_table(capture, [float(x) for x in lams.split(",")], [float(x) for x in splits.split(",")])
+        return
     if bound:
         floats = [float(x) for x in shells.split(",")], [float(x) for x in fractions.split(",")]
         bound_table(scenes, float(lams.split(",")[-1]), *floats)
