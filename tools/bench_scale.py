@@ -90,6 +90,7 @@ def main() -> None:
     ap.add_argument("--out", default="bench/scale.md")
     ap.add_argument("--sizes", default="100000,300000,1000000,3000000")
     args = ap.parse_args()
+    load = os.getloadavg()[0]
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for s in args.sizes.split(","):
@@ -121,17 +122,16 @@ def main() -> None:
         "",
         f"Machine: {platform.machine()}, {os.cpu_count()} vCPUs, Python {platform.python_version()}, "
         f"torch {torch.__version__}, GSPC_THREADS=1 (one torch thread). No GPU was lent to this work: "
-        "there are no GPU figures here. The machine was shared with other jobs (a fitting job on one core, "
-        "another engineer's tests): wall seconds are noisy, CPU seconds (user + system of the gspc process) "
-        "less so.",
+        f"there are no GPU figures here. Load average at the start: {load:.1f} (other jobs make wall "
+        "seconds noisy; CPU seconds, user + system of the gspc process, less so).",
         "",
         "Workload (`tools/make_scale_scenes.py`): whole copies of real scenes (the five captured statues, "
         "the trained donut, the lego fit), each normalised to a unit box, placed side by side on a grid, "
         "SH degree 3 (the lego's; the others carry zero SH rest); 24 cameras at 400x300 around the grid. "
         "Per size: `gspc encode point_cloud.ply -o scene.gspc --cameras cameras.json --no-side-info` and "
         "`gspc decode scene.gspc -o decoded.ply --no-refine`, each a fresh process; peak MB is that "
-        "process's max RSS (os.wait4). Kept: Gaussians in the decoded PLY (the encoder drops those no view "
-        "sees or with opacity under 1/255).",
+        "process's own peak resident memory (VmHWM). Kept: Gaussians in the decoded PLY (the encoder "
+        "drops those no view sees or with opacity under 1/255).",
         "",
         *table,
         "",
