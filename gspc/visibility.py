@@ -16,7 +16,8 @@ def visible_mask(
     are certainly outside every frustum are reported invisible.
     """
     means = np.asarray(means, dtype=np.float64)
-    radius = 3.0 * np.exp(np.asarray(log_scales, dtype=np.float64).max(axis=1))
+    # Clamped below float64's exp overflow: a Gaussian that large covers every view either way.
+    radius = 3.0 * np.exp(np.minimum(np.asarray(log_scales, dtype=np.float64).max(axis=1), 700.0))
     seen = np.zeros(len(means), dtype=bool)
     for cam in cameras:
         R, t = cam.world_to_cam[:3, :3], cam.world_to_cam[:3, 3]

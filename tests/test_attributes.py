@@ -1,4 +1,5 @@
 import math
+import warnings
 
 import numpy as np
 import pytest
@@ -10,9 +11,10 @@ from gspc.codec.attributes import (
     rotation_error_bound,
     search_lambda,
 )
+from gspc.codec.entropy import SYMBOL_LIMIT
 from gspc.codec.params import CodecParams
 from gspc.codec.quantisers import SmallestThreeQuantiser
-from gspc.errors import CodecError
+from gspc.errors import CodecError, InputError
 from gspc.presets import QUALITY
 from gspc.scene import make_scene, num_sh_rest, scene_equal
 
@@ -236,7 +238,58 @@ def test_sh_rest_quantised_in_blocks_as_in_one(monkeypatch):
     q = quantisers.SHRestQuantiser(tuple(np.linspace(0.01, 0.05, 15)), deadzone=0.2)
     whole = q.quantise(rest)
     monkeypatch.setattr(quantisers, "SH_REST_BLOCK", 7)
-    assert np.array_equal(q.quantise(rest), whole) and whole.dtype == np.int64 and whole.shape == (1000, 45)
+    assert np.array_equal(q.quantise(rest), whole) and whole.dtype == np.int32 and whole.shape == (1000, 45)
     x = rest.astype(np.float64) / np.asarray(q.steps)[None, :, None]
     expected = np.sign(x) * np.maximum(np.floor(np.abs(x) + 0.5 - 0.2), 0.0)
     assert np.array_equal(whole, expected.reshape(1000, -1).astype(np.int64))
+    rows = rng.permutation(1000)[:300]  # rows picked block by block are the rows picked first
+    assert np.array_equal(q.quantise(rest, rows), whole[rows])
+    steps = np.asarray(q.steps)[None, :, None]
+    assert np.array_equal(
+        q.dequantise(whole), (whole.reshape(-1, 15, 3).astype(np.float64) * steps).astype(np.float32)
+    )
+
+
+@pytest.mark.parametrize(
+    ("name", "attr", "value"),
+    [
+        ("log scale", "log_scales", 1e30),
+        ("SH DC", "sh_dc", -1e6),
+        ("SH rest", "sh_rest", 3e9),  # once asked numpy for 395 GiB
+        ("SH rest", "sh_rest", 1e30),  # once wrapped in the float -> int cast
+    ],
+)
+def test_values_too_large_to_code_are_named(name, attr, value):
+    scene = _scene(n=300, opacities=np.full(300, 5.0))
+    t = getattr(scene, attr).clone()
+    t.view(300, -1)[7, 0] = value
+    setattr(scene, attr, t)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a clear error, not a numpy cast warning
+        with pytest.raises(
+            InputError, match=f"1 Gaussian\\(s\\) have {name} values up to .*beyond what lambda 8"
+        ):
+            encode_attributes(scene, QUALITY["low"].attributes)
+
+
+def test_faint_gaussians_sh_rest_is_dropped_not_range_checked():
+    # A faint Gaussian's SH rest is never coded (flag 0), so its value does not matter.
+    scene = _scene(n=300, opacities=np.full(300, 5.0))
+    scene.opacities[7] = -8.0
+    scene.sh_rest[7, 0, 0] = 1e30
+    enc = encode_attributes(scene, QUALITY["low"].attributes)
+    assert torch.isfinite(enc.decoded.sh_rest).all()
+
+
+def test_largest_codable_values_roundtrip():
+    # Values at the edge of what a lambda codes come back within half a step.
+    params = QUALITY["low"].attributes
+    scene = _scene(n=300, opacities=np.full(300, 5.0))
+    step = params.dc_step * params.lam
+    scene.sh_dc[::2, 0] = 0.999 * SYMBOL_LIMIT * step
+    scene.sh_dc[1::2, 0] = -0.999 * SYMBOL_LIMIT * step
+    enc = encode_attributes(scene, params)
+    dec = decode_attributes(enc.chunks, enc.meta)
+    got = dec.sh_dc[:, 0].double().numpy()
+    want = scene.sh_dc[enc.kept, 0].double().numpy()
+    assert np.abs(got - want).max() <= 0.5 * step * (1 + 1e-6)

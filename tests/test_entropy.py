@@ -4,6 +4,7 @@ import pytest
 
 from gspc.codec.entropy import (
     PRECISION,
+    SYMBOL_LIMIT,
     _categorical,
     bit_length,
     decode_matrix,
@@ -100,3 +101,26 @@ def test_coder_uses_exactly_our_integer_table(seed):
         for i in picks:
             assert _coder_symbol_at(model, int(cdf[i])) == i
             assert _coder_symbol_at(model, int(cdf[i + 1] - 1)) == i
+
+
+def test_symbols_beyond_the_limit_are_refused():
+    q = np.zeros((10, 2), np.int64)
+    q[3, 1] = SYMBOL_LIMIT + 1
+    with pytest.raises(CodecError, match="beyond"):
+        encode_matrix(q)
+    q[3, 1] = -SYMBOL_LIMIT
+    _roundtrip(q)
+    with pytest.raises(CodecError, match="integer matrix"):
+        encode_matrix(q.astype(np.float64))
+
+
+def test_prediction_needing_too_wide_a_window_is_not_chosen():
+    # Channel 1 repeats channel 0 except where they swap +-L: predicting from channel 0 (mode 2) would be
+    # cheapest but needs residuals of +-2L, a window wider than a model may have; mode 0 codes it.
+    rng = np.random.default_rng(1)
+    a = np.where(rng.uniform(size=4000) < 0.5, SYMBOL_LIMIT, -SYMBOL_LIMIT)
+    b = a.copy()
+    b[::50] = -b[::50]
+    q = np.stack([a, b], axis=1).astype(np.int32)
+    out = decode_matrix(encode_matrix(q))
+    assert np.array_equal(out, q)

@@ -32,10 +32,16 @@ from gspc.codec.attribute_header import (
     GAUSSIANS_PER_BYTE,
     check_attribute_header,
 )
-from gspc.codec.entropy import decode_matrix, encode_matrix
+from gspc.codec.entropy import SYMBOL_LIMIT, decode_matrix, encode_matrix
 from gspc.codec.params import CodecParams
-from gspc.codec.quantisers import OPACITY_FLOOR, SQRT_HALF, AttributeQuantisers, SmallestThreeQuantiser
-from gspc.errors import CodecError
+from gspc.codec.quantisers import (
+    OPACITY_FLOOR,
+    SQRT_HALF,
+    AttributeQuantisers,
+    SmallestThreeQuantiser,
+    out_of_range,
+)
+from gspc.errors import CodecError, InputError
 from gspc.format.chunks import ATTRIBUTE_TYPES, OPAC, POSN, ROTN, SCAL, SHDC, SHRS
 from gspc.scene import GaussianScene, num_sh_rest
 
@@ -129,24 +135,45 @@ def encode_attributes(
 
     quant = AttributeQuantisers.from_meta(meta, params.sh_deadzone)
     opac_q = quant.opacity.quantise(_np(scene.opacities, kept))
+    scales, dc = _np(scene.log_scales, kept), _np(scene.sh_dc, kept)
+    _check_range("log scale", scales, scale_step, lam)
+    _check_range("SH DC", dc, dc_step, lam)
     chunks = {
         POSN: pos.encode_positions(voxels, grid),
         OPAC: encode_matrix(opac_q[:, None]),
-        SCAL: encode_matrix(quant.scale.quantise(_np(scene.log_scales, kept))),
+        SCAL: encode_matrix(quant.scale.quantise(scales)),
         ROTN: encode_matrix(quant.rotation.quantise(_np(scene.quats, kept))),
-        SHDC: encode_matrix(quant.dc.quantise(_np(scene.sh_dc, kept))),
+        SHDC: encode_matrix(quant.dc.quantise(dc)),
     }
     if scene.sh_degree > 0:
-        # float32 rows: the quantiser widens them block by block (the same values, a third of the memory).
-        q = quant.sh_rest.quantise(scene.sh_rest.detach().cpu().numpy()[kept])
         # Faint Gaussians' view-dependent colour hardly shows: drop it (flag 0), an encoder-only choice.
         faint = opac_q.astype(np.float64) < min(0.5, params.sh_faint_alpha * lam) * opacity_levels
-        flags = (q != 0).any(axis=1) & ~faint
+        # Rows of the float32 SH rest are picked and widened block by block (int32 symbols: a million
+        # Gaussians' 45 coefficients take 180 MB).
+        rest, rows = scene.sh_rest.detach().cpu().numpy(), kept[~faint]
+        _check_range("SH rest", rest, np.asarray(sh_steps)[None, :, None], lam, rows)
+        q = quant.sh_rest.quantise(rest, rows)
+        nonzero = (q != 0).any(axis=1)
+        flags = np.zeros(kept.size, np.int64)
+        flags[np.flatnonzero(~faint)[nonzero]] = 1
         chunks[SHRS] = msgpack.packb(
-            [encode_matrix(flags[:, None].astype(np.int64)), encode_matrix(q[flags])], use_bin_type=True
+            [encode_matrix(flags[:, None]), encode_matrix(q[nonzero])], use_bin_type=True
         )
+        del q, nonzero
     decoded = decode_attributes(chunks, meta)
     return EncodedAttributes(chunks=chunks, meta=meta, decoded=decoded, kept=kept, lam=params.lam)
+
+
+def _check_range(name: str, values: np.ndarray, steps, lam: float, rows: np.ndarray | None = None) -> None:
+    """InputError naming the attribute where a Gaussian's value is too large to code at this rate."""
+    count, worst = out_of_range(values, steps, rows)
+    if count:
+        limit = SYMBOL_LIMIT * float(np.min(steps))
+        finest = " for the finest coefficient" if np.size(steps) > 1 else ""
+        raise InputError(
+            f"{count} Gaussian(s) have {name} values up to {worst:.3g}, beyond what lambda {lam:g} can code "
+            f"(+-{limit:.3g}{finest}; a larger lambda raises the limit)"
+        )
 
 
 def _version(grid: dict) -> int:

@@ -21,6 +21,8 @@ Layers, each usable alone:
 
 from __future__ import annotations
 
+import math
+
 import constriction
 import msgpack
 import numpy as np
@@ -41,6 +43,9 @@ MAX_WINDOW = 1 << 22  # symbols per model (constriction needs fewer than 2^24 - 
 # Model integers and decoded entries lie in -2^48..2^48 (spec 10.0), so every prediction (at most three
 # such terms) fits in int64 and every value converts to float64 exactly: no wrap-around to define.
 INT_LIMIT = 1 << 48
+# The largest |symbol| encode_matrix takes: mode 0 (no prediction) then codes any column within MAX_WINDOW;
+# predicting modes whose residuals would need a wider window are not chosen.
+SYMBOL_LIMIT = (MAX_WINDOW >> 1) - 1
 MAX_MODELS_BYTES = 1 << 26  # decompressed size of an ECM's model list (spec 10.0)
 
 
@@ -262,8 +267,11 @@ def _full_context(q: np.ndarray, levels) -> tuple[np.ndarray, np.ndarray, np.nda
 
 
 def encode_matrix(q: np.ndarray) -> bytes:
-    """Code an (M, C) int64 matrix; returns a self-contained payload (models + range-coder words)."""
-    q = np.asarray(q, dtype=np.int64)
+    """Code an (M, C) integer matrix of entries within +-SYMBOL_LIMIT; returns a self-contained payload
+    (models + range-coder words). Columns are widened to int64 one at a time (a narrower matrix stays so)."""
+    q = np.asarray(q)
+    if q.dtype.kind not in "iu":
+        raise CodecError(f"encode_matrix takes an integer matrix, not {q.dtype}")
     m, nc = q.shape
     if m == 0:
         return msgpack.packb([0, nc, b"", b""], use_bin_type=True)
@@ -274,7 +282,9 @@ def encode_matrix(q: np.ndarray) -> bytes:
     prev_nb = np.zeros(m, np.int64)
     prev_res = np.zeros(m, np.int64)
     for ch in range(nc):
-        col = q[:, ch]
+        col = q[:, ch].astype(np.int64)
+        if int(np.abs(col).max()) > SYMBOL_LIMIT:
+            raise CodecError(f"column {ch} holds a symbol beyond +-{SYMBOL_LIMIT} (windows are bounded)")
         nb, sb, lv = _full_context(col, levels)
         best = None
         for mode in range(NUM_MODES if ch > 0 else 2):
@@ -284,7 +294,9 @@ def encode_matrix(q: np.ndarray) -> bytes:
             for k in range(NUM_BUCKETS):
                 spec, cost = fit_model(res[bucket == k])
                 specs.append(spec)
-                bits += cost
+                # A window wider than a model may have rules the mode out (mode 0's never is: the symbols
+                # are within SYMBOL_LIMIT).
+                bits += cost if spec[0] < 2 or spec[2] - spec[1] < MAX_WINDOW else math.inf
             if best is None or bits < best[0]:
                 best = (bits, mode, res, bucket, specs)
         _, mode, res, bucket, specs = best
@@ -382,6 +394,10 @@ def decode_matrix(payload: bytes, shape: tuple[int, int] | None = None) -> np.nd
 # Raw bits
 
 
+BITS_BLOCK = 1 << 16  # values per block of pack_bits / unpack_bits: a bit per uint64 of a million 51-bit
+# values took 400 MB at once
+
+
 def pack_bits(values: np.ndarray, lengths: np.ndarray) -> bytes:
     """Concatenate the low ``lengths[i]`` bits of ``values[i]`` (MSB first) into bytes."""
     values = np.asarray(values, dtype=np.uint64)
@@ -390,9 +406,12 @@ def pack_bits(values: np.ndarray, lengths: np.ndarray) -> bytes:
     if width == 0:
         return b""
     shifts = np.arange(width - 1, -1, -1, dtype=np.int64)  # MSB first within the field
-    bits = (values[:, None] >> shifts[None, :].astype(np.uint64)) & np.uint64(1)
-    keep = shifts[None, :] < lengths[:, None]
-    return np.packbits(bits[keep].astype(np.uint8)).tobytes()
+    parts = []
+    for a in range(0, len(values), BITS_BLOCK):
+        v, n = values[a : a + BITS_BLOCK, None], lengths[a : a + BITS_BLOCK, None]
+        bits = ((v >> shifts[None, :].astype(np.uint64)) & np.uint64(1)).astype(np.uint8)
+        parts.append(bits[shifts[None, :] < n])
+    return np.packbits(np.concatenate(parts)).tobytes()
 
 
 def unpack_bits(data: bytes, lengths: np.ndarray) -> np.ndarray:
@@ -403,6 +422,22 @@ def unpack_bits(data: bytes, lengths: np.ndarray) -> np.ndarray:
         if data:
             raise CodecError(f"raw-bit section has {len(data)} bytes, its lengths need none")
         return out
+    # Exactly ceil(total / 8) bytes with zero padding bits (spec 10.0 "Raw bits"): every payload has one form.
+    if len(data) != (total + 7) // 8:
+        raise CodecError(f"raw-bit section has {len(data)} bytes, its lengths need {(total + 7) // 8}")
+    bits = np.unpackbits(np.frombuffer(data, np.uint8))
+    if bits[total:].any():
+        raise CodecError("raw-bit section has non-zero padding bits")
+    ends = np.cumsum(lengths)
+    for a in range(0, lengths.size, BITS_BLOCK):
+        n = lengths[a : a + BITS_BLOCK]
+        first = int(ends[a] - n[0])
+        block = bits[first : int(ends[a + n.size - 1])].astype(np.uint64)
+        owner = np.repeat(np.arange(n.size), n)
+        pos = np.arange(block.size) - (np.cumsum(n) - n)[owner]
+        shift = (n[owner] - 1 - pos).astype(np.uint64)
+        np.add.at(out[a : a + BITS_BLOCK], owner, block << shift)
+    return out
     # Exactly ceil(total / 8) bytes with zero padding bits (spec 10.0 "Raw bits"): every payload has one form.
     if len(data) != (total + 7) // 8:
         raise CodecError(f"raw-bit section has {len(data)} bytes, its lengths need {(total + 7) // 8}")

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from gspc.codec.entropy import SYMBOL_LIMIT
 from gspc.errors import CodecError
 
 SQRT_HALF = 0.7071067811865476  # float64 nearest to 1/sqrt(2)
@@ -49,6 +50,23 @@ def place_largest(index: np.ndarray, rest: np.ndarray) -> np.ndarray:
     out[np.arange(len(rest)), index] = np.sqrt(np.maximum(1.0 - ss, 0.0))
     np.put_along_axis(out, OTHERS[index], rest, axis=1)
     return out
+
+
+def out_of_range(
+    values: np.ndarray, steps: np.ndarray | float, rows: np.ndarray | None = None
+) -> tuple[int, float]:
+    """(how many, largest |value|) of the Gaussians ``values[rows]`` with a component beyond SYMBOL_LIMIT
+    steps (``steps`` broadcasts against a block of rows): their symbols would outgrow an entropy model's
+    window (gspc/codec/entropy.py), and a float beyond int64 would wrap when cast. In blocks of rows."""
+    rows = np.arange(len(values)) if rows is None else np.asarray(rows)
+    count, worst = 0, 0.0
+    for a in range(0, len(rows), SH_REST_BLOCK):
+        x = np.abs(values[rows[a : a + SH_REST_BLOCK]].astype(np.float64))
+        over = (x / steps > SYMBOL_LIMIT).reshape(len(x), -1).any(axis=1)
+        if over.any():
+            count += int(over.sum())
+            worst = max(worst, float(x[over].max()))
+    return count, worst
 
 
 def _around(x: torch.Tensor, half: torch.Tensor | float) -> Box:
@@ -157,23 +175,27 @@ class SHRestQuantiser:
     steps: tuple[float, ...]
     deadzone: float = 0.0
 
-    def quantise(self, rest: np.ndarray) -> np.ndarray:
-        """(n, K, 3) -> (n, 3K) symbols; values within ``0.5 + deadzone`` steps of zero go to zero."""
-        out = np.empty((len(rest), 3 * len(self.steps)), np.int64)
+    def quantise(self, rest: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
+        """(n, K, 3) -> (n, 3K) int32 symbols of ``rest[rows]`` (all rows without ``rows``); values within
+        ``0.5 + deadzone`` steps of zero go to zero. The caller checks their range (:func:`out_of_range`)."""
+        rows = np.arange(len(rest)) if rows is None else np.asarray(rows)
+        out = np.empty((len(rows), 3 * len(self.steps)), np.int32)
         steps = np.asarray(self.steps)[None, :, None]
-        # In blocks of rows: the float64 temporaries of a whole SH-3 scene took about 1 KB per Gaussian of
-        # the encoder's peak memory (bench/scale.md).
-        for a in range(0, len(rest), SH_REST_BLOCK):
-            x = rest[a : a + SH_REST_BLOCK].astype(np.float64) / steps
+        # In blocks of rows, picked block by block: the float64 temporaries of a whole SH-3 scene took about
+        # 1 KB per Gaussian of the encoder's peak memory (bench/scale.md).
+        for a in range(0, len(rows), SH_REST_BLOCK):
+            x = rest[rows[a : a + SH_REST_BLOCK]].astype(np.float64) / steps
             mag = np.maximum(np.floor(np.abs(x) + 0.5 - self.deadzone), 0.0)
             out[a : a + SH_REST_BLOCK] = (np.sign(x) * mag).reshape(len(x), -1)
         return out
 
     def dequantise(self, q: np.ndarray) -> np.ndarray:
         k = len(self.steps)
-        return (q.reshape(-1, k, 3).astype(np.float64) * np.asarray(self.steps)[None, :, None]).astype(
-            np.float32
-        )
+        steps = np.asarray(self.steps)[None, :, None]
+        out = np.empty((len(q), k, 3), np.float32)
+        for a in range(0, len(q), SH_REST_BLOCK):  # blocks: float64 of the whole is twice the output
+            out[a : a + SH_REST_BLOCK] = q[a : a + SH_REST_BLOCK].reshape(-1, k, 3).astype(np.float64) * steps
+        return out
 
     def cell(self, decoded: torch.Tensor) -> Box:
         """A whole step (the dead zone may round towards zero). A Gaussian without SH rest (all zero) may

@@ -92,11 +92,12 @@ def scene_from_plydata(ply: PlyData, source: str = "PLY") -> GaussianScene:
     def stack(cols) -> torch.Tensor:
         return torch.from_numpy(np.stack([column(c) for c in cols], axis=1))
 
-    if k:
-        rest = np.stack([column(c) for c in rest_names(k)], axis=1)  # (N, 3K) channel-major
-        sh_rest = torch.from_numpy(np.ascontiguousarray(rest.reshape(n, 3, k).transpose(0, 2, 1)))
-    else:
-        sh_rest = torch.zeros(n, 0, 3)
+    # Filled column by column: stacking the 3K columns first and then reordering them held two more copies
+    # of the SH rest, the largest part of a degree-3 scene (bench/scale.md).
+    rest = np.empty((n, k, 3), np.float32)
+    for i, name in enumerate(rest_names(k)):  # channel-major: f_rest_{c K + j} is coefficient j of channel c
+        rest[:, i % k, i // k] = column(name)
+    sh_rest = torch.from_numpy(rest)
     known = set(required)
     extra = {p: np.array(data[p]) for p in props if p not in known}
     scene = GaussianScene(
