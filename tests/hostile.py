@@ -20,6 +20,7 @@ from pathlib import Path
 
 import imagecodecs
 import numpy as np
+from plyfile import PlyData
 
 from gspc.codec.sideinfo import pack_side, unpack_side
 from gspc.format import container
@@ -246,6 +247,33 @@ def camera_cases(scene: Path, tmp: Path) -> Iterator[Case]:
             ["render", str(scene), "-o", str(rdir), "--cameras", str(path)],
             rdir,
         )
+
+
+# ------------------------------------------------------------------------------------- scene values
+
+
+def scene_value_cases(scene: Path, tmp: Path) -> Iterator[Case]:
+    """Finite scene values too large for the codec to code at any preset (their symbols would outgrow an
+    entropy model's window): once an internal error, a wrapped cast or a 395 GiB allocation."""
+    out = tmp / "value_out.gspc"
+    for prop, value in [("scale_0", 1e30), ("f_dc_1", -1e6), ("f_rest_0", 3e9), ("f_rest_2", 1e30)]:
+        ply = PlyData.read(str(scene))
+        ply["vertex"].data[prop][0] = value
+        path = tmp / f"value_{prop}.ply"
+        ply.write(str(path))
+        args = [
+            "encode",
+            str(path),
+            "-o",
+            str(out),
+            "--views",
+            "4",
+            "--max-side",
+            "32",
+            "--check-iterations",
+            "0",
+        ]
+        yield Case("scene values (encode)", f"{prop} = {value:g}", args, out)
 
 
 # --------------------------------------------------------------------------------------- .gspc headers

@@ -4,7 +4,16 @@ costs memory bounded by its size (issue 15)."""
 import tracemalloc
 
 import pytest
-from hostile import Case, camera_cases, gspc_cases, gspc_files, option_cases, sog_cases, unneeded_bomb
+from hostile import (
+    Case,
+    camera_cases,
+    gspc_cases,
+    gspc_files,
+    option_cases,
+    scene_value_cases,
+    sog_cases,
+    unneeded_bomb,
+)
 from scenes import random_scene
 from test_io import make_sog
 from typer.testing import CliRunner
@@ -53,6 +62,7 @@ def test_hostile_inputs_are_refused_in_one_line(work):
     cases = [
         *option_cases(scene, base, tmp),
         *camera_cases(scene, tmp),
+        *scene_value_cases(scene, tmp),
         *gspc_cases(base, tmp),
         *sog_cases(tmp, make_sog),
     ]

@@ -23,7 +23,14 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 
 import torch  # noqa: E402
-from hostile import camera_cases, gspc_cases, gspc_files, option_cases, sog_cases  # noqa: E402
+from hostile import (  # noqa: E402
+    camera_cases,
+    gspc_cases,
+    gspc_files,
+    option_cases,
+    scene_value_cases,
+    sog_cases,
+)
 from scenes import random_scene  # noqa: E402
 from test_io import make_sog  # noqa: E402
 from typer.testing import CliRunner  # noqa: E402
@@ -56,6 +63,7 @@ def sweep(tmp: Path) -> tuple[dict, list[str], dict]:
     cases = [
         *option_cases(scene, base, tmp),
         *camera_cases(scene, tmp),
+        *scene_value_cases(scene, tmp),
         *gspc_cases(base, tmp),
         *sog_cases(tmp, make_sog),
     ]
