@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import torch
 
 from gspc.io.ply import inria_bytes_per_gaussian
 from gspc.scene import SH_C0, GaussianScene
@@ -12,8 +13,9 @@ CHANNELS = ("r", "g", "b")
 
 
 def _summary(prefix: str, values: np.ndarray, out: dict) -> None:
-    out[f"{prefix}_mean"] = float(values.mean())
-    out[f"{prefix}_std"] = float(values.std())
+    with np.errstate(over="ignore", invalid="ignore"):  # an infinite value's statistics are inf / nan
+        out[f"{prefix}_mean"] = float(values.mean())
+        out[f"{prefix}_std"] = float(values.std())
     out[f"{prefix}_min"] = float(values.min())
     out[f"{prefix}_max"] = float(values.max())
 
@@ -24,8 +26,9 @@ def scene_stats(scene: GaussianScene) -> dict[str, int | float]:
     nearly transparent Gaussians and the INRIA PLY size per Gaussian."""
     n, deg = scene.num_gaussians, scene.sh_degree
     means = scene.means.detach().cpu().double().numpy()
-    scales = np.exp(scene.log_scales.detach().cpu().double().numpy())
-    opacity = 1.0 / (1.0 + np.exp(-scene.opacities.detach().cpu().double().numpy().reshape(-1)))
+    # torch's exp and sigmoid: a hostile scene's huge logs give inf and 0 without numpy's overflow warnings
+    scales = torch.exp(scene.log_scales.detach().cpu().double()).numpy()
+    opacity = torch.sigmoid(scene.opacities.detach().cpu().double()).numpy().reshape(-1)
     colour = 0.5 + SH_C0 * scene.sh_dc.detach().cpu().double().numpy()
     rest = scene.sh_rest.detach().cpu().double().numpy()
 

@@ -7,6 +7,7 @@ import math
 from collections.abc import Sequence
 
 import numpy as np
+import torch
 
 from gspc.cameras import Camera, natural_key
 from gspc.errors import InputError
@@ -24,7 +25,7 @@ def robust_bounds(scene, quantile: float = 0.002, min_opacity: float = 0.05) -> 
     means = scene.means.detach().cpu().double().numpy().reshape(-1, 3)
     if len(means) == 0:
         raise InputError("scene has zero Gaussians")
-    alpha = 1.0 / (1.0 + np.exp(-scene.opacities.detach().cpu().double().numpy().reshape(-1)))
+    alpha = torch.sigmoid(scene.opacities.detach().cpu().double()).numpy().reshape(-1)  # no overflow warning
     # A capture's background shell and far floaters can be far more than `quantile` of the Gaussians: keep
     # only those within CORE_DISTANCES median distances of the median, the region the position codec keeps
     # uncontracted (gspc/codec/positions.py). Bounded objects lie wholly inside (statues reach 4.2).

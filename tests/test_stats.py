@@ -1,4 +1,5 @@
 import math
+import warnings
 
 import numpy as np
 import pytest
@@ -7,6 +8,7 @@ import torch
 from gspc.io import read_scene
 from gspc.scene import GaussianScene, num_sh_rest
 from gspc.stats import scene_stats
+from gspc.views import robust_bounds
 
 
 def _scene(n: int = 1000, degree: int = 3) -> GaussianScene:
@@ -52,3 +54,15 @@ def test_stats_on_real_scene(shared_data):
     assert st["count"] == 58_649 and st["sh_degree"] == 0
     assert 0 <= st["frac_opacity_below_1_255"] < 0.05
     assert 1.0 < st["robust_extent"] < 10.0
+
+
+def test_extreme_values_give_statistics_without_numpy_warnings():
+    # Finite float32 values a hostile PLY may hold: a huge log scale, a hugely negative opacity logit.
+    scene = _scene(200, degree=1)
+    scene.log_scales[4, 0] = 1e30
+    scene.opacities[3] = -3e38
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        stats = scene_stats(scene)
+        lo, hi = robust_bounds(scene)
+    assert stats["scale_max"] == float("inf") and np.isfinite(lo).all() and np.isfinite(hi).all()
