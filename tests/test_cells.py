@@ -70,3 +70,19 @@ def test_malformed_meta_is_a_codec_error():
     enc = encode_attributes(_scene(), CodecParams(lam=8.0, keep_invisible=True))
     with pytest.raises(CodecError, match="malformed"):
         quantisation_cells(enc.decoded, {**enc.meta, "scale_step": "x"})
+
+
+def test_cells_in_blocks_equal_cells_at_once(monkeypatch):
+    """Blocks only bound memory: a scene with a far set (per-row position cells) gets the same boxes."""
+    from test_positions import far_scene
+
+    import gspc.codec.cells as cells_module
+    from gspc.presets import QUALITY
+
+    enc = encode_attributes(far_scene(), QUALITY["low"].attributes)
+    assert enc.meta["position"].get("far_count", 0) > 0
+    whole = quantisation_cells(enc.decoded, enc.meta)
+    monkeypatch.setattr(cells_module, "CELL_BLOCK", 7)
+    blocks = quantisation_cells(enc.decoded, enc.meta)
+    for name, (lo, hi) in whole.items():
+        assert torch.equal(lo, blocks[name][0]) and torch.equal(hi, blocks[name][1]), name

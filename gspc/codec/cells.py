@@ -20,26 +20,39 @@ from gspc.codec.quantisers import AttributeQuantisers, Box
 from gspc.errors import CodecError
 from gspc.scene import GaussianScene
 
+CELL_BLOCK = 1 << 16  # rows per block: the float64 boxes of a million Gaussians at once took 1.4 GB
+
 
 def quantisation_cells(decoded: GaussianScene, meta: dict) -> dict[str, Box]:
-    """The cell of every attribute of ``decoded`` (what ``decode_attributes`` returned for ``meta``)."""
+    """The cell of every attribute of ``decoded`` (what ``decode_attributes`` returned for ``meta``), in the
+    scene's dtype; computed in float64 block by block of rows."""
     try:
         pos_half = cell_half_widths(decoded.means.detach().cpu().numpy(), meta["position"])
         quant = AttributeQuantisers.from_meta(meta)
     except (KeyError, TypeError, ValueError) as err:
         raise CodecError(f"attribute codec header is malformed ({err})") from None
-    means = decoded.means.detach().double()
     half = torch.from_numpy(np.ascontiguousarray(pos_half)).to(decoded.means.device)
-    cells: dict[str, Box] = {
-        "means": (means - half, means + half),
-        "log_scales": quant.scale.cell(decoded.log_scales),
-        "sh_dc": quant.dc.cell(decoded.sh_dc),
-        "sh_rest": quant.sh_rest.cell(decoded.sh_rest),
-        "opacities": quant.opacity.cell(decoded.opacities),
-        "quats": quant.rotation.cell(decoded.quats),
+    cell_of = {
+        "means": lambda x, a, b: _box(x.double(), half if len(half) == 1 else half[a:b]),
+        "log_scales": lambda x, a, b: quant.scale.cell(x),
+        "sh_dc": lambda x, a, b: quant.dc.cell(x),
+        "sh_rest": lambda x, a, b: quant.sh_rest.cell(x),
+        "opacities": lambda x, a, b: quant.opacity.cell(x),
+        "quats": lambda x, a, b: quant.rotation.cell(x),
     }
-    dtype = decoded.means.dtype
-    return {k: (a.to(dtype), b.to(dtype)) for k, (a, b) in cells.items()}
+    cells: dict[str, Box] = {}
+    for name, cell in cell_of.items():
+        t = getattr(decoded, name).detach()
+        lo, hi = torch.empty_like(t), torch.empty_like(t)
+        for a in range(0, len(t), CELL_BLOCK):
+            b = min(a + CELL_BLOCK, len(t))
+            lo[a:b], hi[a:b] = cell(t[a:b], a, b)  # assignment rounds to the scene's dtype
+        cells[name] = (lo, hi)
+    return cells
+
+
+def _box(x: torch.Tensor, half: torch.Tensor) -> Box:
+    return x - half, x + half
 
 
 def project(name: str, value: torch.Tensor, box: Box) -> None:
