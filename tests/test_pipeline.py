@@ -216,3 +216,20 @@ def test_encode_time_budget_writes_the_iterations_it_checked(tmp_path):
     assert d is not None and d.iterations < 400
     written = container.read(out).header["side_info"]["refine_iterations"]
     assert written == (d.iterations if d.outcome is Outcome.SENT else 400)
+
+
+def test_bytes_spent_on_attributes_are_the_rivals(tmp_path):
+    """A margin side information cannot meet: the file holds the rival's finer attributes, which the check
+    scored and then decoded again (its decoded scene is not kept through the refinement)."""
+    from gspc.codec.attributes import attribute_chunks, decode_attributes
+
+    src = tmp_path / "in.ply"
+    write_ply(scene(seed=2), src)
+    out = tmp_path / "c.gspc"
+    opts = EncodeOptions(lam=40, synth_views=5, max_side=32, check_iterations=20, check_margin_db=90.0)
+    rep = encode(src, out, opts=opts)
+    assert rep.side_info.outcome is Outcome.SPENT_ON_ATTRIBUTES
+    c = container.read(out)
+    assert c.find("SIDE", 0) is None
+    decoded = decode_attributes(attribute_chunks(c.chunks), c.header["attributes"])
+    assert decoded.num_gaussians == rep.num_gaussians_out > 0
