@@ -124,3 +124,15 @@ def test_prediction_needing_too_wide_a_window_is_not_chosen():
     q = np.stack([a, b], axis=1).astype(np.int32)
     out = decode_matrix(encode_matrix(q))
     assert np.array_equal(out, q)
+
+
+def test_bits_packed_in_blocks_are_the_bits_packed_at_once(monkeypatch):
+    import gspc.codec.entropy as entropy
+
+    rng = np.random.default_rng(4)
+    v = rng.integers(0, 2**40, 300).astype(np.uint64) >> rng.integers(0, 41, 300).astype(np.uint64)
+    lengths = bit_length(v.astype(np.int64))  # zero lengths included
+    whole = pack_bits(v, lengths)
+    monkeypatch.setattr(entropy, "BITS_BLOCK", 7)
+    assert pack_bits(v, lengths) == whole
+    assert np.array_equal(unpack_bits(whole, lengths), v)

@@ -438,16 +438,3 @@ def unpack_bits(data: bytes, lengths: np.ndarray) -> np.ndarray:
         shift = (n[owner] - 1 - pos).astype(np.uint64)
         np.add.at(out[a : a + BITS_BLOCK], owner, block << shift)
     return out
-    # Exactly ceil(total / 8) bytes with zero padding bits (spec 10.0 "Raw bits"): every payload has one form.
-    if len(data) != (total + 7) // 8:
-        raise CodecError(f"raw-bit section has {len(data)} bytes, its lengths need {(total + 7) // 8}")
-    bits = np.unpackbits(np.frombuffer(data, np.uint8))
-    if bits[total:].any():
-        raise CodecError("raw-bit section has non-zero padding bits")
-    bits = bits[:total].astype(np.uint64)
-    owner = np.repeat(np.arange(lengths.size), lengths)
-    starts = np.cumsum(lengths) - lengths
-    pos = np.arange(total) - starts[owner]
-    shift = (lengths[owner] - 1 - pos).astype(np.uint64)
-    np.add.at(out, owner, bits << shift)
-    return out
