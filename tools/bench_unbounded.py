@@ -2,6 +2,8 @@
 plain grid (format 1.1) and on the contracted grid (gspc/codec/positions.py), scored at the object's views.
 
     python tools/bench_unbounded.py -o bench/unbounded.md
+    python tools/bench_unbounded.py --bound                            # the shell's position bound
+    python tools/bench_unbounded.py --capture /work/fits/bird_q4_100k  # a capture's room as the shell
 
 The generator (``add_background``): the object's Gaussians stay as they are; ``fraction`` of their count is
 added as a background shell (copies of random object Gaussians, placed in random directions at
