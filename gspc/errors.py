@@ -9,6 +9,10 @@ class InputError(GspcError):
     """An input file (scene, cameras, images) is missing, malformed or inconsistent."""
 
 
+class ValueRangeError(InputError):
+    """A scene holds a value too large to code at the lambda asked for (a larger lambda may code it)."""
+
+
 class FormatError(GspcError):
     """A .gspc file violates the container spec (see spec/gspc-format.md)."""
 

@@ -14,7 +14,7 @@ from gspc.codec.attributes import (
 from gspc.codec.entropy import SYMBOL_LIMIT
 from gspc.codec.params import CodecParams
 from gspc.codec.quantisers import SmallestThreeQuantiser
-from gspc.errors import CodecError, InputError
+from gspc.errors import CodecError, InputError, ValueRangeError
 from gspc.presets import QUALITY
 from gspc.scene import make_scene, num_sh_rest, scene_equal
 
@@ -293,3 +293,15 @@ def test_largest_codable_values_roundtrip():
     got = dec.sh_dc[:, 0].double().numpy()
     want = scene.sh_dc[enc.kept, 0].double().numpy()
     assert np.abs(got - want).max() <= 0.5 * step * (1 + 1e-6)
+
+
+def test_search_lambda_steps_over_lambdas_too_fine_for_the_scene():
+    # A DC value of 100 is beyond what lambda 1e-3 can code: a search asked for more bytes than any lambda
+    # gives moves up from there instead of failing.
+    params = QUALITY["low"].attributes
+    scene = _scene(n=300, opacities=np.full(300, 5.0))
+    scene.sh_dc[3, 0] = 100.0
+    with pytest.raises(ValueRangeError):
+        encode_attributes(scene, params.with_lambda(1e-3))
+    enc = search_lambda(scene, 10**9, params)
+    assert enc.lam > 1e-3 and abs(float(enc.decoded.sh_dc.abs().max()) - 100.0) < 1.0

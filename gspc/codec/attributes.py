@@ -41,7 +41,7 @@ from gspc.codec.quantisers import (
     SmallestThreeQuantiser,
     out_of_range,
 )
-from gspc.errors import CodecError, InputError
+from gspc.errors import CodecError, ValueRangeError
 from gspc.format.chunks import ATTRIBUTE_TYPES, OPAC, POSN, ROTN, SCAL, SHDC, SHRS
 from gspc.scene import GaussianScene, num_sh_rest
 
@@ -165,12 +165,12 @@ def encode_attributes(
 
 
 def _check_range(name: str, values: np.ndarray, steps, lam: float, rows: np.ndarray | None = None) -> None:
-    """InputError naming the attribute where a Gaussian's value is too large to code at this rate."""
+    """ValueRangeError naming the attribute where a Gaussian's value is too large to code at this rate."""
     count, worst = out_of_range(values, steps, rows)
     if count:
         limit = SYMBOL_LIMIT * float(np.min(steps))
         finest = " for the finest coefficient" if np.size(steps) > 1 else ""
-        raise InputError(
+        raise ValueRangeError(
             f"{count} Gaussian(s) have {name} values up to {worst:.3g}, beyond what lambda {lam:g} can code "
             f"(+-{limit:.3g}{finest}; a larger lambda raises the limit)"
         )
@@ -274,7 +274,15 @@ def search_lambda(
         if k == 0 and first is not None:
             enc = first
         else:
-            enc = encode_attributes(scene, params.with_lambda(math.exp(x)), visible)
+            try:
+                enc = encode_attributes(scene, params.with_lambda(math.exp(x)), visible)
+            except ValueRangeError:
+                # Too fine for the scene's largest values: a larger lambda, as if the size were too big.
+                if x >= hi or k == max_iter - 1:
+                    raise
+                lo = max(lo, x)
+                x = 0.5 * (lo + hi)
+                continue
         size = enc.num_bytes
         tried.append((x, math.log(size)))
         if size <= target_bytes:
