@@ -280,6 +280,7 @@ def decode_bytes(
                     seed=opts.seed,
                     lr_scale=opts.lr_scale,
                     deadline=deadline,
+                    in_place=True,  # G~ is not needed after
                 )
             scene, rep.refine_iterations = refined.scene, refined.iterations
             ran = f"{refined.iterations} iterations"

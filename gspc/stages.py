@@ -99,10 +99,12 @@ def refine_in_cells(
     seed: int = 0,
     lr_scale: float = 1.0,
     deadline: float | None = None,
+    in_place: bool = False,
 ) -> Refined:
     """The decoder's refinement of G~ against ``targets``, inside the quantisation cells of
     ``attributes_meta`` (None: free refinement), ending by ``deadline`` when one is given. A run shorter
-    than SHORT_RUN iterations takes proportionally smaller steps (its length after any cut decides)."""
+    than SHORT_RUN iterations takes proportionally smaller steps (its length after any cut decides).
+    ``in_place``: G~ itself is refined (a caller that keeps no use for it saves a copy)."""
     bg = torch.tensor(background, dtype=decoded.means.dtype, device=decoded.means.device)
     return refine(
         decoded,
@@ -116,4 +118,5 @@ def refine_in_cells(
         progress=refine_progress(progress, stage, iterations),
         cells=quantisation_cells(decoded, attributes_meta) if attributes_meta is not None else None,
         deadline=deadline,
+        in_place=in_place,
     )
