@@ -130,6 +130,9 @@ def encode_scene(
     with _stage(rep, progress, "attributes"):
         coded_attributes = code_attributes(scene, cameras, codec_params(opts), opts.target_size)
     enc = coded_attributes.encoded
+    if opts.target_size is not None:  # what the search reached, so a missed target is visible
+        reached = f"attributes {enc.num_bytes:,} B for a {opts.target_size:,} B target"
+        rep.info["lambda"] = f"{enc.lam:.4g} ({reached})"
     runs = iteration_counts(opts, enc.decoded.num_gaussians)
     refine_iterations = runs.refine
     views, view_cams = sample_side_views(cameras, opts)

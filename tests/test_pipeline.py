@@ -233,3 +233,13 @@ def test_bytes_spent_on_attributes_are_the_rivals(tmp_path):
     assert c.find("SIDE", 0) is None
     decoded = decode_attributes(attribute_chunks(c.chunks), c.header["attributes"])
     assert decoded.num_gaussians == rep.num_gaussians_out > 0
+
+
+def test_target_size_reports_the_lambda_it_reached(tmp_path):
+    src = tmp_path / "in.ply"
+    write_ply(scene(seed=3), src)
+    opts = EncodeOptions(target_size=4000, side_info=False, synth_views=4)
+    rep = encode(src, tmp_path / "c.gspc", opts=opts)
+    lam, reached = rep.info["lambda"].split(" ", 1)
+    attribute_bytes = int(reached.split("attributes ")[1].split(" B")[0].replace(",", ""))
+    assert float(lam) > 0 and 0.9 * 4000 <= attribute_bytes <= 4000, rep.info["lambda"]
