@@ -37,21 +37,16 @@ class Case:
 # --------------------------------------------------------------------------------------------- options
 
 
+def _small_encode(scene: Path, out: Path) -> list[str]:
+    """A quick encode's arguments: few small views, no check."""
+    small = ["--views", "4", "--max-side", "32", "--check-iterations", "0"]
+    return ["encode", str(scene), "-o", str(out), *small]
+
+
 def option_cases(scene: Path, gspc_file: Path, tmp: Path) -> Iterator[Case]:
     """Bad option values of encode, decode, render and eval; outputs equal to inputs."""
     out = tmp / "opt_out.gspc"
-    enc = [
-        "encode",
-        str(scene),
-        "-o",
-        str(out),
-        "--views",
-        "4",
-        "--max-side",
-        "32",
-        "--check-iterations",
-        "0",
-    ]
+    enc = _small_encode(scene, out)
     bad_encode = {
         "background 2 2 2": ["--background", "2", "2", "2"],
         "background negative": ["--background", "-0.5", "0", "0"],
@@ -261,19 +256,7 @@ def scene_value_cases(scene: Path, tmp: Path) -> Iterator[Case]:
         ply["vertex"].data[prop][0] = value
         path = tmp / f"value_{prop}.ply"
         ply.write(str(path))
-        args = [
-            "encode",
-            str(path),
-            "-o",
-            str(out),
-            "--views",
-            "4",
-            "--max-side",
-            "32",
-            "--check-iterations",
-            "0",
-        ]
-        yield Case("scene values (encode)", f"{prop} = {value:g}", args, out)
+        yield Case("scene values (encode)", f"{prop} = {value:g}", _small_encode(path, out), out)
 
 
 # --------------------------------------------------------------------------------------- .gspc headers

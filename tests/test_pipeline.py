@@ -219,8 +219,7 @@ def test_encode_time_budget_writes_the_iterations_it_checked(tmp_path):
 
 
 def test_bytes_spent_on_attributes_are_the_rivals(tmp_path):
-    """A margin side information cannot meet: the file holds the rival's finer attributes, which the check
-    scored and then decoded again (its decoded scene is not kept through the refinement)."""
+    """A margin side information cannot meet: the file holds the rival's finer attributes."""
     from gspc.codec.attributes import attribute_chunks, decode_attributes
 
     src = tmp_path / "in.ply"

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from enum import Enum
 
 import numpy as np
@@ -17,7 +17,7 @@ import torch
 
 from gspc.cameras import Camera
 from gspc.codec import residuals
-from gspc.codec.attributes import EncodedAttributes, decode_attributes, search_lambda
+from gspc.codec.attributes import EncodedAttributes, search_lambda
 from gspc.codec.params import CodecParams
 from gspc.encoder.side import SideCandidate
 from gspc.progress import Progress
@@ -155,9 +155,7 @@ def check_side_info(inp: CheckInputs, progress: Progress | None = None) -> Check
     deadline = None if inp.deadline is None else inp.deadline - 1.5 * (time.perf_counter() - t0)
 
     def rival(candidate: SideCandidate) -> tuple[EncodedAttributes, float]:
-        """The fair rival: the same total bytes spent on attributes alone, and its PSNR. Its decoded scene is
-        dropped once scored (a million Gaussians' takes 236 MB through the refinement after); the one chosen
-        is decoded again at the end."""
+        """The fair rival: the same total bytes spent on attributes alone, and its PSNR."""
         extra = len(candidate.payload) + CHUNK_ENTRY_BYTES
         alt = search_lambda(
             inp.scene,
@@ -167,8 +165,7 @@ def check_side_info(inp: CheckInputs, progress: Progress | None = None) -> Check
             rel_tol=RIVAL_TOLERANCE,
             first=enc,
         )
-        psnr = score(alt.decoded)
-        return replace(alt, decoded=alt.decoded.subset(np.arange(0))), psnr
+        return alt, score(alt.decoded)
 
     rivals = []
     for k, c in enumerate(inp.candidates):
@@ -220,9 +217,7 @@ def check_side_info(inp: CheckInputs, progress: Progress | None = None) -> Check
     )
     if outcome is Outcome.SENT:
         return CheckResult(side, enc, decision)
-    if outcome is Outcome.SPENT_ON_ATTRIBUTES:
-        return CheckResult(None, replace(alt, decoded=decode_attributes(alt.chunks, alt.meta)), decision)
-    return CheckResult(None, enc, decision)
+    return CheckResult(None, alt if outcome is Outcome.SPENT_ON_ATTRIBUTES else enc, decision)
 
 
 def _target_gain(original: list[torch.Tensor], coded: list[torch.Tensor], side: SideCandidate) -> float:
