@@ -223,17 +223,13 @@ def _is_gspc(path: Path) -> bool:
         return False
 
 
-def _position_grid_line(attributes: object) -> str | None:
-    """How a .gspc file codes its positions (spec 10.1), for ``gspc info``; None if its header is silent."""
-    grid = attributes.get("position") if isinstance(attributes, dict) else None
-    if not isinstance(grid, dict) or not isinstance(grid.get("bits"), int):
-        return None
-    if "radius" not in grid:
-        return f"positions: a box grid of {grid['bits']} bits per axis"
-    line = f"positions: a contracted grid of {grid['bits']} bits per axis"
-    far, shift = grid.get("far_count"), grid.get("far_shift")
-    if isinstance(far, int) and isinstance(shift, int):
-        line += f"; a far set of {far:,} Gaussians on a grid {shift} bits coarser"
+def _position_grid_line(grid) -> str:
+    """How a .gspc file codes its positions (spec 10.1), for ``gspc info``."""
+    if not grid.is_contracted:
+        return f"positions: a box grid of {grid.bits} bits per axis"
+    line = f"positions: a contracted grid of {grid.bits} bits per axis"
+    if grid.far is not None:
+        line += f"; a far set of {grid.far.count:,} Gaussians on a grid {grid.far.shift} bits coarser"
     return line
 
 
@@ -246,14 +242,15 @@ def info(
     if not path.exists():
         raise GspcError(f"{path}: no such file")
     if _is_gspc(path):
-        from gspc.codec.sideinfo import side_views
         from gspc.format.container import describe, read
-        from gspc.format.header import SceneSummary
+        from gspc.format.header import FileHeader, SceneSummary
+        from gspc.format.side_chunk import read_side_views
 
         d = describe(path)
         c = read(path)
         header = c.header
-        views, _ = side_views(header.get("side_info", {}), c.chunks)
+        fields = FileHeader.from_dict(header)  # checked as a decode checks it
+        views = read_side_views(fields.side_info.views, c.chunks, d["file_size"]).views
         summary = SceneSummary.from_dict(header)
         n, degree = max(summary.num_gaussians, 1), summary.sh_degree
         out.print(
@@ -261,9 +258,7 @@ def info(
             f"{n:,} Gaussians, SH degree {'?' if degree is None else degree}, "
             f"{len(views)} side-information views"
         )
-        grid = _position_grid_line(header.get("attributes"))
-        if grid:
-            out.print(grid)
+        out.print(_position_grid_line(fields.attributes.position))
         t = Table(show_header=True)
         for col in ("part", "chunks", "bytes", "B/Gaussian", "share"):
             t.add_column(col, justify="left" if col == "part" else "right")

@@ -16,6 +16,7 @@ from numbers import Integral, Real
 from typing import Any
 
 from gspc.errors import InputError
+from gspc.format.view_records import MAX_RESIDUAL_SCALE
 from gspc.limits import (
     MAX_CAMERA_SIDE,
     MAX_LAMBDA,
@@ -27,7 +28,6 @@ from gspc.limits import (
 )
 from gspc.presets import DEFAULT_RESTORER, QUALITY, quality_preset
 
-_MAX_RESIDUAL_SCALE = 16  # the SIDE chunk's scale field allows 1..16 (gspc/codec/sideinfo.py)
 MAX_TIME_BUDGET_S = 1e7  # about 4 months: anything larger is a typo
 
 
@@ -99,7 +99,7 @@ def check_encode_options(o: Any) -> None:
     if o.residual_distance is not None:
         check_real("residual_distance", o.residual_distance, 0.0, 25.0, lo_open=True)
     if o.residual_scale is not None:
-        check_int("residual_scale", o.residual_scale, 1, _MAX_RESIDUAL_SCALE)
+        check_int("residual_scale", o.residual_scale, 1, MAX_RESIDUAL_SCALE)
     _check_name("--restorer", o.restorer)
     check_background(o.background)
     check_iterations(o.check_iterations, "--check-iterations")

@@ -19,13 +19,12 @@ from pathlib import Path
 from gspc import __version__
 from gspc.atomic import atomic_write_bytes
 from gspc.cameras import Camera
-from gspc.codec import residuals
-from gspc.codec.attributes import attribute_chunks, decode_attributes
-from gspc.codec.sideinfo import side_views
+from gspc.codec.attributes import EncodedAttributes, attribute_chunks, decode_attributes
 from gspc.device import check_device, renderer_info
 from gspc.encoder.policy import CheckInputs, SideInfoDecision, check_cameras, check_side_info
 from gspc.encoder.side import SideCandidate, view_residuals
 from gspc.encoder.stages import (
+    CodedAttributes,
     code_attributes,
     codec_params,
     encoder_cameras,
@@ -36,7 +35,9 @@ from gspc.encoder.stages import (
 from gspc.errors import CodecError, InputError
 from gspc.format import container
 from gspc.format.chunks import ATTRIBUTE_TYPES, SIDE
-from gspc.format.header import FileHeader, SceneSummary, SideInfoHeader, check_view_sizes
+from gspc.format.header import FileHeader, SceneSummary, SideInfoHeader
+from gspc.format.side_chunk import SideViews, read_side_views
+from gspc.format.view_records import check_view_pixels
 from gspc.io import read_scene, write_ply
 from gspc.io.camera_files import load_cameras
 from gspc.options import DecodeOptions, EncodeOptions
@@ -133,68 +134,101 @@ def encode_scene(
     if opts.target_size is not None:  # what the search reached, so a missed target is visible
         reached = f"attributes {enc.num_bytes:,} B for a {opts.target_size:,} B target"
         rep.info["lambda"] = f"{enc.lam:.4g} ({reached})"
-    runs = iteration_counts(opts, enc.decoded.num_gaussians)
-    refine_iterations = runs.refine
-    views, view_cams = sample_side_views(cameras, opts)
-    side: SideCandidate | None = None  # the side information sent, if any
-    if views:
-        with rep.timed("render"):
-            bg = opts.background
-            original = render_images(scene.to(device), view_cams, bg, progress, "render original")
-            coded = render_images(enc.decoded.to(device), view_cams, bg, progress, "render coded")
-        with _stage(rep, progress, "side info"):
-            candidates = side_candidates(opts, view_cams, view_residuals(original, coded), runs.check)
-        # No residual anywhere: no chunk at all (cameras alone would be dead weight).
-        side = candidates[0] if candidates[0].payload is not None else None
-        if side is not None and runs.check > 0:
-            inputs = CheckInputs(
-                scene=scene,
-                attributes=enc,
-                params=coded_attributes.params,
-                visible=coded_attributes.visible,
-                view_cameras=view_cams,
-                check_cameras=check_cameras(cameras, views, opts.check_views),
-                original=original,
-                coded=coded,
-                candidates=candidates,
-                restorer=restorer,
-                iterations=runs.refine,
-                background=opts.background,
-                margin_db=opts.check_margin_db,
-                device=device,
-                deadline=None if opts.time_budget is None else rep.started + opts.time_budget,
-            )
-            with _stage(rep, progress, "check"):
-                result = check_side_info(inputs, progress)
-            side, enc, rep.side_info = result.side, result.attributes, result.decision
-            rep.info.update(result.decision.summary())
-            if result.side is not None:  # the decoder runs what the check ran (a time budget may cut it)
-                refine_iterations = result.decision.iterations
-    rep.num_gaussians_out = enc.decoded.num_gaussians
+    choice = _side_information(scene, cameras, coded_attributes, restorer, opts, device, progress, rep)
+    rep.num_gaussians_out = choice.attributes.decoded.num_gaussians
+    with rep.timed("write"):
+        data = _file_bytes(scene, choice, opts)
+    rep.bytes = _byte_budget(data)
+    rep.views = len(choice.side.records) if choice.side is not None else 0
+    rep.views_with_residual = choice.side.views_with_residual if choice.side is not None else 0
+    rep.info["views"] = rep.views
+    rep.info["views with residual"] = rep.views_with_residual
+    return data, rep
 
+
+@dataclass
+class _EncoderChoice:
+    """What the encoder sends: the attributes, the side information (None: none) and the refinement
+    iterations it names."""
+
+    attributes: EncodedAttributes
+    side: SideCandidate | None
+    refine_iterations: int
+
+
+def _side_information(
+    scene: GaussianScene,
+    cameras: list[Camera],
+    coded_attributes: CodedAttributes,
+    restorer,
+    opts: EncodeOptions,
+    device,
+    progress: Progress | None,
+    rep: Report,
+) -> _EncoderChoice:
+    """Render the sampled views, code their residuals and, where the check runs, keep the side information
+    only if it pays for its bytes (gspc/encoder/policy.py)."""
+    enc = coded_attributes.encoded
+    runs = iteration_counts(opts, enc.decoded.num_gaussians)
+    views, view_cams = sample_side_views(cameras, opts)
+    if not views:
+        return _EncoderChoice(enc, None, runs.refine)
+    with rep.timed("render"):
+        bg = opts.background
+        original = render_images(scene.to(device), view_cams, bg, progress, "render original")
+        coded = render_images(enc.decoded.to(device), view_cams, bg, progress, "render coded")
+    with _stage(rep, progress, "side info"):
+        candidates = side_candidates(opts, view_cams, view_residuals(original, coded), runs.check)
+    # No residual anywhere: no chunk at all (cameras alone would be dead weight).
+    side = candidates[0] if candidates[0].payload is not None else None
+    if side is None or runs.check == 0:
+        return _EncoderChoice(enc, side, runs.refine)
+    inputs = CheckInputs(
+        scene=scene,
+        attributes=enc,
+        params=coded_attributes.params,
+        visible=coded_attributes.visible,
+        view_cameras=view_cams,
+        check_cameras=check_cameras(cameras, views, opts.check_views),
+        original=original,
+        coded=coded,
+        candidates=candidates,
+        restorer=restorer,
+        iterations=runs.refine,
+        background=opts.background,
+        margin_db=opts.check_margin_db,
+        device=device,
+        deadline=None if opts.time_budget is None else rep.started + opts.time_budget,
+    )
+    with _stage(rep, progress, "check"):
+        result = check_side_info(inputs, progress)
+    rep.side_info = result.decision
+    rep.info.update(result.decision.summary())
+    # The decoder runs what the check ran (a time budget may cut it).
+    iterations = result.decision.iterations if result.side is not None else runs.refine
+    return _EncoderChoice(result.attributes, result.side, iterations)
+
+
+def _file_bytes(scene: GaussianScene, choice: _EncoderChoice, opts: EncodeOptions) -> bytes:
+    """The .gspc file of the encoder's choice: header, attribute chunks and the SIDE chunk."""
+    enc, side = choice.attributes, choice.side
     chunks = [container.Chunk(name, enc.chunks[name]) for name in ATTRIBUTE_TYPES if name in enc.chunks]
     if side is not None:
         chunks.append(container.Chunk(SIDE, side.payload))  # all views in one chunk (spec 10.9)
     file_header = FileHeader(
         encoder=f"gspc {__version__}",
         scene=SceneSummary(enc.decoded.num_gaussians, enc.decoded.sh_degree, scene.num_gaussians),
-        attributes=enc.meta,
-        side_info=SideInfoHeader(opts.background, opts.restorer, refine_iterations),
+        attributes=enc.section,
+        side_info=SideInfoHeader(opts.background, opts.restorer, choice.refine_iterations),
     )
-    with rep.timed("write"):
-        data = container.pack(file_header.to_dict(), chunks)
-        # The decoder refuses views beyond its pixel budget for this file size (gspc/limits.py): refuse to
-        # make a file it would refuse.
-        try:
-            check_view_sizes(side.records if side is not None else [], len(data))
-        except CodecError as e:
-            raise InputError(f"{e}; lower --max-side or --views-fraction") from None
-    rep.bytes = _byte_budget(data)
-    rep.views = len(side.records) if side is not None else 0
-    rep.views_with_residual = side.views_with_residual if side is not None else 0
-    rep.info["views"] = rep.views
-    rep.info["views with residual"] = rep.views_with_residual
-    return data, rep
+    data = container.pack(file_header.to_dict(), chunks)
+    # The decoder refuses views beyond its pixel budget for this file size (gspc/limits.py): refuse to
+    # make a file it would refuse.
+    try:
+        check_view_pixels(side.records if side is not None else [], len(data))
+    except CodecError as e:
+        raise InputError(f"{e}; lower --max-side or --views-fraction") from None
+    return data
 
 
 def _byte_budget(data: bytes) -> dict[str, int]:
@@ -238,59 +272,86 @@ def decode_bytes(
     rep = rep or Report()
     rep.info["renderer"] = renderer_info(device)
     with _stage(rep, progress, "read"):
-        c = container.unpack(data)
-        fields = FileHeader.from_dict(c.header)
-        attr_meta, background = fields.attributes, fields.side_info.background
-        chunks = attribute_chunks(c.chunks)
-        views, res_chunks = side_views(fields.side_info.to_dict(), c.chunks)
-        # Sizes before any camera is built or view rendered: the file's pixel budget (gspc/limits.py).
-        check_view_sizes(views, len(data))
-        for k, image in res_chunks.items():  # each image's declared size, before anything is decoded
-            cam = views[k]["camera"]
-            residuals.check_residual(image, views[k].get("residual"), (cam["height"], cam["width"]))
-        restorer_name = opts.restorer if opts.restorer is not None else fields.side_info.restorer
+        file = _read(data)
+        restorer_name = opts.restorer if opts.restorer is not None else file.header.side_info.restorer
         restorer = load_restorer(restorer_name, device=device) if opts.restore else None
     rep.bytes = _byte_budget(data)
     with _stage(rep, progress, "attributes"):
-        scene = decode_attributes(chunks, attr_meta)
+        scene = decode_attributes(file.attribute_chunks, file.header.attributes)
     rep.num_gaussians_in = rep.num_gaussians_out = scene.num_gaussians
     scene = scene.to(device)
-    cams = [Camera.from_dict(v["camera"]) for v in views]
-
+    side = file.side
+    cams = [v.camera.to_camera() for v in side.views]
     if cams and (opts.restore or opts.refine):
-        with rep.timed("render"):
-            degraded = render_images(scene, cams, background, progress, "render coded")
-        with rep.timed("restore"):
-            targets = restored_targets(degraded, views, res_chunks, restorer, progress)
-        # With no residual anywhere every target equals the render: the gradients are only round-off, and
-        # Adam would turn them into full-size steps (measured: 50.7 -> 41.7 dB on a statue), so skip.
-        has_residual = any("residual" in v for v in views) and opts.restore
-        iterations = opts.iterations if opts.iterations is not None else fields.side_info.refine_iterations
-        if opts.refine and iterations > 0 and not has_residual:
-            rep.info["refine"] = "skipped (no view carries a residual)"
-        if opts.refine and iterations > 0 and has_residual:
-            deadline = None if opts.time_budget is None else rep.started + opts.time_budget
-            with rep.timed("refine"):
-                cells_meta = attr_meta if opts.in_cells else None
-                refined = refine_in_cells(
-                    scene,
-                    cells_meta,
-                    cams,
-                    targets,
-                    iterations,
-                    background,
-                    progress,
-                    seed=opts.seed,
-                    lr_scale=opts.lr_scale,
-                    deadline=deadline,
-                    in_place=True,  # G~ is not needed after
-                )
-            scene, rep.refine_iterations = refined.scene, refined.iterations
-            ran = f"{refined.iterations} iterations"
-            if refined.iterations < iterations:
-                ran += f" of {iterations} (time budget {opts.time_budget:g} s)"
-            rep.info["refine"] = ran + ("" if opts.in_cells else ", cells off")
+        scene = _restore_and_refine(scene, file.header, side, cams, restorer, opts, progress, rep)
     rep.info["restorer"] = restorer_name if opts.restore else "off"
     rep.views = rep.info["views"] = len(cams)
-    rep.views_with_residual = len(res_chunks)
+    rep.views_with_residual = len(side.images)
     return scene, rep
+
+
+@dataclass(frozen=True)
+class _ReadFile:
+    """A .gspc file as read and checked: the typed header, the attribute payloads and the side views."""
+
+    header: FileHeader
+    attribute_chunks: dict[str, bytes]
+    side: SideViews
+
+
+def _read(data: bytes) -> _ReadFile:
+    """Unpack and check everything a decode will use, before any camera is built or view rendered: the
+    header's records, the views' pixels against the file's budget (gspc/limits.py) and each residual
+    image's declared size."""
+    c = container.unpack(data)
+    header = FileHeader.from_dict(c.header)
+    side = read_side_views(header.side_info.views, c.chunks, len(data))
+    return _ReadFile(header, attribute_chunks(c.chunks), side)
+
+
+def _restore_and_refine(
+    scene: GaussianScene,
+    header: FileHeader,
+    side: SideViews,
+    cams: list[Camera],
+    restorer,
+    opts: DecodeOptions,
+    progress: Progress | None,
+    rep: Report,
+) -> GaussianScene:
+    """Render G~ at the stored views, restore them with their residuals and refine G~ against them."""
+    background = header.side_info.background
+    with rep.timed("render"):
+        degraded = render_images(scene, cams, background, progress, "render coded")
+    with rep.timed("restore"):
+        targets = restored_targets(degraded, side.views, side.images, restorer, progress)
+    # With no residual anywhere every target equals the render: the gradients are only round-off, and
+    # Adam would turn them into full-size steps (measured: 50.7 -> 41.7 dB on a statue), so skip.
+    has_residual = bool(side.images) and opts.restore
+    iterations = opts.iterations if opts.iterations is not None else header.side_info.refine_iterations
+    if not (opts.refine and iterations > 0):
+        return scene
+    if not has_residual:
+        rep.info["refine"] = "skipped (no view carries a residual)"
+        return scene
+    deadline = None if opts.time_budget is None else rep.started + opts.time_budget
+    with rep.timed("refine"):
+        refined = refine_in_cells(
+            scene,
+            header.attributes if opts.in_cells else None,
+            cams,
+            targets,
+            iterations,
+            background,
+            progress,
+            seed=opts.seed,
+            lr_scale=opts.lr_scale,
+            deadline=deadline,
+            in_place=True,  # G~ is not needed after
+        )
+    rep.refine_iterations = refined.iterations
+    ran = f"{refined.iterations} iterations"
+    if refined.iterations < iterations:
+        ran += f" of {iterations} (time budget {opts.time_budget:g} s)"
+    rep.info["refine"] = ran + ("" if opts.in_cells else ", cells off")
+    return refined.scene

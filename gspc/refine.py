@@ -17,7 +17,7 @@ import torch
 import torch.nn.functional as F
 
 from gspc.cameras import Camera
-from gspc.codec.cells import project
+from gspc.codec.cells import clamp_into
 from gspc.errors import InputError
 from gspc.scene import ATTRIBUTE_NAMES, GaussianScene
 
@@ -161,7 +161,7 @@ def refine(
             with torch.no_grad():
                 for g in opt.param_groups:
                     if g["name"] in cells:
-                        project(g["name"], g["params"][0], cells[g["name"]])
+                        clamp_into(g["name"], g["params"][0], cells[g["name"]])
         it += 1
         if deadline is not None:
             now = time.perf_counter()

@@ -14,6 +14,8 @@ import torch
 from gspc.cameras import Camera
 from gspc.codec import residuals
 from gspc.codec.cells import quantisation_cells
+from gspc.format.attribute_section import AttributeSection
+from gspc.format.view_records import ViewRecord
 from gspc.metrics import psnr, quantize8
 from gspc.progress import Progress
 from gspc.refine import Refined, refine
@@ -43,18 +45,19 @@ def render_images(
 
 def restored_targets(
     degraded: list[torch.Tensor],
-    views: list[dict],
-    res_chunks: dict[int, bytes],
+    views: Sequence[ViewRecord],
+    images: dict[int, bytes],
     restorer,
     progress: Progress | None = None,
 ) -> list[torch.Tensor]:
-    """The decoder's refinement targets: renders restored with their decoded residuals where one was sent."""
+    """The decoder's refinement targets: renders restored with their decoded residual ``images`` (by view
+    number) where one was sent."""
     out = []
     if progress:
         progress("restore", 0, len(degraded))
     for k, (img, v) in enumerate(zip(degraded, views)):
-        if k in res_chunks and restorer is not None:
-            r = torch.from_numpy(residuals.decode_residual(res_chunks[k], v["residual"])).to(img)
+        if k in images and restorer is not None:
+            r = torch.from_numpy(residuals.decode_residual(images[k], v.residual)).to(img)
             img = restorer.restore(img, r)
         # A view without a residual keeps its render: the restorer alone measured no gain (bench/restorer.md).
         out.append(img.clamp(0, 1))
@@ -89,7 +92,7 @@ SHORT_RUN = 300
 
 def refine_in_cells(
     decoded: GaussianScene,
-    attributes_meta: dict | None,
+    section: AttributeSection | None,
     cameras: list[Camera],
     targets: list[torch.Tensor],
     iterations: int,
@@ -101,8 +104,8 @@ def refine_in_cells(
     deadline: float | None = None,
     in_place: bool = False,
 ) -> Refined:
-    """The decoder's refinement of G~ against ``targets``, inside the quantisation cells of
-    ``attributes_meta`` (None: free refinement), ending by ``deadline`` when one is given. A run shorter
+    """The decoder's refinement of G~ against ``targets``, inside the quantisation cells of the attribute
+    ``section`` (None: free refinement), ending by ``deadline`` when one is given. A run shorter
     than SHORT_RUN iterations takes proportionally smaller steps (its length after any cut decides).
     ``in_place``: G~ itself is refined (a caller that keeps no use for it saves a copy)."""
     bg = torch.tensor(background, dtype=decoded.means.dtype, device=decoded.means.device)
@@ -116,7 +119,7 @@ def refine_in_cells(
         lr_scale=lr_scale,
         short_run=SHORT_RUN,
         progress=refine_progress(progress, stage, iterations),
-        cells=quantisation_cells(decoded, attributes_meta) if attributes_meta is not None else None,
+        cells=quantisation_cells(decoded, section) if section is not None else None,
         deadline=deadline,
         in_place=in_place,
     )

@@ -1,7 +1,10 @@
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
 from gspc.codec import positions as pos
+from gspc.format.attribute_section import AttributeSection
 
 
 def test_morton_roundtrip():
@@ -15,13 +18,13 @@ def test_positions_roundtrip(bits):
     rng = np.random.default_rng(bits)
     means = rng.uniform(-1, 1, size=(3000, 3)) * [1, 10, 0.1]
     voxels, order, grid = pos.curve_order(means, bits)
-    assert not pos.is_contracted(grid)  # a bounded box: the plain grid
+    assert not grid.is_contracted  # a bounded box: the plain grid
     out = pos.decode_positions(pos.encode_positions(voxels, grid), grid, len(voxels))
     assert np.array_equal(out, voxels)
     codes = pos.morton_encode(out, bits)
     assert (np.diff(codes) >= 0).all()  # decoded order is the curve order
-    err = np.abs(pos.dequantise(voxels, grid["lo"], grid["step"]) - means[order])
-    assert (err <= np.asarray(grid["step"]) * 0.5 + 1e-6 * np.abs(means[order]).max()).all()
+    err = np.abs(pos.dequantise(voxels, grid.lo, grid.step) - means[order])
+    assert (err <= np.asarray(grid.step) * 0.5 + 1e-6 * np.abs(means[order]).max()).all()
 
 
 def test_degenerate_points():
@@ -29,7 +32,7 @@ def test_degenerate_points():
     voxels, order, grid = pos.curve_order(means, 16)
     out = pos.decode_positions(pos.encode_positions(voxels, grid), grid, 50)
     assert np.array_equal(out, voxels)
-    assert (pos.dequantise(out, grid["lo"], grid["step"]) == np.float32(1e6)).all()
+    assert (pos.dequantise(out, grid.lo, grid.step) == np.float32(1e6)).all()
 
 
 def unbounded(seed: int = 0, n: int = 4000) -> np.ndarray:
@@ -65,20 +68,20 @@ def test_far_gaussians_keep_the_foreground_voxel_size(bits):
     obj = x[:4000]
     _, _, plain = pos.curve_order(obj, bits)
     voxels, order, grid = pos.curve_order(x, bits)
-    assert pos.is_contracted(grid) and grid["bits"] > bits
+    assert grid.is_contracted and grid.bits > bits
     out = pos.decode_positions(pos.encode_positions(voxels, grid), grid, len(voxels))
     assert np.array_equal(out, voxels)
     dec = pos.positions(voxels, grid)
     err = np.abs(dec - x[order])
     is_obj = order < 4000
     # The object keeps the voxel size it has alone (the grid is shifted, so half a step either way).
-    assert (err[is_obj] <= np.asarray(plain["step"]) * 0.5 * 1.0001 + 1e-6).all()
+    assert (err[is_obj] <= np.asarray(plain.step) * 0.5 * 1.0001 + 1e-6).all()
     # Every Gaussian lies inside the cell the refinement keeps it in.
     assert (err <= pos.cell_half_widths(dec, grid) * 1.0001 + 1e-6).all()
     # Far ones err in proportion to their distance (about constant angular error seen from the centre).
-    dist = np.linalg.norm(x[order] - grid["centre"], axis=1)
+    dist = np.linalg.norm(x[order] - grid.contraction.centre, axis=1)
     rel = err.max(1)[~is_obj] / dist[~is_obj]
-    assert rel.max() < 2.0 * max(grid["step"]) * grid["radius"] / (0.5 * grid["radius"])
+    assert rel.max() < 2.0 * max(grid.step) * grid.contraction.radius / (0.5 * grid.contraction.radius)
 
 
 def far_sizes(x: np.ndarray, centre, grow: float) -> np.ndarray:
@@ -92,9 +95,9 @@ def test_large_far_gaussians_form_a_far_set_on_a_coarser_grid(bits):
     x = unbounded()
     centre = x[:4000].mean(0)
     plain_v, plain_order, plain_grid = pos.curve_order(x, bits)  # no sizes: no far set
-    assert "far_count" not in plain_grid
+    assert plain_grid.far is None
     voxels, order, grid = pos.curve_order(x, bits, far_sizes(x, centre, 0.05))
-    near, shift = pos.far_split(grid, len(x))
+    near, shift = grid.split(len(x))
     assert 1 <= shift <= pos.FAR_MAX_SHIFT and 0 < near < len(x)
     # Far voxels lie on the coarse grid; the payload round-trips and costs less than without a far set.
     assert not (voxels[near:] % (1 << shift)).any()
@@ -108,7 +111,7 @@ def test_large_far_gaussians_form_a_far_set_on_a_coarser_grid(bits):
     # The far set holds only Gaussians beyond 2 R (the object is never coarsened), and every Gaussian
     # stays inside the cell refinement keeps it in.
     dec = pos.positions(voxels, grid)
-    u = np.linalg.norm(x[order] - grid["centre"], axis=1) / grid["radius"]
+    u = np.linalg.norm(x[order] - grid.contraction.centre, axis=1) / grid.contraction.radius
     assert (u[near:] > pos.IDENTITY_RADIUS).all()
     err = np.abs(dec - x[order])
     assert (err <= pos.cell_half_widths(dec, grid) * 1.0001 + 1e-6).all()
@@ -118,7 +121,7 @@ def test_small_far_gaussians_keep_the_fine_grid():
     # Beyond 2 R but no larger than the object's Gaussians: coarser voxels would be visible, so no far set.
     x = unbounded()
     _, _, grid = pos.curve_order(x, 11, np.full(len(x), 0.02))
-    assert pos.is_contracted(grid) and "far_count" not in grid
+    assert grid.is_contracted and grid.far is None
 
 
 def test_far_set_payload_errors():
@@ -132,9 +135,8 @@ def test_far_set_payload_errors():
     two = msgpack.packb(msgpack.unpackb(payload)[:2], use_bin_type=True)
     with pytest.raises(CodecError, match="4 msgpack bins"):
         pos.decode_positions(two, grid, len(x))
-    without = {k: v for k, v in grid.items() if not k.startswith("far_")}
     with pytest.raises(CodecError, match="2 msgpack bins"):
-        pos.decode_positions(payload, without, len(x))
+        pos.decode_positions(payload, replace(grid, far=None), len(x))
 
 
 def test_bit_length_is_exact_to_int64():
@@ -159,16 +161,14 @@ def test_an_unbounded_scene_round_trips_through_the_file(tmp_path):
     src, out, dec = tmp_path / "s.ply", tmp_path / "s.gspc", tmp_path / "d.ply"
     write_ply(scene, src)
     encode(src, out, opts=EncodeOptions(side_info=False, synth_views=4, keep_invisible=True))
-    meta = container.read(out).header["attributes"]
-    assert (
-        meta["version"] == 2 and pos.is_contracted(meta["position"]) and container.read(out).version == (1, 3)
-    )
+    meta = AttributeSection.from_dict(container.read(out).header["attributes"])
+    assert meta.version == 2 and meta.position.is_contracted and container.read(out).version == (1, 3)
     decode(out, dec, DecodeOptions(refine=False, restore=False))
     got = read_scene(dec).means.numpy().astype(np.float64)
     ref = scene.means.numpy().astype(np.float64)
     # Match each decoded Gaussian to its source (curve order differs from input order) by nearest neighbour.
     d = np.sqrt(((got[:, None, :] - ref[None, :, :]) ** 2).sum(-1)).min(1)
-    assert (d <= np.linalg.norm(pos.cell_half_widths(got, meta["position"]), axis=1) + 1e-5).all()
+    assert (d <= np.linalg.norm(pos.cell_half_widths(got, meta.position), axis=1) + 1e-5).all()
 
 
 def far_scene(seed: int = 4):
@@ -185,30 +185,30 @@ def far_scene(seed: int = 4):
 
 
 def test_far_set_header_is_checked():
-    from gspc.codec.attribute_header import FAR_VERSION, check_attribute_header
     from gspc.codec.attributes import encode_attributes
     from gspc.errors import CodecError
+    from gspc.format.attribute_section import FAR_VERSION
     from gspc.presets import QUALITY
 
     enc = encode_attributes(far_scene(), QUALITY["low"].attributes)
-    meta = enc.meta
+    meta = enc.section.to_dict()
     assert meta["version"] == FAR_VERSION
-    check_attribute_header(meta)
+    assert AttributeSection.from_dict(meta) == enc.section
     grid, n = meta["position"], meta["n"]
     bad = [
         ({"far_count": n}, "far set"),
         ({"far_count": 0}, "far set"),
         ({"far_shift": grid["bits"]}, "far set"),
-        ({"far_shift": 1.0}, "far set"),
+        ({"far_shift": 1.0}, "far_shift"),
     ]
     for change, message in bad:
         with pytest.raises(CodecError, match=message):
-            check_attribute_header({**meta, "position": {**grid, **change}})
+            AttributeSection.from_dict({**meta, "position": {**grid, **change}})
     without = {k: v for k, v in grid.items() if k != "far_shift"}
-    with pytest.raises(CodecError, match="far_shift"):
-        check_attribute_header({**meta, "position": without})
     with pytest.raises(CodecError, match="far set"):
-        check_attribute_header({**meta, "version": 2})
+        AttributeSection.from_dict({**meta, "position": without})
+    with pytest.raises(CodecError, match="far set"):
+        AttributeSection.from_dict({**meta, "version": 2})
 
 
 def test_a_far_set_round_trips_through_the_file(tmp_path):
@@ -224,21 +224,21 @@ def test_a_far_set_round_trips_through_the_file(tmp_path):
     src, out, dec = tmp_path / "s.ply", tmp_path / "s.gspc", tmp_path / "d.ply"
     write_ply(scene, src)
     encode(src, out, opts=EncodeOptions(side_info=False, synth_views=4, keep_invisible=True))
-    meta = container.read(out).header["attributes"]
-    assert meta["version"] == 3 and meta["position"]["far_count"] > 0
+    meta = AttributeSection.from_dict(container.read(out).header["attributes"])
+    assert meta.version == 3 and meta.position.far.count > 0
     from typer.testing import CliRunner
 
     from gspc.cli import app
 
     shown = CliRunner().invoke(app, ["info", str(out)], terminal_width=200).output
-    assert f"a far set of {meta['position']['far_count']:,} Gaussians" in shown
+    assert f"a far set of {meta.position.far.count:,} Gaussians" in shown
     decode(out, dec, DecodeOptions(refine=False, restore=False))
     got = read_scene(dec).means.numpy()
     assert np.array_equal(sr.read_scene(out.read_bytes())[0]["means"], got)
     ref = scene.means.numpy().astype(np.float64)
     got = got.astype(np.float64)
     d = np.sqrt(((got[:, None, :] - ref[None, :, :]) ** 2).sum(-1)).min(1)
-    assert (d <= np.linalg.norm(pos.cell_half_widths(got, meta["position"]), axis=1) + 1e-5).all()
+    assert (d <= np.linalg.norm(pos.cell_half_widths(got, meta.position), axis=1) + 1e-5).all()
 
 
 def test_hostile_far_set_fields_and_payloads_are_codec_errors():
@@ -250,13 +250,14 @@ def test_hostile_far_set_fields_and_payloads_are_codec_errors():
     from gspc.presets import QUALITY
 
     enc = encode_attributes(far_scene(), QUALITY["low"].attributes)
-    meta, chunks, grid = enc.meta, enc.chunks, enc.meta["position"]
+    meta, chunks = enc.section.to_dict(), enc.chunks
+    grid = meta["position"]
     values = [-1, 0, meta["n"], meta["n"] + 1, 2**70, "x", None, 1.5, True, [1]]
     for key in ("far_count", "far_shift"):
         for value in values:
             with pytest.raises(CodecError):
-                decode_attributes(chunks, {**meta, "position": {**grid, key: value}})
+                AttributeSection.from_dict({**meta, "position": {**grid, key: value}})
     parts = msgpack.unpackb(chunks["POSN"])
     for bad in ([*parts, b""], parts[:3], [parts[0], parts[1], parts[3], parts[2]], [*parts[:3], 7], b"\x00"):
         with pytest.raises(CodecError):
-            decode_attributes({**chunks, "POSN": msgpack.packb(bad, use_bin_type=True)}, meta)
+            decode_attributes({**chunks, "POSN": msgpack.packb(bad, use_bin_type=True)}, enc.section)

@@ -160,7 +160,8 @@ REGISTRY = ["POSN", "OPAC", "SCAL", "ROTN", "SHDC", "SHRS", "RESI"]  # the 1.0 t
 def side_payload() -> bytes:
     """A SIDE payload (spec 10.9) for CAMERAS: view 1 carries a half-resolution 8-bit residual of 5 bytes."""
     from gspc.cameras import Camera
-    from gspc.codec.sideinfo import pack_side
+    from gspc.format.side_chunk import pack_side
+    from gspc.format.view_records import ViewRecord
 
     views = [
         {"camera": Camera(np.array(c["world_to_cam"]), np.array(c["K"]), 64, 48).to_dict()} for c in CAMERAS
@@ -174,7 +175,7 @@ def side_payload() -> bytes:
         "scale": 2,
         "full_shape": [48, 64],
     }
-    return pack_side(views, {1: b"image"})
+    return pack_side([ViewRecord.from_dict(v) for v in views], {1: b"image"})
 
 
 def valid_vectors() -> list[Vector]:
@@ -701,7 +702,7 @@ def encode_scene(scene) -> tuple[dict, dict[str, bytes]]:
     from gspc.presets import QUALITY
 
     enc = encode_attributes(scene, QUALITY["low"].attributes)
-    return enc.meta, enc.chunks
+    return enc.section.to_dict(), enc.chunks
 
 
 def scene_meta(attributes: dict, side_info: dict | None = None) -> dict:
@@ -753,7 +754,8 @@ def residual_image(h: int, w: int, seed: int, codec: str) -> tuple[bytes, float]
 
 def side_chunk(scale: int = 2) -> bytes:
     """SIDE (10.9): two 24x20 views with one shared camera size; view 1 carries a JPEG XL residual."""
-    from gspc.codec.sideinfo import pack_side
+    from gspc.format.side_chunk import pack_side
+    from gspc.format.view_records import ViewRecord
 
     w, h = 24, 20
     views = [{"camera": camera(i, w, h)} for i in range(2)]
@@ -770,7 +772,7 @@ def side_chunk(scale: int = 2) -> bytes:
         "scale": scale,
         "full_shape": [h, w],
     }
-    return pack_side(views, {1: image})
+    return pack_side([ViewRecord.from_dict(v) for v in views], {1: image})
 
 
 def digest(a: np.ndarray) -> dict:
@@ -785,24 +787,24 @@ def digest(a: np.ndarray) -> dict:
 
 def reference_decode(data: bytes) -> tuple[dict[str, np.ndarray], list[dict]]:
     """gspc's decoder up to the decoded attributes and residuals (what gspc decode does before rendering)."""
-    sys.path.insert(0, str(ROOT))
     from gspc.codec.attributes import attribute_chunks, decode_attributes
     from gspc.codec.residuals import decode_residual
-    from gspc.codec.sideinfo import side_views
     from gspc.errors import CodecError
     from gspc.format import container
+    from gspc.format.attribute_section import AttributeSection
+    from gspc.format.side_chunk import legacy_views, read_side_views
 
     c = container.unpack(data)
     if not isinstance(c.header.get("attributes"), dict) or not isinstance(c.header.get("side_info"), dict):
         raise CodecError("meta lacks attributes or side_info")
-    views, images = side_views(c.header["side_info"], c.chunks)
-    scene = decode_attributes(attribute_chunks(c.chunks), c.header["attributes"])
+    side = read_side_views(legacy_views(c.header["side_info"].get("views", [])), c.chunks, len(data))
+    scene = decode_attributes(attribute_chunks(c.chunks), AttributeSection.from_dict(c.header["attributes"]))
     attrs = {name: getattr(scene, name).numpy() for name in ATTRS}
     out = []
-    for k, v in enumerate(views):
-        view = {"width": v["camera"]["width"], "height": v["camera"]["height"]}
-        if k in images:
-            view["residual"] = decode_residual(images[k], v["residual"])
+    for k, v in enumerate(side.views):
+        view = {"width": v.camera.width, "height": v.camera.height}
+        if k in side.images:
+            view["residual"] = decode_residual(side.images[k], v.residual)
         out.append(view)
     return attrs, out
 
@@ -1171,7 +1173,6 @@ def readme(vs: list[Vector]) -> str:
 
 def check_with_reader(vs: list[Vector]) -> list[str]:
     """Problems where the reference reader disagrees with a vector's stated outcome."""
-    sys.path.insert(0, str(ROOT))
     from gspc.format import container
 
     problems = []

@@ -25,13 +25,6 @@ import numpy as np
 import torch
 
 from gspc.codec import positions as pos
-from gspc.codec.attribute_header import (
-    CONTRACTED_VERSION,
-    FAR_VERSION,
-    FORMAT_VERSION,
-    GAUSSIANS_PER_BYTE,
-    check_attribute_header,
-)
 from gspc.codec.entropy import SYMBOL_LIMIT, decode_matrix, encode_matrix
 from gspc.codec.params import CodecParams
 from gspc.codec.quantisers import (
@@ -41,7 +34,8 @@ from gspc.codec.quantisers import (
     SmallestThreeQuantiser,
     out_of_range,
 )
-from gspc.errors import CodecError, ValueRangeError
+from gspc.errors import CodecError, InputError, ValueRangeError
+from gspc.format.attribute_section import GAUSSIANS_PER_BYTE, AttributeSection
 from gspc.format.chunks import ATTRIBUTE_TYPES, OPAC, POSN, ROTN, SCAL, SHDC, SHRS
 from gspc.scene import GaussianScene, num_sh_rest
 
@@ -49,7 +43,7 @@ from gspc.scene import GaussianScene, num_sh_rest
 @dataclass
 class EncodedAttributes:
     chunks: dict[str, bytes]
-    meta: dict
+    section: AttributeSection  # the header section the file carries
     decoded: GaussianScene  # G~, from decode_attributes on the chunks
     kept: np.ndarray  # indices into the input scene, in decoded (curve) order
     lam: float  # the rate knob it was coded at
@@ -57,7 +51,8 @@ class EncodedAttributes:
     @property
     def num_bytes(self) -> int:
         """Chunk bytes plus the packed meta: what the container pays for this codec."""
-        return sum(len(c) for c in self.chunks.values()) + len(msgpack.packb(self.meta, use_bin_type=True))
+        meta = msgpack.packb(self.section.to_dict(), use_bin_type=True)
+        return sum(len(c) for c in self.chunks.values()) + len(meta)
 
 
 def rotation_error_bound(levels: int) -> float:
@@ -110,7 +105,10 @@ def encode_attributes(
         raise CodecError("every Gaussian was pruned (transparent or unseen); use the keep flags to code them")
     means = _np(scene.means, keep_idx)
     sizes = np.exp(np.median(_np(scene.log_scales, keep_idx).astype(np.float64), axis=1))
-    voxels, order, grid = pos.curve_order(means, params.effective_position_bits, sizes)
+    try:
+        voxels, order, grid = pos.curve_order(means, params.effective_position_bits, sizes)
+    except CodecError as err:  # a grid the format's bounds refuse (spec 10.1)
+        raise InputError(f"the scene's positions cannot be coded: {err}") from None
     kept = keep_idx[order]
 
     lam = params.lam
@@ -121,19 +119,18 @@ def encode_attributes(
     scale_step = float(params.scale_step * params.geometry_lam)
     dc_step = float(params.dc_step * lam)
     sh_steps = _sh_steps(params, scene.sh_degree)
-    meta = {
-        "version": _version(grid),
-        "n": int(kept.size),
-        "sh_degree": int(scene.sh_degree),
-        "position": grid,
-        "opacity_levels": opacity_levels,
-        "scale_step": scale_step,
-        "rotation_levels": rot_levels,
-        "dc_step": dc_step,
-        "sh_steps": sh_steps,
-    }
+    section = AttributeSection(
+        n=int(kept.size),
+        sh_degree=int(scene.sh_degree),
+        position=grid,
+        opacity_levels=opacity_levels,
+        scale_step=scale_step,
+        rotation_levels=rot_levels,
+        dc_step=dc_step,
+        sh_steps=tuple(sh_steps),
+    )
 
-    quant = AttributeQuantisers.from_meta(meta, params.sh_deadzone)
+    quant = AttributeQuantisers.from_section(section, params.sh_deadzone)
     opac_q = quant.opacity.quantise(_np(scene.opacities, kept))
     scales, dc = _np(scene.log_scales, kept), _np(scene.sh_dc, kept)
     _check_range("log scale", scales, scale_step, lam)
@@ -160,8 +157,8 @@ def encode_attributes(
             [encode_matrix(flags[:, None]), encode_matrix(q[nonzero])], use_bin_type=True
         )
         del q, nonzero
-    decoded = decode_attributes(chunks, meta)
-    return EncodedAttributes(chunks=chunks, meta=meta, decoded=decoded, kept=kept, lam=params.lam)
+    decoded = decode_attributes(chunks, section)
+    return EncodedAttributes(chunks=chunks, section=section, decoded=decoded, kept=kept, lam=params.lam)
 
 
 def _check_range(name: str, values: np.ndarray, steps, lam: float, rows: np.ndarray | None = None) -> None:
@@ -174,13 +171,6 @@ def _check_range(name: str, values: np.ndarray, steps, lam: float, rows: np.ndar
             f"{count} Gaussian(s) have {name} values up to {worst:.3g}, beyond what lambda {lam:g} can code "
             f"(+-{limit:.3g}{finest}; a larger lambda raises the limit)"
         )
-
-
-def _version(grid: dict) -> int:
-    """The lowest attribute codec version that holds this position grid (older readers read the most)."""
-    if "far_count" in grid:
-        return FAR_VERSION
-    return CONTRACTED_VERSION if pos.is_contracted(grid) else FORMAT_VERSION
 
 
 def attribute_chunks(chunks: list) -> dict[str, bytes]:
@@ -200,10 +190,10 @@ def _matrix(chunks: dict[str, bytes], name: str, n: int, c: int) -> np.ndarray:
     return decode_matrix(chunks[name], (n, c))
 
 
-def decode_attributes(chunks: dict[str, bytes], meta: dict) -> GaussianScene:
-    """Decode chunks to a float32 scene in curve order; identical on every machine."""
-    check_attribute_header(meta)
-    n, degree, grid = meta["n"], meta["sh_degree"], meta["position"]
+def decode_attributes(chunks: dict[str, bytes], section: AttributeSection) -> GaussianScene:
+    """Decode chunks to a float32 scene in curve order; identical on every machine. The header ``section``
+    was checked where it was read (gspc/format/attribute_section.py); the payloads are checked here."""
+    n, degree, grid = section.n, section.sh_degree, section.position
     if degree == 0 and SHRS in chunks:
         raise CodecError("chunk SHRS in a file of SH degree 0")
     payload_bytes = sum(len(chunks.get(t, b"")) for t in ATTRIBUTE_TYPES)
@@ -215,7 +205,7 @@ def decode_attributes(chunks: dict[str, bytes], meta: dict) -> GaussianScene:
         raise CodecError("chunk POSN is missing")
     voxels = pos.decode_positions(chunks[POSN], grid, n)
     means = pos.positions(voxels, grid)
-    quant = AttributeQuantisers.from_meta(meta)
+    quant = AttributeQuantisers.from_section(section)
     opac = quant.opacity.dequantise(_matrix(chunks, OPAC, n, 1)[:, 0])
     scales = quant.scale.dequantise(_matrix(chunks, SCAL, n, 3))
     quats = quant.rotation.dequantise(_matrix(chunks, ROTN, n, 4))

@@ -17,20 +17,17 @@ import torch
 
 from gspc.codec.positions import cell_half_widths
 from gspc.codec.quantisers import AttributeQuantisers, Box
-from gspc.errors import CodecError
+from gspc.format.attribute_section import AttributeSection
 from gspc.scene import GaussianScene
 
 CELL_BLOCK = 1 << 16  # rows per block: the float64 boxes of a million Gaussians at once took 1.4 GB
 
 
-def quantisation_cells(decoded: GaussianScene, meta: dict) -> dict[str, Box]:
-    """The cell of every attribute of ``decoded`` (what ``decode_attributes`` returned for ``meta``), in the
-    scene's dtype; computed in float64 block by block of rows."""
-    try:
-        pos_half = cell_half_widths(decoded.means.detach().cpu().numpy(), meta["position"])
-        quant = AttributeQuantisers.from_meta(meta)
-    except (KeyError, TypeError, ValueError) as err:
-        raise CodecError(f"attribute codec header is malformed ({err})") from None
+def quantisation_cells(decoded: GaussianScene, section: AttributeSection) -> dict[str, Box]:
+    """The cell of every attribute of ``decoded`` (what ``decode_attributes`` returned for ``section``), in
+    the scene's dtype; computed in float64 block by block of rows."""
+    pos_half = cell_half_widths(decoded.means.detach().cpu().numpy(), section.position)
+    quant = AttributeQuantisers.from_section(section)
     half = torch.from_numpy(np.ascontiguousarray(pos_half)).to(decoded.means.device)
     cell_of = {
         "means": lambda x, a, b: _box(x.double(), half if len(half) == 1 else half[a:b]),
@@ -55,7 +52,7 @@ def _box(x: torch.Tensor, half: torch.Tensor) -> Box:
     return x - half, x + half
 
 
-def project(name: str, value: torch.Tensor, box: Box) -> None:
+def clamp_into(name: str, value: torch.Tensor, box: Box) -> None:
     """Move ``value`` (in place) to the nearest point of its box; quaternions are compared as unit vectors
     signed like the box's centre."""
     lo, hi = box

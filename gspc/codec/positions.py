@@ -30,16 +30,22 @@ leading one are stored raw.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import msgpack
 import numpy as np
 
 from gspc.codec.entropy import bit_length, decode_matrix, encode_matrix, pack_bits, unpack_bits
 from gspc.errors import CodecError
+from gspc.format.attribute_section import (
+    CONTRACTED_MAX_BITS,
+    MAX_BITS,
+    MAX_CONTRACTED,
+    Contraction,
+    FarSet,
+    PositionGrid,
+)
 
-MAX_BITS = 17  # plain grid (version 1): 3 * 17 = 51 bits per code
-# Contracted grid (version 2): 3 * 21 = 63 bits per code, the most an int64 holds; the far octaves need the
-# extra bits to keep the foreground's voxel size.
-CONTRACTED_MAX_BITS = 21
 # Region of interest: R = ROI_MARGIN times the median distance of the Gaussians from their median. The
 # mapping is the identity up to 2 R (the first octave keeps its scale), so only Gaussians beyond 6 median
 # distances are contracted. Bounded objects lie inside (the statues here reach 3.1-4.2 median distances,
@@ -93,7 +99,8 @@ def contract(means: np.ndarray, centre, radius: float) -> np.ndarray:
 
 def expand(y: np.ndarray, centre, radius: float) -> np.ndarray:
     """World positions (float32) of grid-space points: the inverse of :func:`contract`, in the operation
-    order spec 10.1 gives (so every decoder computes the same float32 bits)."""
+    order spec 10.1 gives (so every decoder computes the same float32 bits). The grid's bounds (spec 10.1,
+    gspc/format/attribute_section.py) keep rho below 56: the octave ``e`` is a small exact integer."""
     y = np.asarray(y, np.float64)
     rho = np.sqrt((y[:, 0] * y[:, 0] + y[:, 1] * y[:, 1]) + y[:, 2] * y[:, 2])
     out = rho > 1.0
@@ -147,27 +154,41 @@ def contracted_grid(y: np.ndarray, bits: int) -> tuple[int, list[float], list[fl
     grid_bits = min(max(bits, need), CONTRACTED_MAX_BITS)
     if need > CONTRACTED_MAX_BITS:
         step = step * 2.0 ** (need - CONTRACTED_MAX_BITS)
-    return grid_bits, [float(x) for x in lo], [float(x) for x in step]
+    return grid_bits, [float(x) for x in lo], _inside_bound(lo, hi, step, grid_bits)
+
+
+def _inside_bound(lo: np.ndarray, hi: np.ndarray, step: np.ndarray, bits: int) -> list[float]:
+    """The step per axis, made finer where the grid's far corner would pass the format's bound on grid space
+    (MAX_CONTRACTED, spec 10.1: a grid spans up to twice its points' extent); the points stay covered."""
+    out = []
+    for a, s, h in zip(lo, step, hi):
+        top = float(a) + float((1 << bits) - 1) * float(s)
+        if top > MAX_CONTRACTED and h <= MAX_CONTRACTED:
+            s = (MAX_CONTRACTED - a) / float((1 << bits) - 1)
+            while float(a) + float((1 << bits) - 1) * s > MAX_CONTRACTED:  # at most an ulp or two
+                s = float(np.nextafter(s, 0.0))
+        out.append(float(s))
+    return out
 
 
 def curve_order(
     means: np.ndarray, bits: int, sizes: np.ndarray | None = None
-) -> tuple[np.ndarray, np.ndarray, dict]:
-    """Voxels of the (fine) grid in decoded order, the permutation of the input, and the grid meta (with
-    ``centre`` and ``radius`` where the grid lies in contracted space, and ``far_count`` and ``far_shift``
-    where a far set is coded on a coarser grid). ``sizes``: each Gaussian's world size (the encoder's choice
-    of a far set needs it; None, no far set)."""
+) -> tuple[np.ndarray, np.ndarray, PositionGrid]:
+    """Voxels of the (fine) grid in decoded order, the permutation of the input, and the grid (contracted
+    where the scene is unbounded, with a far set coded on a coarser grid where one pays). ``sizes``: each
+    Gaussian's world size (the encoder's choice of a far set needs it; None, no far set). CodecError where
+    the scene's positions lie beyond the format's bounds (spec 10.1)."""
     roi = region_of_interest(means)
     if roi is None:
         lo, step = voxel_grid(means, bits)
         v = voxelise(means, lo, step, bits)
-        grid = {"bits": bits, "lo": lo, "step": step}
+        grid = PositionGrid(bits, tuple(lo), tuple(step))
         order = np.argsort(morton_encode(v, bits), kind="stable")
         return v[order], order, grid
     centre, radius = roi
     y = contract(means, centre, radius)
     bits, lo, step = contracted_grid(y, bits)
-    grid = {"bits": bits, "lo": lo, "step": step, "centre": [float(c) for c in centre], "radius": radius}
+    grid = PositionGrid(bits, tuple(lo), tuple(step), Contraction(tuple(float(c) for c in centre), radius))
     v = voxelise(y, lo, step, bits)
     order = np.argsort(morton_encode(v, bits), kind="stable")
     shift, far = (0, None) if sizes is None else far_set(means, y, sizes, grid)
@@ -177,7 +198,7 @@ def curve_order(
     coarse = voxelise(y[far_idx], lo, [s * 2.0**shift for s in step], bits - shift)
     near_idx = near_idx[np.argsort(morton_encode(v[near_idx], bits), kind="stable")]
     far_order = np.argsort(morton_encode(coarse, bits - shift), kind="stable")
-    far_grid = {**grid, "far_count": int(far.sum()), "far_shift": int(shift)}
+    far_grid = replace(grid, far=FarSet(int(far.sum()), int(shift)))
     far_voxels = np.concatenate([v[near_idx], np.left_shift(coarse[far_order], shift)])
     # A second curve has its own models and restarts its gaps: a small far set can cost more than it saves,
     # so it is kept only where the payload is smaller.
@@ -186,7 +207,9 @@ def curve_order(
     return far_voxels, np.concatenate([near_idx, far_idx[far_order]]), far_grid
 
 
-def far_set(means: np.ndarray, y: np.ndarray, sizes: np.ndarray, grid: dict) -> tuple[int, np.ndarray | None]:
+def far_set(
+    means: np.ndarray, y: np.ndarray, sizes: np.ndarray, grid: PositionGrid
+) -> tuple[int, np.ndarray | None]:
     """(shift, mask) of the far set for a contracted grid, or (0, None) where none pays (see the module).
 
     Relative precision is size over the voxel's world size across the line of sight from the region's
@@ -194,12 +217,13 @@ def far_set(means: np.ndarray, y: np.ndarray, sizes: np.ndarray, grid: dict) -> 
     the far set at shift k if its relative precision is at least 2^(k + FAR_MARGIN_BITS) times the median
     inside; the k that saves the most bits (k bits per axis for each member) wins. Encoder-only: the file
     states the set."""
-    u = np.sqrt(((np.asarray(means, np.float64) - np.asarray(grid["centre"])) ** 2).sum(1)) / grid["radius"]
+    roi = grid.contraction
+    u = np.sqrt(((np.asarray(means, np.float64) - np.asarray(roi.centre)) ** 2).sum(1)) / roi.radius
     rho = np.sqrt((y * y).sum(1))
     outside = u > IDENTITY_RADIUS
     if not outside.any() or outside.all():
         return 0, None
-    voxel = max(grid["step"]) * grid["radius"] * np.where(outside, u / np.maximum(rho, 1e-300), 1.0)
+    voxel = max(grid.step) * roi.radius * np.where(outside, u / np.maximum(rho, 1e-300), 1.0)
     precision = np.asarray(sizes, np.float64) / voxel
     reference = float(np.median(precision[~outside]))
     if not reference > 0:
@@ -207,7 +231,7 @@ def far_set(means: np.ndarray, y: np.ndarray, sizes: np.ndarray, grid: dict) -> 
     with np.errstate(divide="ignore", invalid="ignore"):
         room = np.floor(np.log2(precision / reference) - FAR_MARGIN_BITS)  # the shift each Gaussian allows
     room = np.where(outside & np.isfinite(room), room, 0).astype(np.int64)
-    shifts = np.arange(1, min(FAR_MAX_SHIFT, grid["bits"] - 1) + 1)
+    shifts = np.arange(1, min(FAR_MAX_SHIFT, grid.bits - 1) + 1)
     saved = [k * int((room >= k).sum()) for k in shifts]
     if not saved or max(saved) == 0:
         return 0, None
@@ -218,56 +242,45 @@ def far_set(means: np.ndarray, y: np.ndarray, sizes: np.ndarray, grid: dict) -> 
     return k, far
 
 
-def is_contracted(grid: dict) -> bool:
-    return "radius" in grid
+def positions(v: np.ndarray, grid: PositionGrid) -> np.ndarray:
+    """Decoded float32 positions of voxels under a grid (plain or contracted)."""
+    if grid.contraction is not None:
+        y = np.asarray(grid.lo, np.float64) + v.astype(np.float64) * np.asarray(grid.step, np.float64)
+        return expand(y, grid.contraction.centre, grid.contraction.radius)
+    return dequantise(v, grid.lo, grid.step)
 
 
-def far_split(grid: dict, n: int) -> tuple[int, int]:
-    """(Gaussians on the fine grid, far shift): the first of them come first in decoded order, the far set
-    (``n`` minus them) after; (n, 0) without a far set."""
-    if "far_count" not in grid:
-        return n, 0
-    return n - int(grid["far_count"]), int(grid["far_shift"])
-
-
-def positions(v: np.ndarray, grid: dict) -> np.ndarray:
-    """Decoded float32 positions of voxels under a grid meta (plain or contracted)."""
-    if is_contracted(grid):
-        y = np.asarray(grid["lo"], np.float64) + v.astype(np.float64) * np.asarray(grid["step"], np.float64)
-        return expand(y, grid["centre"], grid["radius"])
-    return dequantise(v, grid["lo"], grid["step"])
-
-
-def cell_half_widths(means: np.ndarray, grid: dict) -> np.ndarray:
+def cell_half_widths(means: np.ndarray, grid: PositionGrid) -> np.ndarray:
     """Half-widths of a box holding each decoded position's voxel cell in world space: (N, 3), or (1, 3)
     for the plain grid, where every cell is the same."""
-    half = np.asarray(grid["step"], np.float64)[None, :] / 2
-    if not is_contracted(grid):
+    half = np.asarray(grid.step, np.float64)[None, :] / 2
+    roi = grid.contraction
+    if roi is None:
         return half
-    r = np.sqrt(((np.asarray(means, np.float64) - np.asarray(grid["centre"])) ** 2).sum(1)) / grid["radius"]
+    r = np.sqrt(((np.asarray(means, np.float64) - np.asarray(roi.centre)) ** 2).sum(1)) / roi.radius
     # The mapping stretches grid space by 2^e <= r in octave e >= 1 (none below 2 R); a cell may reach into
     # the next octave: 2 r bounds it there, and from 1.5 R on to cover cells that cross 2 R.
     stretch = np.where(r < 1.5, 1.0, np.maximum(1.0, 2.0 * r))
-    near, shift = far_split(grid, len(r))
+    near, shift = grid.split(len(r))
     stretch[near:] *= 2.0**shift  # the far set's voxels are 2^shift fine voxels wide
-    return half * grid["radius"] * stretch[:, None]
+    return half * roi.radius * stretch[:, None]
 
 
-def encode_positions(voxels: np.ndarray, grid: dict) -> bytes:
+def encode_positions(voxels: np.ndarray, grid: PositionGrid) -> bytes:
     """The POSN payload of voxels in decoded order (curve_order's): one curve, or the near curve and the far
     set's on the coarser grid."""
-    bits = grid["bits"]
-    near, shift = far_split(grid, len(voxels))
+    bits = grid.bits
+    near, shift = grid.split(len(voxels))
     parts = _encode_curve(voxels[:near], bits)
     if near < len(voxels):
         parts += _encode_curve(np.right_shift(voxels[near:], shift), bits - shift)
     return msgpack.packb(parts, use_bin_type=True)
 
 
-def decode_positions(payload: bytes, grid: dict, n: int) -> np.ndarray:
+def decode_positions(payload: bytes, grid: PositionGrid, n: int) -> np.ndarray:
     """Voxels of the fine grid in decoded order from a POSN payload."""
-    bits = grid["bits"]
-    near, shift = far_split(grid, n)
+    bits = grid.bits
+    near, shift = grid.split(n)
     try:
         parts = msgpack.unpackb(payload, raw=False)
     except Exception as err:

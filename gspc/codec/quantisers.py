@@ -17,6 +17,7 @@ import torch
 
 from gspc.codec.entropy import SYMBOL_LIMIT
 from gspc.errors import CodecError
+from gspc.format.attribute_section import AttributeSection
 
 SQRT_HALF = 0.7071067811865476  # float64 nearest to 1/sqrt(2)
 _LN2 = 0.6931471805599453
@@ -218,12 +219,12 @@ class AttributeQuantisers:
     sh_rest: SHRestQuantiser
 
     @classmethod
-    def from_meta(cls, meta: dict, sh_deadzone: float = 0.0) -> AttributeQuantisers:
-        """From a header section checked by gspc/codec/attribute_header.py."""
+    def from_section(cls, section: AttributeSection, sh_deadzone: float = 0.0) -> AttributeQuantisers:
+        """The quantisers an attribute codec header section states (checked where it was built)."""
         return cls(
-            OpacityQuantiser(int(meta["opacity_levels"])),
-            UniformQuantiser(float(meta["scale_step"])),
-            SmallestThreeQuantiser(int(meta["rotation_levels"])),
-            UniformQuantiser(float(meta["dc_step"])),
-            SHRestQuantiser(tuple(float(s) for s in meta["sh_steps"]), sh_deadzone),
+            OpacityQuantiser(section.opacity_levels),
+            UniformQuantiser(section.scale_step),
+            SmallestThreeQuantiser(section.rotation_levels),
+            UniformQuantiser(section.dc_step),
+            SHRestQuantiser(section.sh_steps, sh_deadzone),
         )

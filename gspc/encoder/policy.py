@@ -227,7 +227,7 @@ def _target_gain(original: list[torch.Tensor], coded: list[torch.Tensor], side: 
         if k not in side.images:
             gains.append(0.0)
             continue
-        r = torch.from_numpy(residuals.decode_residual(side.images[k], v["residual"])).to(img)
+        r = torch.from_numpy(residuals.decode_residual(side.images[k], v.residual)).to(img)
         gains.append(mean_psnr([(img + r).clamp(0, 1)], [ref]) - mean_psnr([img], [ref]))
     return float(np.mean(gains))
 
@@ -244,7 +244,7 @@ def _refined(
     enc = inp.attributes
     return refine_in_cells(
         enc.decoded.to(inp.device),
-        enc.meta,
+        enc.section,
         inp.view_cameras,
         targets,
         iterations,

@@ -14,7 +14,8 @@ import torch
 
 from gspc.cameras import Camera
 from gspc.codec import residuals
-from gspc.codec.sideinfo import pack_side
+from gspc.format.side_chunk import pack_side
+from gspc.format.view_records import CameraRecord, ViewRecord
 
 
 @dataclass
@@ -22,7 +23,7 @@ class SideCandidate:
     """One form of the side information: per-view records, residual images, the SIDE payload."""
 
     scale: int  # residuals coded at 1/scale resolution
-    records: list[dict]  # {"camera": Camera.to_dict(), "residual": meta} per view; no "residual": none sent
+    records: list[ViewRecord]  # per view: its camera, and its residual's record where one is sent
     images: dict[int, bytes]  # view number -> residual image
     payload: bytes | None  # None: no view's residual was worth sending
 
@@ -42,9 +43,9 @@ def side_candidate(
     """Code each view's residual at its planned distance (None: no residual for that view) and 1/``scale``."""
     records, images = [], {}
     for k, (cam, r, d) in enumerate(zip(view_cams, res, distances)):
-        record = {"camera": cam.to_dict()}
+        residual = None
         if d is not None:
             params = residuals.ResidualParams(codec=codec, distance=d, scale=scale)
-            images[k], record["residual"] = residuals.encode_residual(r, params)
-        records.append(record)
+            images[k], residual = residuals.encode_residual(r, params)
+        records.append(ViewRecord(CameraRecord.from_camera(cam), residual))
     return SideCandidate(scale, records, images, pack_side(records, images) if images else None)

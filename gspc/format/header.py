@@ -3,31 +3,25 @@ writes) and a validating ``from_dict`` (what the decoder, ``gspc info`` and the 
 
 The container (gspc/format/container.py) guarantees only a msgpack map; every field below comes from an
 untrusted file, so each is checked here before use and a bad one is refused with a CodecError that names the
-field and its value (issue 15). The attribute codec's section is checked by the codec's own check
-(gspc/codec/attribute_header.py); payload checks (counts against payload sizes, model tables) belong to the
+field and its value (issue 15). The sections are typed records, each checked where it is defined: the
+attribute codec's in gspc/format/attribute_section.py, the 1.0 layout's view records in
+gspc/format/view_records.py; payload checks (counts against payload sizes, model tables) belong to the
 codecs themselves.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
-from gspc.codec.attribute_header import check_attribute_header
 from gspc.errors import CodecError
-from gspc.limits import (
-    MAX_CAMERA_SIDE,
-    MAX_REFINE_ITERATIONS,
-    MAX_TOTAL_PIXELS,
-    MAX_VIEW_PIXELS,
-    PIXEL_FLOOR,
-    PIXELS_PER_FILE_BYTE,
-    view_pixel_budget,
-)
+from gspc.format.attribute_section import MAX_SH_DEGREE, AttributeSection
+from gspc.format.side_chunk import legacy_views
+from gspc.format.view_records import ViewRecord
+from gspc.limits import MAX_REFINE_ITERATIONS
 
 DEFAULT_ITERATIONS = 300  # decoder refinement when the file names none (spec: side_info.refine_iterations)
 UNNAMED_RESTORER = "none"  # the restorer when the file names none (the encoder names one)
-_MAX_SH_DEGREE = 3
 
 
 def _show(value: object) -> str:
@@ -124,7 +118,7 @@ class SceneSummary:
             return cls()
         scene = _map(meta, "scene", "scene section")
         n = _int(scene, "num_gaussians", "scene.num_gaussians", 0, None, 0)
-        degree = _int(scene, "sh_degree", "scene.sh_degree", 0, _MAX_SH_DEGREE, -1)
+        degree = _int(scene, "sh_degree", "scene.sh_degree", 0, MAX_SH_DEGREE, -1)
         source = scene.get("source_gaussians")  # informative only: never refused
         return cls(n, None if degree < 0 else degree, source if _is_int(source) and source >= 0 else None)
 
@@ -136,7 +130,7 @@ class SideInfoHeader:
     background: tuple[float, float, float]
     restorer: str
     refine_iterations: int
-    views: list = field(default_factory=list)  # 1.0 layout only: per-view records (gspc/codec/sideinfo.py)
+    views: tuple[ViewRecord, ...] = ()  # 1.0 layout only (gspc/format/side_chunk.py reads both layouts)
 
     def to_dict(self) -> dict:
         out: dict = {
@@ -145,13 +139,12 @@ class SideInfoHeader:
             "refine_iterations": self.refine_iterations,
         }
         if self.views:
-            out["views"] = self.views
+            out["views"] = [v.to_dict() for v in self.views]
         return out
 
     @classmethod
     def from_dict(cls, side: dict) -> SideInfoHeader:
-        if "views" in side and not isinstance(side["views"], list):
-            raise CodecError(f"the .gspc header's side_info.views is {_show(side['views'])}, not an array")
+        views = legacy_views(side["views"]) if "views" in side else ()
         iterations = _int(
             side,
             "refine_iterations",
@@ -160,15 +153,15 @@ class SideInfoHeader:
             MAX_REFINE_ITERATIONS,
             DEFAULT_ITERATIONS,
         )
-        return cls(_background(side), _restorer(side), iterations, side.get("views", []))
+        return cls(_background(side), _restorer(side), iterations, views)
 
 
 @dataclass(frozen=True)
 class FileHeader:
-    """A .gspc file's header: the attribute codec's section (checked by the codec's own check), the side
-    information's, the informative scene summary and the writer's name."""
+    """A .gspc file's header: the attribute codec's section, the side information's, the informative scene
+    summary and the writer's name."""
 
-    attributes: dict  # the attribute codec's section, for decode_attributes and quantisation_cells
+    attributes: AttributeSection
     side_info: SideInfoHeader
     scene: SceneSummary | None = None
     encoder: str | None = None
@@ -180,45 +173,15 @@ class FileHeader:
             out["encoder"] = self.encoder
         if self.scene is not None:
             out["scene"] = self.scene.to_dict()
-        out["attributes"] = self.attributes
+        out["attributes"] = self.attributes.to_dict()
         out["side_info"] = self.side_info.to_dict()
         return out
 
     @classmethod
     def from_dict(cls, meta: dict) -> FileHeader:
         """The header sections gspc 1 writes (spec 10.8), checked field by field; CodecError otherwise."""
-        attributes = _map(meta, "attributes", "attributes section")
-        check_attribute_header(attributes)
+        attributes = AttributeSection.from_dict(_map(meta, "attributes", "attributes section"))
         side = SideInfoHeader.from_dict(_map(meta, "side_info", "side_info section"))
         scene = SceneSummary.from_dict(meta) if "scene" in meta else None
         encoder = meta.get("encoder")
         return cls(attributes, side, scene, encoder if isinstance(encoder, str) else None)
-
-
-def check_view_sizes(views: list, file_size: int) -> None:
-    """Each side-information view's size, and all views' pixels together, against gspc/limits.py: run
-    before any camera is built or anything rendered, so a small file cannot ask for gigapixels."""
-    budget = view_pixel_budget(file_size)
-    total = 0
-    for k, v in enumerate(views):
-        cam = v.get("camera") if isinstance(v, dict) else None
-        if not isinstance(cam, dict):
-            raise CodecError(f"side-information view {k} has camera {_show(cam)}, not a map")
-        w, h = cam.get("width"), cam.get("height")
-        for name, x in (("width", w), ("height", h)):
-            if not (_is_int(x) and 1 <= x <= MAX_CAMERA_SIDE):
-                raise CodecError(
-                    f"side-information view {k} has camera {name} {_show(x)}, not an integer in "
-                    f"1..{MAX_CAMERA_SIDE}"
-                )
-        if w * h > MAX_VIEW_PIXELS:
-            raise CodecError(
-                f"side-information view {k} is {w}x{h} = {w * h:,} pixels; the limit is {MAX_VIEW_PIXELS:,}"
-            )
-        total += w * h
-    if total > budget:
-        raise CodecError(
-            f"side-information views ask for {total:,} pixels in a {file_size:,}-byte file; the limit is "
-            f"{budget:,} (max({PIXEL_FLOOR:,}, {PIXELS_PER_FILE_BYTE} per file byte), at most "
-            f"{MAX_TOTAL_PIXELS:,})"
-        )

@@ -25,7 +25,7 @@ import imagecodecs
 import numpy as np
 
 from gspc.codec.quantisers import place_largest
-from gspc.codec.residuals import coded_size
+from gspc.format.image_headers import coded_size
 from gspc.errors import CodecError, InputError
 from gspc.limits import (
     MAX_SOG_MAP_PIXELS,

@@ -1,0 +1,280 @@
+"""The attribute codec's header section (spec 10.0, ``meta["attributes"]``) as a typed, frozen record:
+:class:`AttributeSection` with its :class:`PositionGrid` (a box, or a contracted grid with its
+:class:`Contraction` and optionally a :class:`FarSet`).
+
+Every field is checked here and nowhere else: ``from_dict`` checks the msgpack types of an untrusted
+header, and each record's ``__post_init__`` checks the ranges, so a record the encoder builds obeys the same
+rules as one read from a file (CodecError naming the field). ``to_dict`` is what the encoder writes: its key
+order is part of the file's bytes. No numpy or torch here: ``gspc info`` reads headers.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from gspc.errors import CodecError
+
+FORMAT_VERSION = 1
+# Version 2: the position grid may lie in contracted space (gspc/codec/positions.py, spec 10.1); written only
+# then, so bounded scenes keep version 1 and their bytes. Version 3: a contracted grid with a far set coded
+# on a coarser grid; written only where one pays.
+CONTRACTED_VERSION = 2
+FAR_VERSION = 3
+VERSIONS = (FORMAT_VERSION, CONTRACTED_VERSION, FAR_VERSION)
+MAX_GAUSSIANS = 1 << 26
+# A Gaussian whose every symbol has a one-value model costs no bits, so the count alone could ask for any
+# allocation from a tiny file; spec 10.0 caps it at 64 per payload byte (real files: under 1 per byte).
+GAUSSIANS_PER_BYTE = 64
+MAX_SH_DEGREE = 3
+
+MAX_BITS = 17  # plain grid (version 1): 3 * 17 = 51 bits per code
+# Contracted grid (versions 2, 3): 3 * 21 = 63 bits per code, the most an int64 holds; the far octaves need
+# the extra bits to keep the foreground's voxel size.
+CONTRACTED_MAX_BITS = 21
+
+# Bounds of the position fields (spec 10.1), so that the decoder's binary64 steps stay finite and every
+# decoded coordinate is a finite binary32 (finite values such as 1e20..1e300 overflowed in the expansion).
+# World coordinates (a box grid's corners, a contracted grid's centre and radius): 2^64 is far beyond any
+# scene, and a box grid's decoded coordinates then stay below 2^82.
+MAX_COORDINATE = 2.0**64
+# A contracted grid's corners in grid space: |y_a| <= 32 keeps rho = |y| below 56, so the octave e =
+# floor(rho - 1) is at most 54 and R 2^(e + 1) <= 2^120 (a grid point at 32 is 2^31 radii away).
+MAX_CONTRACTED = 32.0
+
+
+def _show(value: object) -> str:
+    """A value for an error message, cut short: a hostile header may hold megabytes in one field."""
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def _is_int(v: object) -> bool:
+    return type(v) is int  # bool is an int subclass but not a msgpack integer
+
+
+def _fail(field: str, value: object, want: str) -> CodecError:
+    return CodecError(f"attribute codec header's {field} is {_show(value)}, not {want}")
+
+
+def _get(d: dict, key: str, where: str) -> object:
+    if key not in d:
+        raise CodecError(f"attribute codec header is malformed (it lacks {where})")
+    return d[key]
+
+
+def _integer(d: dict, key: str, where: str) -> int:
+    v = _get(d, key, where)
+    if not _is_int(v):
+        raise _fail(where, v, "an integer")
+    return v
+
+
+def _floats(d: dict, key: str, where: str, length: int | None = None) -> tuple[float, ...]:
+    """A msgpack float, or an array of them (``length``), as Python floats; range checks are the records'."""
+    v = _get(d, key, where)
+    if length is None:
+        if type(v) is not float:
+            raise _fail(where, v, "a float")
+        return (v,)
+    if not (isinstance(v, list | tuple) and all(type(x) is float for x in v)):
+        raise _fail(where, v, "an array of floats")
+    if len(v) != length:
+        raise _fail(where, v, f"an array of {length} floats")
+    return tuple(v)
+
+
+def _positive(values: tuple[float, ...], where: str, most: float = math.inf) -> None:
+    if not all(math.isfinite(v) and 0 < v <= most for v in values):
+        bound = "" if most == math.inf else f" up to {most:g}"
+        raise _fail(where, list(values) if len(values) > 1 else values[0], f"finite and > 0{bound}")
+
+
+def _within(values: tuple[float, ...], where: str, most: float) -> None:
+    if not all(math.isfinite(v) and abs(v) <= most for v in values):
+        raise _fail(where, list(values) if len(values) > 1 else values[0], f"finite and within +-{most:g}")
+
+
+@dataclass(frozen=True)
+class Contraction:
+    """The region of interest of a contracted grid (spec 10.1): centre ``c`` and radius ``R``."""
+
+    centre: tuple[float, float, float]
+    radius: float
+
+    def __post_init__(self) -> None:
+        _within(self.centre, "position.centre", MAX_COORDINATE)
+        _positive((self.radius,), "position.radius", MAX_COORDINATE)
+
+
+@dataclass(frozen=True)
+class FarSet:
+    """The last ``count`` Gaussians in decoded order, on the grid coarsened by ``shift`` bits per axis."""
+
+    count: int
+    shift: int
+
+
+@dataclass(frozen=True)
+class PositionGrid:
+    """The voxel grid of the positions (spec 10.1): ``bits`` per axis, origin ``lo`` and ``step`` per axis,
+    in world space (a box grid) or in contracted grid space (``contraction`` set); ``far`` only with one."""
+
+    bits: int
+    lo: tuple[float, float, float]
+    step: tuple[float, float, float]
+    contraction: Contraction | None = None
+    far: FarSet | None = None
+
+    def __post_init__(self) -> None:
+        most = MAX_BITS if self.contraction is None else CONTRACTED_MAX_BITS
+        if not 1 <= self.bits <= most:
+            raise _fail("position.bits", self.bits, f"an integer in 1..{most} at version {self.version}")
+        bound = MAX_COORDINATE if self.contraction is None else MAX_CONTRACTED
+        _positive(self.step, "position.step")
+        _within(self.lo, "position.lo", bound)
+        # The grid's far corner, computed as the decoder computes grid points (binary64, one product and
+        # one sum): every grid point then lies between lo and it.
+        top = tuple(lo + float((1 << self.bits) - 1) * s for lo, s in zip(self.lo, self.step))
+        if not all(abs(t) <= bound for t in top):
+            raise CodecError(
+                f"attribute codec header's position grid reaches {_show(list(top))} "
+                f"(lo + (2^bits - 1) step), beyond +-{bound:g}"
+            )
+        if self.far is not None and self.contraction is None:
+            raise CodecError("attribute codec header has a far set on a grid that is not contracted")
+        if self.far is not None and not 1 <= self.far.shift <= self.bits - 1:
+            raise CodecError(
+                f"attribute codec header has an impossible far set (far_shift {self.far.shift} with "
+                f"{self.bits} bits)"
+            )
+
+    @property
+    def is_contracted(self) -> bool:
+        return self.contraction is not None
+
+    @property
+    def version(self) -> int:
+        """The lowest attribute codec version that holds this grid (older readers read the most)."""
+        if self.far is not None:
+            return FAR_VERSION
+        return CONTRACTED_VERSION if self.contraction is not None else FORMAT_VERSION
+
+    def split(self, n: int) -> tuple[int, int]:
+        """(Gaussians on the fine grid, far shift) of ``n``: the first of them come first in decoded order,
+        the far set after; (n, 0) without a far set."""
+        if self.far is None:
+            return n, 0
+        return n - self.far.count, self.far.shift
+
+    def to_dict(self) -> dict:
+        out: dict = {"bits": self.bits, "lo": list(self.lo), "step": list(self.step)}
+        if self.contraction is not None:
+            out["centre"] = list(self.contraction.centre)
+            out["radius"] = self.contraction.radius
+        if self.far is not None:
+            out["far_count"] = self.far.count
+            out["far_shift"] = self.far.shift
+        return out
+
+    @classmethod
+    def from_dict(cls, grid: object, version: int) -> PositionGrid:
+        """The ``position`` map of a section at ``version``: each key that version has, and no other."""
+        if not isinstance(grid, dict):
+            raise _fail("position", grid, "a map")
+        if (version != FORMAT_VERSION) != ("radius" in grid or "centre" in grid):
+            raise CodecError("attribute codec version and position grid disagree on contraction")
+        if (version == FAR_VERSION) != ("far_count" in grid or "far_shift" in grid):
+            raise CodecError("attribute codec version and position grid disagree on a far set")
+        bits = _integer(grid, "bits", "position.bits")
+        lo = _floats(grid, "lo", "position.lo", 3)
+        step = _floats(grid, "step", "position.step", 3)
+        contraction = far = None
+        if version != FORMAT_VERSION:
+            centre = _floats(grid, "centre", "position.centre", 3)
+            (radius,) = _floats(grid, "radius", "position.radius")
+            contraction = Contraction(centre, radius)  # type: ignore[arg-type]
+        if version == FAR_VERSION:
+            count = _integer(grid, "far_count", "far set's far_count")
+            far = FarSet(count, _integer(grid, "far_shift", "far set's far_shift"))
+        return cls(bits, lo, step, contraction, far)  # type: ignore[arg-type]
+
+
+@dataclass(frozen=True)
+class AttributeSection:
+    """What the attribute decoder needs (spec 10.0): the count, SH degree, position grid and every
+    quantiser's levels or steps."""
+
+    n: int
+    sh_degree: int
+    position: PositionGrid
+    opacity_levels: int
+    scale_step: float
+    rotation_levels: int
+    dc_step: float
+    sh_steps: tuple[float, ...]
+
+    def __post_init__(self) -> None:
+        if not 1 <= self.n <= MAX_GAUSSIANS:
+            raise _fail("n", self.n, f"a count in 1..{MAX_GAUSSIANS}")
+        if not 0 <= self.sh_degree <= MAX_SH_DEGREE:
+            raise _fail("sh_degree", self.sh_degree, f"an SH degree in 0..{MAX_SH_DEGREE}")
+        k = (self.sh_degree + 1) ** 2 - 1
+        if len(self.sh_steps) != k:
+            raise CodecError(
+                f"attribute codec header has {len(self.sh_steps)} sh_steps for SH degree {self.sh_degree} "
+                f"(needs {k})"
+            )
+        if self.opacity_levels < 1 or self.rotation_levels < 1:
+            raise CodecError(
+                f"attribute codec header has impossible quantiser levels ({self.opacity_levels}, "
+                f"{self.rotation_levels})"
+            )
+        _positive((self.scale_step,), "scale_step")
+        _positive((self.dc_step,), "dc_step")
+        _positive(self.sh_steps, "sh_steps")
+        far = self.position.far
+        if far is not None and not 1 <= far.count <= self.n - 1:
+            raise CodecError(
+                f"attribute codec header has an impossible far set (far_count {far.count} of {self.n})"
+            )
+
+    @property
+    def version(self) -> int:
+        return self.position.version
+
+    def to_dict(self) -> dict:
+        """The map the encoder writes (key order is part of the bytes: keep it)."""
+        return {
+            "version": self.version,
+            "n": self.n,
+            "sh_degree": self.sh_degree,
+            "position": self.position.to_dict(),
+            "opacity_levels": self.opacity_levels,
+            "scale_step": self.scale_step,
+            "rotation_levels": self.rotation_levels,
+            "dc_step": self.dc_step,
+            "sh_steps": list(self.sh_steps),
+        }
+
+    @classmethod
+    def from_dict(cls, meta: object) -> AttributeSection:
+        """The section of an untrusted header, typed and in range; CodecError naming the first bad field.
+        Integers are msgpack integers and steps msgpack floats (spec 10.0): 300.0 Gaussians is refused."""
+        if not isinstance(meta, dict):
+            raise _fail("section", meta, "a map")
+        version = _get(meta, "version", "version")
+        if not _is_int(version) or version not in VERSIONS:
+            raise CodecError(f"attribute codec version {_show(version)} is not supported")
+        n = _integer(meta, "n", "n")
+        degree = _integer(meta, "sh_degree", "sh_degree")
+        grid = PositionGrid.from_dict(_get(meta, "position", "position"), version)
+        opacity_levels = _integer(meta, "opacity_levels", "opacity_levels")
+        rotation_levels = _integer(meta, "rotation_levels", "rotation_levels")
+        (scale_step,) = _floats(meta, "scale_step", "scale_step")
+        (dc_step,) = _floats(meta, "dc_step", "dc_step")
+        sh_steps = _get(meta, "sh_steps", "sh_steps")
+        if not isinstance(sh_steps, list | tuple):
+            raise _fail("sh_steps", sh_steps, "an array of floats")
+        sh = _floats(meta, "sh_steps", "sh_steps", len(sh_steps))
+        return cls(n, degree, grid, opacity_levels, scale_step, rotation_levels, dc_step, sh)
