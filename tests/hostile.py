@@ -22,8 +22,9 @@ import imagecodecs
 import numpy as np
 from plyfile import PlyData
 
-from gspc.codec.sideinfo import pack_side, unpack_side
 from gspc.format import container
+from gspc.format.side_chunk import pack_side, unpack_side
+from gspc.format.view_records import ViewRecord
 
 
 @dataclass(frozen=True)
@@ -359,10 +360,12 @@ def side_mutations(meta: dict, chunks: list[container.Chunk]) -> Iterator[tuple[
     images whose codestream declares a size that is not their view's."""
     base = [c for c in chunks if c.type != "SIDE"]
     side = next(c for c in chunks if c.type == "SIDE")
-    records, images = unpack_side(side.payload)
+    unpacked = unpack_side(side.payload)
+    records, images = [v.to_dict() for v in unpacked.views], unpacked.images
 
     def with_views(views: list[dict], imgs: dict[int, bytes]) -> list:
-        return [*base, container.Chunk("SIDE", pack_side(views, imgs))]
+        side = pack_side([ViewRecord.from_dict(v) for v in views], imgs)
+        return [*base, container.Chunk("SIDE", side)]
 
     bare = [{"camera": dict(records[0]["camera"])}]
     for desc, (w, h, n) in {

@@ -36,7 +36,7 @@ def _scene(n=500, degree=3, seed=0, **over):
 
 def _check_exact(scene, params=QUALITY["high"].attributes, visible=None):
     enc = encode_attributes(scene, params, visible)
-    dec = decode_attributes(enc.chunks, enc.meta)
+    dec = decode_attributes(enc.chunks, enc.section)
     assert scene_equal(dec, enc.decoded)
     assert dec.num_gaussians == len(enc.kept)
     dec.validate()
@@ -126,7 +126,7 @@ def test_faint_gaussians_drop_sh_rest_and_zero_rotation_is_exact():
     for params in (q.attributes for q in QUALITY.values()):
         enc = _check_exact(scene, params)
         dec = enc.decoded
-        assert enc.meta["rotation_levels"] % 2 == 0
+        assert enc.section.rotation_levels % 2 == 0
         assert torch.equal(dec.quats, torch.tensor([[1.0, 0.0, 0.0, 0.0]]).expand(len(enc.kept), 4))
         faint = torch.sigmoid(dec.opacities) < 0.02
         assert faint.any() and (~faint).any()
@@ -165,9 +165,9 @@ def test_corrupt_chunk_raises():
     chunks = dict(enc.chunks)
     chunks["SCAL"] = chunks["SCAL"][:-5]
     with pytest.raises(CodecError):
-        decode_attributes(chunks, enc.meta)
+        decode_attributes(chunks, enc.section)
     with pytest.raises(CodecError):
-        decode_attributes({k: v for k, v in enc.chunks.items() if k != "ROTN"}, enc.meta)
+        decode_attributes({k: v for k, v in enc.chunks.items() if k != "ROTN"}, enc.section)
 
 
 @pytest.mark.slow
@@ -203,10 +203,10 @@ def test_geometry_steps_grow_as_sqrt_lambda_beyond_the_knee():
         sh_rest=np.zeros((n, 0, 3)),
     )
     enc = encode_attributes(scene, CodecParams(lam=128.0))
-    assert enc.meta["scale_step"] == pytest.approx(0.021 * 32)
+    assert enc.section.scale_step == pytest.approx(0.021 * 32)
     dec = enc.decoded
     err = np.abs(np.sort(dec.log_scales.numpy().ravel()) - np.sort(scene.log_scales.numpy().ravel())).max()
-    assert err <= enc.meta["scale_step"] / 2 + 1e-5
+    assert err <= enc.section.scale_step / 2 + 1e-5
 
 
 def test_each_quantiser_owns_its_cell():
@@ -289,7 +289,7 @@ def test_largest_codable_values_roundtrip():
     scene.sh_dc[::2, 0] = 0.999 * SYMBOL_LIMIT * step
     scene.sh_dc[1::2, 0] = -0.999 * SYMBOL_LIMIT * step
     enc = encode_attributes(scene, params)
-    dec = decode_attributes(enc.chunks, enc.meta)
+    dec = decode_attributes(enc.chunks, enc.section)
     got = dec.sh_dc[:, 0].double().numpy()
     want = scene.sh_dc[enc.kept, 0].double().numpy()
     assert np.abs(got - want).max() <= 0.5 * step * (1 + 1e-6)

@@ -178,7 +178,7 @@ def test_gsplat_and_torch_renderer_agree():
 @needs_cuda
 def test_attribute_decode_is_bit_identical_on_gpu(tmp_path):
     enc = encode_attributes(scene(), QUALITY["low"].attributes)
-    cpu = decode_attributes(enc.chunks, enc.meta)
+    cpu = decode_attributes(enc.chunks, enc.section)
     assert scene_equal(cpu.to("cuda").to("cpu"), cpu)
 
     data, _ = encode_scene(scene(), opts=small_encode(check_iterations=0))

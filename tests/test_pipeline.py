@@ -6,12 +6,20 @@ import pytest
 import torch
 from scenes import random_scene
 
-from gspc.codec.sideinfo import side_views
 from gspc.encoder.policy import Outcome
 from gspc.errors import CodecError, InputError
 from gspc.format import container
+from gspc.format.attribute_section import AttributeSection
+from gspc.format.header import FileHeader
+from gspc.format.side_chunk import read_side_views
 from gspc.io import read_scene, write_ply
 from gspc.pipeline import DecodeOptions, EncodeOptions, decode, decode_bytes, encode, encode_scene
+
+
+def side_of(c: container.Container) -> tuple:
+    """(view records, residual images) of a file, read as the decoder reads them."""
+    side = read_side_views(FileHeader.from_dict(c.header).side_info.views, c.chunks, 1 << 30)
+    return side.views, side.images
 
 
 def scene(seed=1):
@@ -36,18 +44,18 @@ def test_encode_report_and_views(encoded):
     c = container.read(out)
     assert c.version == (1, 3) and "views" not in c.header["side_info"]
     assert [ch.type for ch in c.chunks].count("SIDE") == 1 and c.find("RESI", 0) is None
-    views, images = side_views(c.header["side_info"], c.chunks)
+    views, images = side_of(c)
     assert len(views) == 2  # 40% of 5 views
     assert rep.bytes["file"] == out.stat().st_size
-    assert len(images) == sum("residual" in v for v in views) == rep.views_with_residual
+    assert len(images) == sum(v.residual is not None for v in views) == rep.views_with_residual
     assert rep.views == len(views) and rep.side_info is None  # check_iterations=0: no check
     assert len(images) >= 1
 
 
 def as_format_1_0(c: container.Container) -> tuple[dict, list[container.Chunk]]:
     """The same side information in format 1.0's layout: records in the header, one RESI chunk per view."""
-    views, images = side_views(c.header["side_info"], c.chunks)
-    header = {**c.header, "side_info": {**c.header["side_info"], "views": views}}
+    views, images = side_of(c)
+    header = {**c.header, "side_info": {**c.header["side_info"], "views": [v.to_dict() for v in views]}}
     chunks = [ch for ch in c.chunks if ch.type != "SIDE"]
     chunks += [container.Chunk("RESI", images[k], index=k) for k in sorted(images)]
     return header, chunks
@@ -118,14 +126,14 @@ def test_encoder_check_keeps_side_info_only_if_refinement_pays(tmp_path):
     rep = encode(src, out, opts=EncodeOptions(lam=40, synth_views=6, max_side=40, check_iterations=20))
     d = rep.side_info
     c = container.read(out)
-    views, images = side_views(c.header["side_info"], c.chunks)
+    views, images = side_of(c)
     assert c.header["side_info"]["refine_iterations"] == 20
     # Two resolutions weighed (the preset's 1/2 and 1/4), one refined.
     assert [cand.scale for cand in d.candidates] == [2, 4] and d.scale in (2, 4)
     assert all(cand.payload_bytes > 0 and cand.render_gain_db is not None for cand in d.candidates)
     if d.refined_db >= max(d.coded_db, d.rival_db) + EncodeOptions().check_margin_db:
         assert d.outcome is Outcome.SENT and len(images) >= 1
-        assert all(v["residual"]["scale"] == d.scale for v in views if "residual" in v)
+        assert all(v.residual.scale == d.scale for v in views if v.residual is not None)
     else:
         assert d.outcome in (Outcome.SPENT_ON_ATTRIBUTES, Outcome.DROPPED)
         assert not images and not views and c.find("SIDE", 0) is None
@@ -150,8 +158,9 @@ def test_decoder_refines_inside_the_quantisation_cells(encoded, tmp_path):
 
     _, out, _ = encoded
     c = container.read(out)
-    coded = decode_attributes({ch.type: ch.payload for ch in c.chunks}, c.header["attributes"])
-    cells = quantisation_cells(coded, c.header["attributes"])
+    section = AttributeSection.from_dict(c.header["attributes"])
+    coded = decode_attributes({ch.type: ch.payload for ch in c.chunks}, section)
+    cells = quantisation_cells(coded, section)
     inside, free = tmp_path / "a.ply", tmp_path / "b.ply"
     rep = decode(out, inside, DecodeOptions(iterations=5))
     assert rep.refine_iterations == 5
@@ -230,7 +239,8 @@ def test_bytes_spent_on_attributes_are_the_rivals(tmp_path):
     assert rep.side_info.outcome is Outcome.SPENT_ON_ATTRIBUTES
     c = container.read(out)
     assert c.find("SIDE", 0) is None
-    decoded = decode_attributes(attribute_chunks(c.chunks), c.header["attributes"])
+    section = AttributeSection.from_dict(c.header["attributes"])
+    decoded = decode_attributes(attribute_chunks(c.chunks), section)
     assert decoded.num_gaussians == rep.num_gaussians_out > 0
 
 

@@ -2,6 +2,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from scenes import far_scene, far_sizes, unbounded
 
 from gspc.codec import positions as pos
 from gspc.format.attribute_section import AttributeSection
@@ -33,17 +34,6 @@ def test_degenerate_points():
     out = pos.decode_positions(pos.encode_positions(voxels, grid), grid, 50)
     assert np.array_equal(out, voxels)
     assert (pos.dequantise(out, grid.lo, grid.step) == np.float32(1e6)).all()
-
-
-def unbounded(seed: int = 0, n: int = 4000) -> np.ndarray:
-    """An object (a unit ball) with 10% of its count in a shell at 30 radii and 5 floaters at 3000."""
-    rng = np.random.default_rng(seed)
-    d = rng.normal(size=(n, 3))
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
-    obj = d * rng.uniform(0, 1, (n, 1)) ** (1 / 3)
-    shell = d[: n // 10] * rng.uniform(27, 33, (n // 10, 1))
-    far = d[:5] * 3000.0
-    return np.concatenate([obj, shell, far]) + [5.0, -2.0, 1.0]
 
 
 def test_contract_and_expand_are_inverse_and_identity_near_the_centre():
@@ -82,12 +72,6 @@ def test_far_gaussians_keep_the_foreground_voxel_size(bits):
     dist = np.linalg.norm(x[order] - grid.contraction.centre, axis=1)
     rel = err.max(1)[~is_obj] / dist[~is_obj]
     assert rel.max() < 2.0 * max(grid.step) * grid.contraction.radius / (0.5 * grid.contraction.radius)
-
-
-def far_sizes(x: np.ndarray, centre, grow: float) -> np.ndarray:
-    """World sizes: 0.02 inside (the object's), growing as ``grow`` x the distance beyond 2 radii."""
-    d = np.linalg.norm(x - centre, axis=1)
-    return np.where(d > 2.0, grow * d, 0.02)
 
 
 @pytest.mark.parametrize("bits", [8, 11, 14])
@@ -169,19 +153,6 @@ def test_an_unbounded_scene_round_trips_through_the_file(tmp_path):
     # Match each decoded Gaussian to its source (curve order differs from input order) by nearest neighbour.
     d = np.sqrt(((got[:, None, :] - ref[None, :, :]) ** 2).sum(-1)).min(1)
     assert (d <= np.linalg.norm(pos.cell_half_widths(got, meta.position), axis=1) + 1e-5).all()
-
-
-def far_scene(seed: int = 4):
-    """An object with a background of large Gaussians (their size grows with their distance): version 3."""
-    import torch
-    from scenes import random_scene
-
-    x = unbounded(seed, n=800)
-    scene = random_scene(len(x), sh_degree=1, seed=seed)
-    scene.means[:] = torch.from_numpy(x.astype(np.float32))
-    sizes = far_sizes(x, x[:800].mean(0), 0.05)
-    scene.log_scales[:] = torch.from_numpy(np.log(sizes).astype(np.float32))[:, None]
-    return scene
 
 
 def test_far_set_header_is_checked():

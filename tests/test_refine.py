@@ -1,32 +1,12 @@
 import numpy as np
 import pytest
 import torch
+from scenes import front_cameras as _cameras
+from scenes import front_scene as _scene
 
-from gspc.cameras import Camera
 from gspc.errors import InputError
 from gspc.refine import refine, scene_extent
-from gspc.scene import make_scene, scene_equal
-
-
-def _cameras(n=3, size=32):
-    cams = []
-    for i in range(n):
-        w2c = np.eye(4)
-        w2c[0, 3] = 0.3 * (i - 1)  # small sideways shifts, all looking down +z
-        K = np.array([[size, 0, size / 2], [0, size, size / 2], [0, 0, 1]], dtype=np.float64)
-        cams.append(Camera(w2c, K, size, size, f"v{i}"))
-    return cams
-
-
-def _scene(n=50, seed=0):
-    g = torch.Generator().manual_seed(seed)
-    means = torch.rand(n, 3, generator=g) * torch.tensor([1.2, 1.2, 0.5]) + torch.tensor([-0.6, -0.6, 2.5])
-    quats = torch.randn(n, 4, generator=g)
-    log_scales = torch.full((n, 3), -2.5) + 0.3 * torch.randn(n, 3, generator=g)
-    opacities = torch.randn(n, generator=g) + 1.0
-    sh_dc = torch.randn(n, 3, generator=g)
-    sh_rest = 0.1 * torch.randn(n, 3, 3, generator=g)
-    return make_scene(means, quats, log_scales, opacities, sh_dc, sh_rest)
+from gspc.scene import scene_equal
 
 
 def _loss(scene, cams, targets, render):

@@ -1,3 +1,5 @@
+from dataclasses import replace
+
 import msgpack
 import numpy as np
 import pytest
@@ -12,8 +14,15 @@ from gspc.codec.residuals import (
     quality_for_distance,
 )
 from gspc.errors import CodecError, InputError
+from gspc.format.container import Chunk
+from gspc.format.side_chunk import read_side_views
+from gspc.format.view_records import CameraRecord, ResidualRecord, ViewRecord
 
 DISTANCES = {"jxl": 1.0, "webp": 2.0, "avif": 2.0}  # WebP / AVIF: quality 80
+
+
+def camera(height: int, width: int) -> CameraRecord:
+    return CameraRecord(width, height, bytes(16), bytes(48))
 
 
 def _residual(seed=0, h=48, w=40, amp=0.05):
@@ -32,7 +41,9 @@ def _psnr(a, b):
 def test_round_trip_each_codec(codec):
     r = _residual()
     payload, meta = encode_residual(r, ResidualParams(codec=codec, distance=DISTANCES[codec]))
-    meta = msgpack.unpackb(msgpack.packb(meta))  # meta travels as msgpack in the container
+    # The record travels as msgpack in a 1.0 file's header: it reads back equal.
+    stored = msgpack.unpackb(msgpack.packb(meta.to_dict()))
+    assert ResidualRecord.from_dict(stored, camera(*r.shape[:2])) == meta
     out = decode_residual(payload, meta)
     assert out.shape == r.shape and out.dtype == np.float32
     # Far better than sending nothing (PSNR of a zero residual) and deterministic.
@@ -43,7 +54,7 @@ def test_round_trip_each_codec(codec):
 def test_jxl_16_bit_round_trip():
     r = _residual()
     p16, m16 = encode_residual(r, ResidualParams(codec="jxl", distance=0.5, bits=16))
-    assert m16["bits"] == 16 and m16["offset"] == 32768
+    assert m16.bits == 16 and m16.offset == 32768
     assert _psnr(decode_residual(p16, m16), r) > _psnr(np.zeros_like(r), r) + 10
 
 
@@ -63,11 +74,11 @@ def test_zero_residual_and_quiet_tiles():
     z = np.zeros((32, 32, 3), np.float32)
     payload, meta = encode_residual(z)
     # JPEG XL may leave +-1 level of ringing on a flat image: 1 / max_gain.
-    assert np.abs(decode_residual(payload, meta)).max() <= 1.0 / meta["gain"] + 1e-9
+    assert np.abs(decode_residual(payload, meta)).max() <= 1.0 / meta.gain + 1e-9
     r = _residual(h=64, w=64)
     r[:32] *= 1e-3  # top half negligible
     _, meta = encode_residual(r, ResidualParams(tile=32, zero_rms=1e-3))
-    assert meta["zeroed_tiles"] == 2
+    assert meta.zeroed_tiles == 2
 
 
 def test_bad_input_and_payload():
@@ -78,10 +89,11 @@ def test_bad_input_and_payload():
     payload, meta = encode_residual(_residual())
     with pytest.raises(CodecError):
         decode_residual(payload[: len(payload) // 3], meta)
-    with pytest.raises(CodecError):
-        decode_residual(payload, {**meta, "shape": [10, 10]})
-    with pytest.raises(CodecError):
-        decode_residual(payload, {"codec": "jxl"})
+    with pytest.raises(CodecError, match="expected 10x10"):
+        decode_residual(payload, replace(meta, full_shape=(10, 10)))
+    with pytest.raises(CodecError, match="declares"):  # read from the image header before decoding
+        view = ViewRecord(camera(10, 10), replace(meta, full_shape=(10, 10)))
+        read_side_views((view,), [Chunk("RESI", payload)], 1000)
 
 
 def test_plan_rates_skips_quiet_views_and_refines_loud_ones():
@@ -107,7 +119,7 @@ def test_reduced_resolution_round_trip():
         # A smooth field survives the box/bilinear pair far better than it is large.
         assert np.abs(back - smooth).mean() < 0.2 * np.abs(smooth).mean()
         payload, meta = encode_residual(smooth, ResidualParams(distance=1.0, scale=s))
-        assert meta["scale"] == s and meta["full_shape"] == [37, 50]
+        assert meta.scale == s and meta.full_shape == (37, 50) and meta.shape == (-(-37 // s), -(-50 // s))
         assert decode_residual(payload, meta).shape == (37, 50, 3)
     # Constant images are reproduced exactly by both directions.
     c = np.full((9, 7, 3), 0.25, np.float32)

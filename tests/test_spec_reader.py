@@ -18,9 +18,10 @@ from scenes import random_scene
 
 from gspc.codec.attributes import decode_attributes, encode_attributes
 from gspc.codec.entropy import _categorical, decode_matrix, encode_matrix, fixed_point_table
-from gspc.codec.sideinfo import side_views
 from gspc.errors import CodecError
 from gspc.format import container
+from gspc.format.header import FileHeader, SideInfoHeader
+from gspc.format.side_chunk import read_side_views
 from gspc.io import read_scene
 from gspc.pipeline import EncodeOptions, encode
 from gspc.presets import QUALITY
@@ -101,7 +102,10 @@ def test_spec_worked_example():
 
 def attribute_file(scene, params) -> tuple[bytes, dict]:
     enc = encode_attributes(scene, params)
-    meta = {"attributes": enc.meta, "side_info": {"background": [0.0, 0.0, 0.0], "restorer": "none"}}
+    meta = {
+        "attributes": enc.section.to_dict(),
+        "side_info": {"background": [0.0, 0.0, 0.0], "restorer": "none"},
+    }
     return container.pack(meta, [container.Chunk(k, v) for k, v in enc.chunks.items()]), enc
 
 
@@ -136,7 +140,7 @@ def test_spec_reader_decodes_a_contracted_position_grid():
     far = np.random.default_rng(5).normal(size=(25, 3)).astype(np.float32) * 300.0
     scene.means[:25] += torch.from_numpy(far)
     data, enc = attribute_file(scene, QUALITY["low"].attributes)
-    assert enc.meta["version"] == 2
+    assert enc.section.version == 2
     assert_same(sr.read_scene(data)[0], enc.decoded)
 
 
@@ -161,14 +165,15 @@ def test_spec_reader_decodes_a_gspc_encode_file(tmp_path):
     c = container.unpack(data)
     assert c.find("SIDE") is not None and any("residual" in v for v in views)
     chunks = {ch.type: ch.payload for ch in c.chunks if ch.type != "SIDE"}
-    assert_same(attrs, decode_attributes(chunks, c.header["attributes"]))
-    ref_views, images = side_views(c.header["side_info"], c.chunks)
+    header = FileHeader.from_dict(c.header)
+    assert_same(attrs, decode_attributes(chunks, header.attributes))
+    side = read_side_views(header.side_info.views, c.chunks, len(data))
     from gspc.codec.residuals import decode_residual
 
-    for k, (v, ref) in enumerate(zip(views, ref_views)):
-        assert ("residual" in v) == (k in images)
-        if k in images:
-            assert v["residual"].tobytes() == decode_residual(images[k], ref["residual"]).tobytes()
+    for k, (v, ref) in enumerate(zip(views, side.views)):
+        assert ("residual" in v) == (k in side.images)
+        if k in side.images:
+            assert v["residual"].tobytes() == decode_residual(side.images[k], ref.residual).tobytes()
 
 
 # ------------------------------------------------------------------ section 10.11 in the reference decoder
@@ -205,13 +210,14 @@ def test_1_0_residual_record_with_bad_gain_is_refused_when_read():
     cam = {"name": "", "width": 8, "height": 6, "intrinsics": bytes(16), "pose": bytes(48)}
     rec = {"codec": "jxl", "shape": [6, 8], "bits": 8, "gain": -1.0, "offset": 128}
     side = {"views": [{"camera": cam, "residual": rec}], "background": [0, 0, 0], "restorer": "none"}
-    chunks = [container.Chunk("RESI", b"img", index=0)]
     with pytest.raises(CodecError, match="gain"):
-        side_views(side, chunks)
-    with pytest.raises(CodecError, match="does not fit"):
-        side_views(
-            {**side, "views": [{"camera": cam, "residual": dict(rec, gain=1.0, shape=[3, 4])}]}, chunks
+        SideInfoHeader.from_dict(side)
+    with pytest.raises(CodecError, match="cover"):
+        SideInfoHeader.from_dict(
+            {**side, "views": [{"camera": cam, "residual": dict(rec, gain=1.0, shape=[3, 4])}]}
         )
-    assert side_views({**side, "views": [{"camera": cam, "residual": dict(rec, gain=2.0)}]}, chunks)[1] == {
-        0: b"img"
-    }
+    good = SideInfoHeader.from_dict({**side, "views": [{"camera": cam, "residual": dict(rec, gain=2.0)}]})
+    assert good.views[0].residual.gain == 2.0
+    # Its image must then declare the record's size (before anything is decoded).
+    with pytest.raises(CodecError, match="JPEG XL signature"):
+        read_side_views(good.views, [container.Chunk("RESI", b"img", index=0)], 1000)

@@ -243,9 +243,9 @@ def bench_scene(name: str, scene: GaussianScene, cams, bg: float, rows: list, cu
         enc = encode_attributes(scene, params)
         enc_s = time.perf_counter() - t
         t = time.perf_counter()
-        decode_attributes(enc.chunks, enc.meta)
+        decode_attributes(enc.chunks, enc.section)
         dec_s = time.perf_counter() - t
-        meta_b = len(msgpack.packb(enc.meta, use_bin_type=True))
+        meta_b = len(msgpack.packb(enc.section.to_dict(), use_bin_type=True))
         groups = (
             " ".join(f"{g[:2]}{len(enc.chunks.get(g, b'')) / n:.2f}" for g in GROUPS) + f" me{meta_b / n:.2f}"
         )

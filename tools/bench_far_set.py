@@ -25,6 +25,7 @@ from bench_pipeline import fit_setup, held_out_line
 
 from gspc.codec import positions
 from gspc.format import container
+from gspc.format.attribute_section import AttributeSection
 from gspc.io import read_scene
 from gspc.io.cameras_json import save_cameras_json
 from gspc.metrics import psnr, quantize8
@@ -60,17 +61,17 @@ def main(
             with mock.patch.object(positions, "far_set", lambda *a: (0, None)):
                 encode(ply, g, cams_file, opts)
         seconds = time.perf_counter() - t0
-        attrs = container.read(g).header["attributes"]
+        attrs = AttributeSection.from_dict(container.read(g).header["attributes"])
         posn = next(len(c.payload) for c in container.read(g).chunks if c.type == "POSN")
         decode(g, o, DecodeOptions(refine=False, restore=False))
         imgs = render_images(read_scene(o), eval_cams, bg)
-        grid = attrs["position"]
+        far = attrs.position.far
         return {
             "bytes": g.stat().st_size,
             "posn": posn,
-            "n": attrs["n"],
-            "version": attrs["version"],
-            "far": f"{grid['far_count']:,} at {grid['far_shift']} bits" if "far_count" in grid else "-",
+            "n": attrs.n,
+            "version": attrs.version,
+            "far": f"{far.count:,} at {far.shift} bits" if far is not None else "-",
             "psnr": mean_psnr(imgs, ref),
             "photos": mean_psnr(imgs, photos),
             "seconds": seconds,

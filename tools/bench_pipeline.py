@@ -29,10 +29,10 @@ import torch
 import typer
 
 from gspc.cameras import Camera
-from gspc.codec.sideinfo import side_views
 from gspc.format import container
 from gspc.format.chunks import RESI, SIDE
 from gspc.format.header import FileHeader
+from gspc.format.side_chunk import read_side_views
 from gspc.io import read_scene
 from gspc.io.camera_files import load_cameras
 from gspc.io.cameras_json import save_cameras_json
@@ -175,8 +175,8 @@ def run_point(
 def _residual_scale(path: Path) -> int | None:
     """The resolution divisor of the file's residuals (None: no side information)."""
     c = container.read(path)
-    views, _ = side_views(FileHeader.from_dict(c.header).side_info.to_dict(), c.chunks)
-    scales = {v["residual"].get("scale", 1) for v in views if "residual" in v}
+    side = read_side_views(FileHeader.from_dict(c.header).side_info.views, c.chunks, path.stat().st_size)
+    scales = {v.residual.scale for v in side.views if v.residual is not None}
     return scales.pop() if len(scales) == 1 else None
 
 

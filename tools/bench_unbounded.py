@@ -21,7 +21,7 @@ from __future__ import annotations
 import os
 import platform
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from unittest import mock
 
@@ -130,18 +130,19 @@ def shell_position_bound(scene: GaussianScene, world: GaussianScene, lam: float)
     n, m = scene.num_gaussians, world.num_gaussians - scene.num_gaussians - FLOATERS
     bits = QUALITY["low"].attributes.with_lambda(lam).effective_position_bits
     grid = positions.curve_order(world.means.numpy(), bits)[2]
-    y = positions.contract(world.means.numpy()[n : n + m], grid["centre"], grid["radius"])
+    centre, radius = grid.contraction.centre, grid.contraction.radius
+    y = positions.contract(world.means.numpy()[n : n + m], centre, radius)
     rho = np.sqrt((y * y).sum(1))
-    volume = 4.0 / 3.0 * np.pi * (rho.max() ** 3 - rho.min() ** 3) / float(np.prod(grid["step"]))
+    volume = 4.0 / 3.0 * np.pi * (rho.max() ** 3 - rho.min() ** 3) / float(np.prod(grid.step))
     bound = (np.log2(volume / m) + np.log2(np.e)) / 8.0
-    v = positions.voxelise(y, grid["lo"], grid["step"], grid["bits"])
-    v = v[np.argsort(positions.morton_encode(v, grid["bits"]), kind="stable")]
-    coded = len(positions.encode_positions(v, grid["bits"])) / m
+    v = positions.voxelise(y, grid.lo, grid.step, grid.bits)
+    v = v[np.argsort(positions.morton_encode(v, grid.bits), kind="stable")]
+    coded = len(positions.encode_positions(v, replace(grid, far=None))) / m
     means = world.means.numpy().astype(np.float64)
-    r = np.sqrt(((means - grid["centre"]) ** 2).sum(1)) / grid["radius"]
-    y_all = positions.contract(means, grid["centre"], grid["radius"])
+    r = np.sqrt(((means - centre) ** 2).sum(1)) / radius
+    y_all = positions.contract(means, centre, radius)
     stretch = np.where(r > 1.0, r / np.maximum(np.sqrt((y_all * y_all).sum(1)), 1e-12), 1.0)
-    voxel = max(grid["step"]) * grid["radius"] * stretch
+    voxel = max(grid.step) * radius * stretch
     size = np.exp(np.median(world.log_scales.numpy().astype(np.float64), 1)) / voxel
     return m, float(bound), coded, float(np.median(size[:n])), float(np.median(size[n : n + m]))
 

@@ -29,7 +29,7 @@ from __future__ import annotations
 import json
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -132,12 +132,13 @@ def side_info_symbols(
     if distance is None:
         return {"q": np.zeros(r.shape, np.uint8), "gain": np.float32(0.0), "offset": np.float32(0.0)}
     params = residuals.ResidualParams(codec=codec, distance=float(distance), scale=scale)
-    payload, meta = residuals.encode_residual(r, params)
-    decoded = residuals.decode_residual(payload, {**meta, "scale": 1})  # the symbols, before upsampling
-    gain, offset = np.float32(meta["gain"]), np.float32(meta["offset"])
+    payload, record = residuals.encode_residual(r, params)
+    # The symbols, before upsampling: the record of the image at its coded size.
+    decoded = residuals.decode_residual(payload, replace(record, full_shape=record.shape, scale=1))
+    gain, offset = np.float32(record.gain), np.float32(record.offset)
     # decode_residual returns (q - offset) / gain in float32; q comes back exactly by rounding.
     q = np.rint(decoded * gain + offset)
-    if meta["bits"] != 8 or q.min() < 0 or q.max() > 255:
+    if record.bits != 8 or q.min() < 0 or q.max() > 255:
         raise GspcError("restorer data expects 8-bit residual symbols")
     out = {"q": q.astype(np.uint8), "gain": gain, "offset": offset, "bytes": np.int64(len(payload))}
     if scale != 1:

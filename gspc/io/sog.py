@@ -25,8 +25,8 @@ import imagecodecs
 import numpy as np
 
 from gspc.codec.quantisers import place_largest
-from gspc.format.image_headers import coded_size
 from gspc.errors import CodecError, InputError
+from gspc.format.image_headers import coded_size
 from gspc.limits import (
     MAX_SOG_MAP_PIXELS,
     MAX_SOG_MEMBER_BYTES,
