@@ -326,6 +326,12 @@ def decode_attributes(meta: dict, chunks: dict[str, bytes]) -> dict[str, np.ndar
         need(len(centre) == 3 and all(map(finite_float, [*centre, radius])) and radius > 0, "centre, radius")
     need(len(lo) == 3 and len(step) == 3 and all(map(finite_float, lo + step)), "grid floats")
     need(all(s > 0 for s in step), "grid step")
+    # 10.1 bounds: the grid's far corner T = lo + (2^bits - 1) step, and the region of interest.
+    bound = 32.0 if contracted else 2.0**64
+    corner = [lo[ax] + float(2**bits - 1) * step[ax] for ax in range(3)]
+    need(all(abs(x) <= bound for x in lo + corner), "position grid bounds")
+    if contracted:
+        need(all(abs(c) <= 2.0**64 for c in centre) and radius <= 2.0**64, "centre, radius bounds")
     L, M = a["opacity_levels"], a["rotation_levels"]
     need(is_int(L) and L >= 1 and is_int(M) and M >= 1, "levels")
     steps = [a["scale_step"], a["dc_step"], *a["sh_steps"]]

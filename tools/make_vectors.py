@@ -1074,6 +1074,43 @@ def codec_vectors() -> list[Vector]:
         attribute_entries(c6),
         "far set",
     )
+
+    # 10.1 bounds: finite but huge position fields overflowed in the expansion (issue 26).
+    def grid_change(attributes: dict, key: str, axis: int | None, value: float) -> dict:
+        grid = dict(attributes["position"])
+        if axis is None:
+            grid[key] = value
+        else:
+            grid[key] = [value if a == axis else x for a, x in enumerate(grid[key])]
+        return scene_meta(dict(attributes, position=grid))
+
+    bits0, bits5 = a0["position"]["bits"], a5["position"]["bits"]
+    for name, desc, attributes, chunks, change in (
+        ("grid_lo", "version 1 with position.lo[0] = 1e20 (beyond 2^64)", a0, c0, ("lo", 0, 1e20)),
+        (
+            "grid_corner",
+            "version 1 whose grid's far corner lo + (2^bits - 1) step passes 2^64 on axis 1",
+            a0,
+            c0,
+            ("step", 1, 2.0**65 / (2**bits0 - 1)),
+        ),
+        ("centre", "version 2 with position.centre[2] = -1e300", a5, c5, ("centre", 2, -1e300)),
+        ("radius", "version 2 with position.radius = 1e38 (beyond 2^64)", a5, c5, ("radius", None, 1e38)),
+        (
+            "contracted_corner",
+            "version 2 whose grid's far corner passes 32 in grid space on axis 0",
+            a5,
+            c5,
+            ("step", 0, 64.0 / (2**bits5 - 1)),
+        ),
+    ):
+        bad_codec(
+            f"codec_invalid_{name}_bound",
+            desc,
+            grid_change(attributes, *change),
+            attribute_entries(chunks),
+            "position",
+        )
     bad_codec(
         "codec_invalid_far_payload",
         "attribute codec version 3 with a POSN payload of two bins (the far curve missing)",
