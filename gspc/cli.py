@@ -250,7 +250,7 @@ def info(
         c = read(path)
         header = c.header
         fields = FileHeader.from_dict(header)  # checked as a decode checks it
-        views = read_side_views(fields.side_info.views, c.chunks, d["file_size"]).views
+        views = read_side_views(fields.side_info.legacy_views, c.chunks, d["file_size"]).views
         summary = SceneSummary.from_dict(header)
         n, degree = max(summary.num_gaussians, 1), summary.sh_degree
         out.print(
@@ -305,9 +305,9 @@ def _fmt(v) -> str:
 
 
 def _check_view_options(views: int, max_side: int) -> None:
-    from gspc.options import check_max_side, check_views
+    from gspc.options import check_max_side, check_synth_views
 
-    check_views(views)
+    check_synth_views(views)
     check_max_side(max_side)
 
 

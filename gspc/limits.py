@@ -14,7 +14,7 @@ from __future__ import annotations
 # anything (3000: +0.2 dB over 1000).
 MAX_REFINE_ITERATIONS = 100_000
 
-# Width and height of any camera, in pixels: the SIDE chunk's per-side limit (gspc/codec/sideinfo.py,
+# Width and height of any camera, in pixels: the SIDE chunk's per-side limit (gspc/format/side_chunk.py,
 # 1..65536), and far beyond any sensor; a camera file's larger sizes are refused rather than scaled.
 MAX_CAMERA_SIDE = 1 << 16
 
@@ -27,7 +27,7 @@ MAX_VIEW_PIXELS = 1 << 24
 MAX_TOTAL_PIXELS = 1 << 28
 
 # ... and bounded by the file's size: at most max(PIXEL_FLOOR, PIXELS_PER_FILE_BYTE * file bytes). A view
-# without a residual costs 52 bytes of SIDE chunk (gspc/codec/sideinfo.py), so without this rule a 1 KB
+# without a residual costs 52 bytes of SIDE chunk (gspc/format/side_chunk.py), so without this rule a 1 KB
 # file could ask for 2^28 pixels. The floor admits the default encode of a scene without cameras (24
 # synthesised views at 400 x 400 = 3.84 Mpixel, gspc/options.py) whatever the file's size; 1024 pixels per
 # byte is 5x the densest real file we have (lego at the low preset: 35 views of 200 x 200 in 199 KB is

@@ -66,7 +66,8 @@ def check_max_side(value: Any, name: str = "--max-side") -> int:
     return check_int(name, value, MIN_MAX_SIDE, MAX_CAMERA_SIDE)
 
 
-def check_views(value: Any, name: str = "--views") -> int:
+def check_synth_views(value: Any, name: str = "--views") -> int:
+    """A count of synthesised views (not the check's views: EncodeOptions.check_views)."""
     return check_int(name, value, 1, MAX_SYNTH_VIEWS)
 
 
@@ -92,7 +93,7 @@ def check_encode_options(o: Any) -> None:
     if o.target_size is not None:
         check_int("--target-size", o.target_size, MIN_TARGET_SIZE)
     check_real("--views-fraction", o.views_fraction, 0.0, 1.0, lo_open=True)
-    check_views(o.synth_views)
+    check_synth_views(o.synth_views)
     check_max_side(o.max_side)
     if o.residual_codec is not None:
         _check_name("residual_codec", o.residual_codec)

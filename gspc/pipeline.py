@@ -58,8 +58,8 @@ class Report:
     seconds: dict[str, float] = field(default_factory=dict)
     # What the run decided, for people (the CLI prints it): the same facts as the typed fields below.
     info: dict[str, object] = field(default_factory=dict)
-    views: int = 0  # side-information views stored (encode) or read (decode)
-    views_with_residual: int = 0
+    num_views: int = 0  # side-information views stored (encode) or read (decode)
+    num_views_with_residual: int = 0
     started: float = field(default_factory=time.perf_counter)  # a time budget counts from here
     side_info: SideInfoDecision | None = None  # the encoder's check, when it ran
     refine_iterations: int = 0  # refinement iterations the decoder ran (0: none)
@@ -139,10 +139,10 @@ def encode_scene(
     with rep.timed("write"):
         data = _file_bytes(scene, choice, opts)
     rep.bytes = _byte_budget(data)
-    rep.views = len(choice.side.records) if choice.side is not None else 0
-    rep.views_with_residual = choice.side.views_with_residual if choice.side is not None else 0
-    rep.info["views"] = rep.views
-    rep.info["views with residual"] = rep.views_with_residual
+    rep.num_views = len(choice.side.records) if choice.side is not None else 0
+    rep.num_views_with_residual = choice.side.views_with_residual if choice.side is not None else 0
+    rep.info["views"] = rep.num_views
+    rep.info["views with residual"] = rep.num_views_with_residual
     return data, rep
 
 
@@ -170,8 +170,8 @@ def _side_information(
     only if it pays for its bytes (gspc/encoder/policy.py)."""
     enc = coded_attributes.encoded
     runs = iteration_counts(opts, enc.decoded.num_gaussians)
-    views, view_cams = sample_side_views(cameras, opts)
-    if not views:
+    view_indices, view_cams = sample_side_views(cameras, opts)
+    if not view_indices:
         return _EncoderChoice(enc, None, runs.refine)
     with rep.timed("render"):
         bg = opts.background
@@ -189,7 +189,7 @@ def _side_information(
         params=coded_attributes.params,
         visible=coded_attributes.visible,
         view_cameras=view_cams,
-        check_cameras=check_cameras(cameras, views, opts.check_views),
+        check_cameras=check_cameras(cameras, view_indices, opts.check_views),
         original=original,
         coded=coded,
         candidates=candidates,
@@ -285,8 +285,8 @@ def decode_bytes(
     if cams and (opts.restore or opts.refine):
         scene = _restore_and_refine(scene, file.header, side, cams, restorer, opts, progress, rep)
     rep.info["restorer"] = restorer_name if opts.restore else "off"
-    rep.views = rep.info["views"] = len(cams)
-    rep.views_with_residual = len(side.images)
+    rep.num_views = rep.info["views"] = len(cams)
+    rep.num_views_with_residual = len(side.images)
     return scene, rep
 
 
@@ -305,7 +305,7 @@ def _read(data: bytes) -> _ReadFile:
     image's declared size."""
     c = container.unpack(data)
     header = FileHeader.from_dict(c.header)
-    side = read_side_views(header.side_info.views, c.chunks, len(data))
+    side = read_side_views(header.side_info.legacy_views, c.chunks, len(data))
     return _ReadFile(header, attribute_chunks(c.chunks), side)
 
 

@@ -20,6 +20,16 @@ ATTRIBUTE_NAMES = ("means", "quats", "log_scales", "opacities", "sh_dc", "sh_res
 # The degree-0 SH basis constant 1 / (2 sqrt(pi)), as in INRIA 3DGS; the renderer, readers and statistics
 # take it from here.
 SH_C0 = 0.28209479177387814
+# Quantised formats (SOG, compressed PLY, SPZ) store alpha in a few bits, where 0 and 1 have infinite
+# logits: their readers clamp alpha into [OPACITY_EPS, 1 - OPACITY_EPS] first, as PlayCanvas's SOG reader
+# and splat-transform's SPZ reader do.
+OPACITY_EPS = 1e-6
+
+
+def alpha_to_logit(alpha: np.ndarray) -> np.ndarray:
+    """Opacity logits of activated opacities ``alpha`` (numpy), clamped as the formats' readers clamp."""
+    a = np.clip(alpha, OPACITY_EPS, 1.0 - OPACITY_EPS)
+    return np.log(a / (1.0 - a))
 
 
 def num_sh_rest(sh_degree: int) -> int:

@@ -10,9 +10,8 @@ import numpy as np
 import torch
 
 from gspc.cameras import Camera, natural_key
+from gspc.codec.positions import CORE_DISTANCES
 from gspc.errors import InputError
-
-CORE_DISTANCES = 6.0
 
 
 def robust_bounds(scene, quantile: float = 0.002, min_opacity: float = 0.05) -> tuple[np.ndarray, np.ndarray]:
@@ -28,7 +27,7 @@ def robust_bounds(scene, quantile: float = 0.002, min_opacity: float = 0.05) -> 
     alpha = torch.sigmoid(scene.opacities.detach().cpu().double()).numpy().reshape(-1)  # no overflow warning
     # A capture's background shell and far floaters can be far more than `quantile` of the Gaussians: keep
     # only those within CORE_DISTANCES median distances of the median, the region the position codec keeps
-    # uncontracted (gspc/codec/positions.py). Bounded objects lie wholly inside (statues reach 4.2).
+    # uncontracted. Bounded objects lie wholly inside (statues reach 4.2).
     dist = np.sqrt(((means - np.median(means, axis=0)) ** 2).sum(1))
     core = dist <= CORE_DISTANCES * np.median(dist) if np.median(dist) > 0 else np.ones(len(means), bool)
     means, alpha = means[core], alpha[core]

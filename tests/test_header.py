@@ -4,6 +4,7 @@ import pytest
 
 from gspc.errors import CodecError
 from gspc.format import container
+from gspc.format.attribute_section import AttributeSection
 from gspc.format.chunks import ATTRIBUTE_TYPES, KNOWN_TYPES, REGISTRY
 from gspc.format.header import FileHeader, SceneSummary, SideInfoHeader
 
@@ -22,7 +23,7 @@ ATTRIBUTES = {
 
 def header() -> FileHeader:
     return FileHeader(
-        attributes=ATTRIBUTES,
+        attributes=AttributeSection.from_dict(ATTRIBUTES),
         side_info=SideInfoHeader((1.0, 1.0, 1.0), "none", 300),
         scene=SceneSummary(2, 0, 5),
         encoder="gspc test",
@@ -32,6 +33,7 @@ def header() -> FileHeader:
 def test_round_trip_and_key_order():
     d = header().to_dict()
     assert list(d) == ["encoder", "scene", "attributes", "side_info"]
+    assert d["attributes"] == ATTRIBUTES and list(d["attributes"]) == list(ATTRIBUTES)
     assert list(d["side_info"]) == ["background", "restorer", "refine_iterations"]
     assert FileHeader.from_dict(d) == header()
     packed = container.unpack(container.pack(d, [])).header

@@ -18,7 +18,7 @@ from gspc.pipeline import DecodeOptions, EncodeOptions, decode, decode_bytes, en
 
 def side_of(c: container.Container) -> tuple:
     """(view records, residual images) of a file, read as the decoder reads them."""
-    side = read_side_views(FileHeader.from_dict(c.header).side_info.views, c.chunks, 1 << 30)
+    side = read_side_views(FileHeader.from_dict(c.header).side_info.legacy_views, c.chunks, 1 << 30)
     return side.views, side.images
 
 
@@ -47,8 +47,8 @@ def test_encode_report_and_views(encoded):
     views, images = side_of(c)
     assert len(views) == 2  # 40% of 5 views
     assert rep.bytes["file"] == out.stat().st_size
-    assert len(images) == sum(v.residual is not None for v in views) == rep.views_with_residual
-    assert rep.views == len(views) and rep.side_info is None  # check_iterations=0: no check
+    assert len(images) == sum(v.residual is not None for v in views) == rep.num_views_with_residual
+    assert rep.num_views == len(views) and rep.side_info is None  # check_iterations=0: no check
     assert len(images) >= 1
 
 
@@ -189,7 +189,7 @@ def test_memory_api_matches_the_path_api(encoded, tmp_path):
     src, out, rep = encoded
     opts = EncodeOptions(lam=40, synth_views=5, max_side=40, check_iterations=0)
     data, mem = encode_scene(read_scene(src), None, opts)
-    assert data == out.read_bytes() and mem.bytes == rep.bytes and mem.views == rep.views
+    assert data == out.read_bytes() and mem.bytes == rep.bytes and mem.num_views == rep.num_views
     scene, drep = decode_bytes(data, DecodeOptions(iterations=3))
     dst = tmp_path / "d.ply"
     decode(out, dst, DecodeOptions(iterations=3))

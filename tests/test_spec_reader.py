@@ -167,7 +167,7 @@ def test_spec_reader_decodes_a_gspc_encode_file(tmp_path):
     chunks = {ch.type: ch.payload for ch in c.chunks if ch.type != "SIDE"}
     header = FileHeader.from_dict(c.header)
     assert_same(attrs, decode_attributes(chunks, header.attributes))
-    side = read_side_views(header.side_info.views, c.chunks, len(data))
+    side = read_side_views(header.side_info.legacy_views, c.chunks, len(data))
     from gspc.codec.residuals import decode_residual
 
     for k, (v, ref) in enumerate(zip(views, side.views)):
@@ -217,7 +217,7 @@ def test_1_0_residual_record_with_bad_gain_is_refused_when_read():
             {**side, "views": [{"camera": cam, "residual": dict(rec, gain=1.0, shape=[3, 4])}]}
         )
     good = SideInfoHeader.from_dict({**side, "views": [{"camera": cam, "residual": dict(rec, gain=2.0)}]})
-    assert good.views[0].residual.gain == 2.0
+    assert good.legacy_views[0].residual.gain == 2.0
     # Its image must then declare the record's size (before anything is decoded).
     with pytest.raises(CodecError, match="JPEG XL signature"):
-        read_side_views(good.views, [container.Chunk("RESI", b"img", index=0)], 1000)
+        read_side_views(good.legacy_views, [container.Chunk("RESI", b"img", index=0)], 1000)

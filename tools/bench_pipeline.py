@@ -175,7 +175,8 @@ def run_point(
 def _residual_scale(path: Path) -> int | None:
     """The resolution divisor of the file's residuals (None: no side information)."""
     c = container.read(path)
-    side = read_side_views(FileHeader.from_dict(c.header).side_info.views, c.chunks, path.stat().st_size)
+    legacy = FileHeader.from_dict(c.header).side_info.legacy_views
+    side = read_side_views(legacy, c.chunks, path.stat().st_size)
     scales = {v.residual.scale for v in side.views if v.residual is not None}
     return scales.pop() if len(scales) == 1 else None
 

@@ -54,6 +54,9 @@ from gspc.format.attribute_section import (
 ROI_QUANTILE = 0.5
 ROI_MARGIN = 3.0
 IDENTITY_RADIUS = 2.0  # in units of R: where contraction starts
+# The core a contracted grid keeps at the world's scale, in median distances from the median (6): the region
+# synthesised cameras frame (gspc/views.py).
+CORE_DISTANCES = IDENTITY_RADIUS * ROI_MARGIN
 FAR_MAX_SHIFT = 8  # the far set's coarsening is chosen among 1..8 bits per axis (spec 10.1 allows 1..bits-1)
 # Bits of relative precision a far Gaussian keeps above the median inside the region. On the bird fit at the
 # low preset (lambda 8), margins 0, 1, 2: -8.5%, -6.8%, -5.1% bytes, -0.51, -0.15, -0.05 dB against the

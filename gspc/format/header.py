@@ -130,7 +130,9 @@ class SideInfoHeader:
     background: tuple[float, float, float]
     restorer: str
     refine_iterations: int
-    views: tuple[ViewRecord, ...] = ()  # 1.0 layout only (gspc/format/side_chunk.py reads both layouts)
+    # The 1.0 layout's view records (its ``views`` key); 1.1 files carry their views in a SIDE chunk, and
+    # gspc/format/side_chunk.py reads both layouts.
+    legacy_views: tuple[ViewRecord, ...] = ()
 
     def to_dict(self) -> dict:
         out: dict = {
@@ -138,8 +140,8 @@ class SideInfoHeader:
             "restorer": self.restorer,
             "refine_iterations": self.refine_iterations,
         }
-        if self.views:
-            out["views"] = [v.to_dict() for v in self.views]
+        if self.legacy_views:
+            out["views"] = [v.to_dict() for v in self.legacy_views]
         return out
 
     @classmethod

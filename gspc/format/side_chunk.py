@@ -149,10 +149,10 @@ def legacy_views(views: object) -> tuple[ViewRecord, ...]:
 
 def read_side_views(legacy: tuple[ViewRecord, ...], chunks: list, file_size: int) -> SideViews:
     """The side-information views of a file of ``file_size`` bytes, from either layout: a 1.1 ``SIDE``
-    chunk, or 1.0's ``legacy`` header records (the typed header's side_info.views) with one ``RESI`` chunk
-    per view carrying a residual. Checks the views' pixels against the file's budget and each image's
-    declared size against its record, before any camera is built or image decoded; CodecError when the two
-    layouts are mixed or anything does not match."""
+    chunk, or 1.0's ``legacy`` header records (the typed header's side_info.legacy_views) with one
+    ``RESI`` chunk per view carrying a residual. Checks the views' pixels against the file's budget and
+    each image's declared size against its record, before any camera is built or image decoded;
+    CodecError when the two layouts are mixed or anything does not match."""
     res = {ch.index: ch.payload for ch in chunks if ch.type == RESI}
     packed = [ch for ch in chunks if ch.type == SIDE]
     if packed:

@@ -21,10 +21,9 @@ from plyfile import PlyData
 from gspc.codec.quantisers import place_largest
 from gspc.errors import InputError
 from gspc.io.ply import load_plydata, rest_names
-from gspc.scene import SH_C0, GaussianScene, make_scene, sh_degree_from_rest, validate_named
+from gspc.scene import SH_C0, GaussianScene, alpha_to_logit, make_scene, sh_degree_from_rest, validate_named
 
 CHUNK_SIZE = 256
-OPACITY_EPS = 1e-6  # opacity bytes 0 and 255 have infinite logits; clamp like the SOG reader
 
 _BOUNDS = ("min", "max")
 CHUNK_GEOMETRY = tuple(f"{b}_{axis}" for b in _BOUNDS for axis in "xyz") + tuple(
@@ -94,8 +93,7 @@ def scene_from_compressed(ply: PlyData, source: str = "PLY") -> GaussianScene:
     if all(p in chunk_props for p in CHUNK_COLOUR):
         rgb = _lerp(*bounds("", "rgb"), rgb)
     sh_dc = (rgb - 0.5) / SH_C0
-    alpha = np.clip(_field(c, 0, 8), OPACITY_EPS, 1.0 - OPACITY_EPS)
-    opacities = np.log(alpha / (1.0 - alpha))
+    opacities = alpha_to_logit(_field(c, 0, 8))
 
     degree, sh_rest = 0, np.zeros((n, 0, 3))
     if "sh" in names:

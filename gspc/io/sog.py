@@ -36,12 +36,10 @@ from gspc.limits import (
     SOG_MEMBER_FLOOR,
     SOG_PIXELS_PER_ENTRY,
 )
-from gspc.scene import GaussianScene, make_scene, num_sh_rest, validate_named
+from gspc.scene import GaussianScene, alpha_to_logit, make_scene, num_sh_rest, validate_named
 
 SOG_VERSION = 2
 QUAT_TAG_BASE = 252
-# Alpha bytes of 0 and 255 have infinite logits; clamp as PlayCanvas's own SOG reader does.
-OPACITY_EPS = 1e-6
 
 
 def _unlog(n: np.ndarray) -> np.ndarray:
@@ -248,8 +246,7 @@ def _read(path: Path, load: Callable[[str], bytes]) -> GaussianScene:
     colour_book = _floats(path, meta, "sh0", "codebook", 256)
     sh0 = _pixels(path, load, _files(path, meta, "sh0", 1)[0], count)
     sh_dc = colour_book[sh0[:, :3]]
-    alpha = np.clip(sh0[:, 3] / 255.0, OPACITY_EPS, 1.0 - OPACITY_EPS)
-    opacities = np.log(alpha / (1.0 - alpha))
+    opacities = alpha_to_logit(sh0[:, 3] / 255.0)
 
     sh_rest, degree = _sh_rest(path, load, meta, count)
 

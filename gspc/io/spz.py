@@ -39,7 +39,7 @@ import numpy as np
 import zstandard
 
 from gspc.errors import InputError
-from gspc.scene import GaussianScene, make_scene, num_sh_rest, validate_named
+from gspc.scene import GaussianScene, alpha_to_logit, make_scene, num_sh_rest, validate_named
 
 MAGIC = 0x5053474E
 NGSP = struct.pack("<I", MAGIC)  # what a version-4 file starts with
@@ -56,8 +56,6 @@ FLAG_EXTENSIONS = 0x2
 SH_QUANTISATION_EXTENSION = 0xADBE0001
 
 COLOUR_SCALE = 0.15
-# Alpha bytes 0 and 255 have infinite logits; clamp as the SOG reader and splat-transform's SPZ reader do.
-OPACITY_EPS = 1e-6
 MAX_FRACTIONAL_BITS = 24
 MAX_SPZ_DEGREE = 4  # the format's limit; gspc itself stops at 3
 # Gaussian counts beyond this are refused before anything is allocated (over 20 times the largest
@@ -262,8 +260,7 @@ def _scene(header: SpzHeader, payload: bytes, source: object) -> GaussianScene:
         blocks[name] = np.frombuffer(payload, np.uint8, size, at).reshape(n, size // n)
         at += size
     means = _int24(blocks["positions"].reshape(n, 3, 3)) / float(1 << header.fractional_bits)
-    alpha = np.clip(blocks["alphas"][:, 0] / 255.0, OPACITY_EPS, 1.0 - OPACITY_EPS)
-    opacities = np.log(alpha / (1.0 - alpha))
+    opacities = alpha_to_logit(blocks["alphas"][:, 0] / 255.0)
     sh_dc = (blocks["colours"] / 255.0 - 0.5) / COLOUR_SCALE
     log_scales = blocks["scales"] / 16.0 - 10.0
     rot = blocks["rotations"]
