@@ -376,7 +376,7 @@ def evaluate(
     _use_threads()
     from gspc.device import check_device
     from gspc.io import read_scene
-    from gspc.metrics import psnr, quantize8, ssim
+    from gspc.metrics import mean_psnr, quantize8, ssim
     from gspc.stages import render_images
 
     dev = check_device(device)
@@ -385,7 +385,7 @@ def evaluate(
     with _progress_bars() as cb:
         a = render_images(ref, cams, background, cb, "render reference")
         b = render_images(tst, cams, background, cb, "render test")
-    p = sum(float(psnr(quantize8(x), quantize8(y))) for x, y in zip(a, b)) / len(cams)
+    p = mean_psnr(a, b)
     s = sum(float(ssim(quantize8(x), quantize8(y))) for x, y in zip(a, b)) / len(cams)
     out.print(f"views: {len(cams)}  PSNR: {p:.3f} dB  SSIM: {s:.4f}")
 

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 
-import numpy as np
 import torch
 
 from gspc.cameras import Camera
@@ -16,7 +15,6 @@ from gspc.codec import residuals
 from gspc.codec.cells import quantisation_cells
 from gspc.format.attribute_section import AttributeSection
 from gspc.format.view_records import ViewRecord
-from gspc.metrics import psnr, quantize8
 from gspc.progress import Progress
 from gspc.refine import Refined, refine
 from gspc.render import render
@@ -64,11 +62,6 @@ def restored_targets(
         if progress:
             progress("restore", k + 1, len(degraded))
     return out
-
-
-def mean_psnr(a: Sequence[torch.Tensor], b: Sequence[torch.Tensor]) -> float:
-    """Mean PSNR of 8-bit-quantised image pairs (the 3DGS convention)."""
-    return float(np.mean([float(psnr(quantize8(x), quantize8(y))) for x, y in zip(a, b)]))
 
 
 def refine_progress(

@@ -2,31 +2,14 @@
 
 import pytest
 import torch
+from cli_runs import assert_one_line_error, run
 from scenes import random_scene
-from typer.testing import CliRunner
 
-from gspc.cli import app
 from gspc.io import read_scene, write_ply
-
-runner = CliRunner()
 
 
 def tiny_scene():
     return random_scene(300, sh_degree=1, seed=0)
-
-
-def run(*args):
-    return runner.invoke(app, [str(a) for a in args])
-
-
-def assert_one_line_error(res, needle):
-    """Exit 1 and one error line, last; anything before it is a progress line (stderr is not a terminal)."""
-    assert res.exit_code == 1, res.output
-    *before, last = res.output.strip().splitlines()
-    assert "Traceback" not in res.output
-    assert last.startswith("error:"), res.output
-    assert all(line.startswith("gspc: ") for line in before), res.output
-    assert needle.lower() in last.lower(), res.output
 
 
 @pytest.fixture

@@ -4,9 +4,7 @@ Codec vectors (section 10) are checked twice: with gspc's decoder and with tests
 written from the spec alone (no gspc import), which must give the same bits.
 """
 
-import functools
 import hashlib
-import importlib.util
 import json
 import re
 import struct
@@ -14,6 +12,7 @@ import sys
 import zlib
 from pathlib import Path
 
+import make_vectors as mv
 import msgpack
 import numpy as np
 import pytest
@@ -27,16 +26,6 @@ ROOT = Path(__file__).resolve().parents[1]
 VECTORS = ROOT / "spec" / "vectors"
 SPEC = ROOT / "spec" / "gspc-format.md"
 MANIFEST = json.loads((VECTORS / "MANIFEST.json").read_text())["vectors"]
-
-
-@functools.cache
-def load_tool(name: str):
-    """Import tools/<name>.py (tools/ is not a package)."""
-    spec = importlib.util.spec_from_file_location(f"gspc_tools_{name}", ROOT / "tools" / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # dataclasses look their module up here
-    spec.loader.exec_module(module)
-    return module
 
 
 def from_json(value):
@@ -93,7 +82,6 @@ def test_manifest_covers_every_file() -> None:
 
 def test_vectors_are_what_make_vectors_makes() -> None:
     """The stored files are reproducible; a change to the tool that changes them must be deliberate."""
-    mv = load_tool("make_vectors")
     vs = mv.all_vectors()
     assert {v.name + ".gspc": v.data for v in vs} == {p.name: p.read_bytes() for p in VECTORS.glob("*.gspc")}
     assert mv.manifest(vs)["vectors"] == MANIFEST
@@ -146,7 +134,6 @@ def test_codec_vectors_cover_each_chunk_type() -> None:
 @pytest.mark.parametrize("vector", CODEC, ids=[v["file"] for v in CODEC])
 def test_codec_vector_reference(vector: dict) -> None:
     data = (VECTORS / vector["file"]).read_bytes()
-    mv = load_tool("make_vectors")
     if vector["codec"]["expect"] == "ok":
         check_decoded(vector, *mv.reference_decode(data))
         return
@@ -216,7 +203,6 @@ def test_spec_registry_matches_known_types() -> None:
 
 
 def table_file(n_chunks: int) -> bytes:
-    mv = load_tool("make_vectors")
     entries = [(mv.entry("RESI", b"", index=i), b"") for i in range(n_chunks)]
     return mv.build({}, entries)
 

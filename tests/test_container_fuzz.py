@@ -3,14 +3,12 @@
 A few hundred cases here; tools/fuzz_container.py runs tens of thousands and writes bench/fuzz.md.
 """
 
-import functools
-import importlib.util
 import struct
-import sys
 import tracemalloc
 import zlib
 from pathlib import Path
 
+import fuzz_container
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -20,17 +18,6 @@ from gspc.format import container
 
 ROOT = Path(__file__).resolve().parents[1]
 SLACK = 64 * 1024  # bytes a read may allocate whatever the file size (exception, traceback, small objects)
-
-
-@functools.cache
-def fuzz_tool():
-    spec = importlib.util.spec_from_file_location(
-        "gspc_tools_fuzz_container", ROOT / "tools" / "fuzz_container.py"
-    )
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
 
 
 def seeds() -> list[bytes]:
@@ -120,7 +107,7 @@ def test_mutated_files_fail_cleanly(seed: bytes, edits: list, fix_checksums: boo
 
 def test_structure_aware_fuzz_from_the_tool() -> None:
     """The tool's mutations, header edits included, on a few hundred cases with a fixed seed."""
-    r = fuzz_tool().fuzz(300, seed=7)
+    r = fuzz_container.fuzz(300, seed=7)
     assert r["tally"].get("CRASH", 0) == 0, r["crashes"]
     assert r["worst_ratio"] <= 4, "memory beyond 16 KiB grows at most 4 bytes per file byte"
     assert len(r["tally"]) >= 6, "the mutations reach many different checks"

@@ -11,8 +11,8 @@ import math
 import numpy as np
 import pytest
 import torch
+from cli_runs import assert_one_line_error, run
 from scenes import random_scene
-from test_cli import assert_one_line_error, run
 
 import gspc.pipeline as pipeline
 from gspc.cameras import Camera

@@ -15,7 +15,7 @@ from hostile import (
     unneeded_bomb,
 )
 from scenes import random_scene
-from test_io import make_sog
+from sog_files import make_sog
 from typer.testing import CliRunner
 
 from gspc.cli import app

@@ -11,23 +11,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from make_restorer_data import make_data, parse_rates, parse_scene, side_info_symbols
 
+from gspc.codec import residuals
 from gspc.io import write_ply
+from gspc.restore.data import side_info_from_npz
 from gspc.restore.restorer import load_restorer
 from gspc.scene import make_scene
 
 TOOLS = Path(__file__).resolve().parents[1] / "tools"
-sys.path.insert(0, str(TOOLS))
-
-from make_restorer_data import (  # noqa: E402
-    make_data,
-    parse_rates,
-    parse_scene,
-    side_info_symbols,
-)
-
-from gspc.codec import residuals  # noqa: E402
-from gspc.restore.data import side_info_from_npz  # noqa: E402
 
 
 def _tiny_scene(path: Path, seed: int) -> None:

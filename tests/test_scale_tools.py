@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-import importlib.util
 import math
 import os
-import sys
 from pathlib import Path
 
+import make_scale_scenes
 import numpy as np
 import pytest
 import torch
@@ -18,32 +17,21 @@ from gspc.render.project import quat_to_rotmat
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def load_tool(name: str):
-    """Import tools/<name>.py (tools/ is not a package)."""
-    spec = importlib.util.spec_from_file_location(f"gspc_tools_{name}", ROOT / "tools" / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
-
-
 def test_rotating_a_copy_turns_its_gaussians_with_it():
     # Turning means by R must turn every Gaussian's axes by R too: R(q * q0) = R(q) R(q0).
-    tool = load_tool("make_scale_scenes")
-    R, q = tool.axis_angle((0.0, 0.0, 1.0), 1.1)
+    R, q = make_scale_scenes.axis_angle((0.0, 0.0, 1.0), 1.1)
     quats = np.random.default_rng(0).normal(size=(50, 4))
-    turned = quat_to_rotmat(torch.from_numpy(tool.quat_mul(q, quats)))
+    turned = quat_to_rotmat(torch.from_numpy(make_scale_scenes.quat_mul(q, quats)))
     before = quat_to_rotmat(torch.from_numpy(quats))
     for i in range(3):
         for j in range(3):
             expected = sum(R[i, k] * before[k][j] for k in range(3))
             assert torch.allclose(turned[i][j], expected, atol=1e-12)
-    Rx, _ = tool.axis_angle((1.0, 0.0, 0.0), math.pi / 2)
+    Rx, _ = make_scale_scenes.axis_angle((1.0, 0.0, 0.0), math.pi / 2)
     assert np.allclose(Rx @ [0.0, 1.0, 0.0], [0.0, 0.0, 1.0])  # the statues' y-up becomes z-up
 
 
 def test_plan_keeps_copies_whole_and_lands_just_above_the_size():
-    tool = load_tool("make_scale_scenes")
 
     class Fake:
         def __init__(self, n: int):
@@ -52,7 +40,7 @@ def test_plan_keeps_copies_whole_and_lands_just_above_the_size():
     assets = [Fake(n) for n in (71_359, 83_547, 80_821, 58_649, 89_292, 45_624, 20_000)]
     smallest = min(a.n for a in assets)
     for target in (100_000, 300_000, 1_000_000, 3_000_000):
-        total = sum(assets[i].n for i in tool.plan(assets, target))
+        total = sum(assets[i].n for i in make_scale_scenes.plan(assets, target))
         assert target <= total < target + smallest
 
 

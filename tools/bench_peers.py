@@ -23,16 +23,12 @@ from pathlib import Path
 import numpy as np
 import torch
 import typer
-from bench_pipeline import fit_setup, held_out_line
+from bench_setups import fit_setup, held_out_line
 
 from gspc.io import read_scene
 from gspc.io.cameras_json import save_cameras_json
-from gspc.metrics import psnr, quantize8
+from gspc.metrics import mean_psnr
 from gspc.pipeline import DecodeOptions, EncodeOptions, decode, encode, render_images
-
-
-def mean_psnr(images: list[torch.Tensor], targets: list[torch.Tensor]) -> float:
-    return float(np.mean([float(psnr(quantize8(a), quantize8(b))) for a, b in zip(images, targets)]))
 
 
 def bytes_at(curve: list[tuple[int, float]], target: float) -> float | None:

@@ -14,171 +14,19 @@ Writes bench/pipeline.md and bench/pipeline_rd.png.
 
 from __future__ import annotations
 
-import json
-import os
-import platform
 import sys
 import tempfile
 import time
-from dataclasses import dataclass
 from pathlib import Path
 
-import imagecodecs
 import numpy as np
 import torch
 import typer
+from bench_setups import SHARED, Setup, fit_setup, run_point, score, synth_setup
 
-from gspc.cameras import Camera
-from gspc.format import container
-from gspc.format.chunks import RESI, SIDE
-from gspc.format.header import FileHeader
-from gspc.format.side_chunk import read_side_views
 from gspc.io import read_scene
-from gspc.io.camera_files import load_cameras
-from gspc.io.cameras_json import save_cameras_json
-from gspc.metrics import psnr, quantize8, ssim
-from gspc.pipeline import DecodeOptions, EncodeOptions, decode, encode
 from gspc.restore.restorer import available_restorers
 from gspc.stages import render_images
-from gspc.views import sample_views, split_test_views, synthesize_views
-
-SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
-
-
-@dataclass
-class Setup:
-    name: str
-    scene_path: Path
-    train_cams: list[Camera]  # the encoder samples its side-information views from these
-    eval_cams: list[Camera]  # never carry side information
-    background: tuple[float, float, float]
-    photos: list[torch.Tensor] | None = None  # held-out photos at eval_cams (lego)
-
-
-def fit_setup(folder: Path) -> Setup:
-    """A tools/fit_scene.py output: its held-out photos are the ground truth, its background the fit's."""
-    fit = json.loads((folder / "fit.json").read_text())
-    background = float(fit.get("background", 1.0))
-    kind = "capture" if fit.get("source") == "colmap" else "lego"
-    cams = load_cameras(folder / "cameras.json")
-    train, test = split_test_views(cams, every=8)
-    photos = []
-    for i in test:
-        img = imagecodecs.png_decode((folder / "test" / f"{cams[i].name}.png").read_bytes())
-        photos.append(torch.from_numpy(img[..., :3].astype(np.float32) / 255))
-    return Setup(
-        f"{kind} ({folder.name})",
-        folder / "point_cloud.ply",
-        [cams[i] for i in train],
-        [cams[i] for i in test],
-        (background,) * 3,
-        photos,
-    )
-
-
-def held_out_line(scene, eval_cams: list[Camera]) -> str:
-    """The opening of a fit benchmark's description: the scene, its held-out views and the machine."""
-    return (
-        f"{scene.num_gaussians:,} Gaussians, SH degree {scene.sh_degree}; {len(eval_cams)} held-out views "
-        f"({eval_cams[0].width}x{eval_cams[0].height}). Machine: {platform.machine()}, {os.cpu_count()} "
-        "vCPUs, one torch thread"
-    )
-
-
-def synth_setup(name: str, path: Path, views: int = 60, size: int = 320, n_eval: int = 12) -> Setup:
-    scene = read_scene(path)
-    cams = synthesize_views(scene, views, width=size, height=size)
-    # Evaluate on views the encoder will not sample: the complement of sample_views(0.4) over all views.
-    side = set(sample_views(cams, 0.4))
-    rest = [i for i in range(len(cams)) if i not in side]
-    pick = [rest[int(j)] for j in np.linspace(0, len(rest) - 1, n_eval).round()]
-    return Setup(name, path, cams, [cams[i] for i in pick], (0.0, 0.0, 0.0))
-
-
-def score(scene_path: Path, s: Setup, reference: list[torch.Tensor]) -> dict[str, float]:
-    imgs = render_images(read_scene(scene_path), s.eval_cams, s.background)
-    out = {
-        "psnr": float(np.mean([psnr(quantize8(a), quantize8(b)) for a, b in zip(imgs, reference)])),
-        "ssim": float(np.mean([ssim(quantize8(a), quantize8(b)) for a, b in zip(imgs, reference)])),
-    }
-    if s.photos is not None:
-        out["psnr_photo"] = float(np.mean([psnr(quantize8(a), quantize8(b)) for a, b in zip(imgs, s.photos)]))
-        out["ssim_photo"] = float(np.mean([ssim(quantize8(a), quantize8(b)) for a, b in zip(imgs, s.photos)]))
-    return out
-
-
-def run_point(
-    s: Setup,
-    tmp: Path,
-    ref,
-    quality="low",
-    lam=None,
-    side_info=True,
-    iterations=None,
-    restorer="none",
-    restore=True,
-    refine=True,
-    check=True,
-    cells=True,
-    residual_scale=None,
-    target_size=None,
-    tag="",
-) -> dict:
-    cams_file = tmp / f"{s.name.split()[0]}_train_cameras.json"
-    if not cams_file.exists():
-        save_cameras_json(s.train_cams, cams_file)
-    gfile = (
-        tmp / f"{s.name.split()[0]}_{quality}_{lam}_{side_info}_{check}_{residual_scale}_{target_size}.gspc"
-    )
-    max_side = max(max(c.width, c.height) for c in s.train_cams)
-    t0 = time.perf_counter()
-    if not gfile.exists():
-        encode(
-            s.scene_path,
-            gfile,
-            cams_file,
-            EncodeOptions(
-                quality=quality,
-                lam=lam,
-                side_info=side_info,
-                max_side=max_side,
-                background=s.background,
-                check_iterations=None if check else 0,
-                residual_scale=residual_scale,
-                target_size=target_size,
-            ),
-        )
-    enc_s = time.perf_counter() - t0
-    out_ply = tmp / f"out_{tag}.ply"
-    t0 = time.perf_counter()
-    rep = decode(
-        gfile,
-        out_ply,
-        DecodeOptions(
-            iterations=iterations, restorer=restorer, restore=restore, refine=refine, in_cells=cells
-        ),
-    )
-    dec_s = time.perf_counter() - t0
-    res = score(out_ply, s, ref)
-    res.update(
-        bytes=gfile.stat().st_size,
-        n=rep.num_gaussians_out,
-        encode_s=enc_s,
-        decode_s=dec_s,
-        side=sum(v for k, v in rep.bytes.items() if k in (RESI, SIDE)),
-        refine=rep.info.get("refine", "none"),
-        scale=_residual_scale(gfile),
-    )
-    return res
-
-
-def _residual_scale(path: Path) -> int | None:
-    """The resolution divisor of the file's residuals (None: no side information)."""
-    c = container.read(path)
-    legacy = FileHeader.from_dict(c.header).side_info.legacy_views
-    side = read_side_views(legacy, c.chunks, path.stat().st_size)
-    scales = {v.residual.scale for v in side.views if v.residual is not None}
-    return scales.pop() if len(scales) == 1 else None
 
 
 def fmt_row(label: str, r: dict, n_in: int, photos: bool) -> str:

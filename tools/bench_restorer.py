@@ -26,7 +26,7 @@ import torch
 import typer
 
 from gspc.io import read_scene
-from gspc.metrics import psnr, quantize8
+from gspc.metrics import mean_psnr
 from gspc.options import DecodeOptions, EncodeOptions
 from gspc.pipeline import decode, encode
 from gspc.restore.data import load_view, read_manifest, validate
@@ -90,11 +90,10 @@ def pipeline_rows(scene_path: Path, name: str, quality: str, iterations: int, ev
     cams = limit_size(synthesize_views(scene, opts.synth_views), opts.max_side)
     sent = set(sample_views(cams, opts.views_fraction))
     eval_cams = [c for i, c in enumerate(cams) if i not in sent][::every]
-    refs = [quantize8(im) for im in render_images(scene, eval_cams, opts.background)]
+    refs = render_images(scene, eval_cams, opts.background)
 
     def score(ply: Path) -> float:
-        out = render_images(read_scene(ply), eval_cams, opts.background)
-        return float(np.mean([float(psnr(quantize8(a), b)) for a, b in zip(out, refs)]))
+        return mean_psnr(render_images(read_scene(ply), eval_cams, opts.background), refs)
 
     rows = []
     with tempfile.TemporaryDirectory() as tmp:

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import torch
 import typer
-from bench_pipeline import fit_setup, score
+from bench_setups import fit_setup, score
 
 from gspc.io import read_scene
 from gspc.pipeline import DecodeOptions, EncodeOptions, decode, encode

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import torch
 import typer
-from bench_pipeline import SHARED, fit_setup, run_point, synth_setup
+from bench_setups import SHARED, fit_setup, run_point, synth_setup
 
 from gspc.io import read_scene
 from gspc.stages import render_images

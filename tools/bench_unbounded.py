@@ -28,7 +28,7 @@ from unittest import mock
 import numpy as np
 import torch
 import typer
-from bench_pipeline import fit_setup
+from bench_setups import fit_setup
 
 from gspc.cameras import Camera
 from gspc.codec import positions

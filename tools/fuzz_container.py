@@ -14,7 +14,6 @@ from __future__ import annotations
 import argparse
 import random
 import struct
-import sys
 import time
 import tracemalloc
 import zlib
@@ -23,11 +22,10 @@ from pathlib import Path
 
 import msgpack
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from gspc.errors import FormatError
+from gspc.format import container
 
-from gspc.errors import FormatError  # noqa: E402
-from gspc.format import container  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 INTERESTING = [
     0,

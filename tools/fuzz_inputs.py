@@ -32,7 +32,7 @@ from hostile import (  # noqa: E402
     sog_cases,
 )
 from scenes import random_scene  # noqa: E402
-from test_io import make_sog  # noqa: E402
+from sog_files import make_sog  # noqa: E402
 from typer.testing import CliRunner  # noqa: E402
 
 from gspc.cli import app  # noqa: E402

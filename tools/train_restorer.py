@@ -31,9 +31,10 @@ import torch
 import torch.distributed as dist
 import torch.nn.functional as F
 import typer
+from lpips_vgg import LPIPS
 
 from gspc.atomic import atomic_write
-from gspc.metrics import LPIPS, ssim
+from gspc.metrics import ssim
 from gspc.restore.data import load_view, read_manifest, validate
 from gspc.restore.nafnet import NAFNet, count_parameters
 from gspc.restore.restorer import save_restorer

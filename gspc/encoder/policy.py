@@ -20,10 +20,11 @@ from gspc.codec import residuals
 from gspc.codec.attributes import EncodedAttributes, search_lambda
 from gspc.codec.params import CodecParams
 from gspc.encoder.side import SideCandidate
+from gspc.metrics import mean_psnr
 from gspc.progress import Progress
 from gspc.refine import Refined
 from gspc.scene import GaussianScene
-from gspc.stages import mean_psnr, refine_in_cells, render_images, restored_targets
+from gspc.stages import refine_in_cells, render_images, restored_targets
 
 # Held-out PSNR gain after refinement per dB that the residuals add to their own views' renders (I~ + R~ over
 # I~), measured with 1000 iterations inside the cells: lego fit lambda 8, 0.86 (residuals at 1/2 resolution)
