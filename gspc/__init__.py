@@ -11,7 +11,8 @@ from typing import TYPE_CHECKING
 
 __version__ = "0.1.0"
 
-# public name -> the module that holds it
+# The public API: name -> the module that holds it. __all__ follows from it, and the TYPE_CHECKING imports
+# below must name the same (tests/test_public_api.py ties the three together).
 _LAZY = {
     "Camera": "gspc.cameras",
     "load_cameras": "gspc.io.camera_files",
@@ -25,45 +26,35 @@ _LAZY = {
     "decode_bytes": "gspc.pipeline",
     "encode": "gspc.pipeline",
     "encode_scene": "gspc.pipeline",
-    "render": "gspc.render",
+    # Not "render": importing the subpackage gspc.render binds that name to the module.
+    "render_view": "gspc.render:render",
     "GaussianScene": "gspc.scene",
 }
 
-__all__ = [
-    "Camera",
-    "DecodeOptions",
-    "EncodeOptions",
-    "GaussianScene",
-    "GspcError",
-    "__version__",
-    "decode",
-    "decode_bytes",
-    "encode",
-    "encode_scene",
-    "load_cameras",
-    "read_scene",
-    "render",
-    "synthesize_views",
-    "write_ply",
-]
+__all__ = sorted([*_LAZY, "__version__"])
 
-if TYPE_CHECKING:  # static checkers see the names directly
-    from gspc.cameras import Camera
-    from gspc.errors import GspcError
-    from gspc.io import read_scene, write_ply
-    from gspc.io.camera_files import load_cameras
-    from gspc.options import DecodeOptions, EncodeOptions
-    from gspc.pipeline import decode, decode_bytes, encode, encode_scene
-    from gspc.render import render
-    from gspc.scene import GaussianScene
-    from gspc.views import synthesize_views
+if TYPE_CHECKING:  # static checkers see the names directly (``as``: re-exported)
+    from gspc.cameras import Camera as Camera
+    from gspc.errors import GspcError as GspcError
+    from gspc.io import read_scene as read_scene
+    from gspc.io import write_ply as write_ply
+    from gspc.io.camera_files import load_cameras as load_cameras
+    from gspc.options import DecodeOptions as DecodeOptions
+    from gspc.options import EncodeOptions as EncodeOptions
+    from gspc.pipeline import decode as decode
+    from gspc.pipeline import decode_bytes as decode_bytes
+    from gspc.pipeline import encode as encode
+    from gspc.pipeline import encode_scene as encode_scene
+    from gspc.render import render as render_view  # noqa: F401  (re-exported under another name)
+    from gspc.scene import GaussianScene as GaussianScene
+    from gspc.views import synthesize_views as synthesize_views
 
 
 def __getattr__(name: str):
-    module = _LAZY.get(name)
-    if module is None:
+    if name not in _LAZY:
         raise AttributeError(f"module 'gspc' has no attribute {name!r}")
-    value = getattr(importlib.import_module(module), name)
+    module, _, attr = _LAZY[name].partition(":")  # "module:attr" where the names differ
+    value = getattr(importlib.import_module(module), attr or name)
     globals()[name] = value  # later lookups skip this function
     return value
 

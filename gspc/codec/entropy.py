@@ -184,11 +184,6 @@ def fixed_point_table(spec: list[int]) -> np.ndarray:
     return f
 
 
-def model_for(spec: list[int]):
-    """The constriction model of a spec, or None for specs that code no bits (kinds 0 and 1)."""
-    return _categorical(spec) if spec[0] >= 2 else None
-
-
 def _categorical(spec: list[int]):
     # constriction's fast quantiser (ContiguousCategoricalEntropyModel::
     # from_floating_point_probabilities_fast)

@@ -34,8 +34,6 @@ MAX_CHUNK_LENGTH = (1 << 48) - 1
 MAX_U32 = (1 << 32) - 1
 MAX_DEPTH = 32
 
-# The chunk types of gspc 1.1 (spec section "Chunk type registry"). Payload formats belong to the codecs.
-
 _TYPE_CHARS = frozenset(b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789")
 _ENTRY_KEYS = ("type", "flags", "index", "length", "crc")
 
