@@ -84,15 +84,21 @@ def _floats(d: dict, key: str, where: str, length: int | None = None) -> tuple[f
     return tuple(v)
 
 
+def _bound(most: float) -> str:
+    """A bound as the spec writes it: 2^64, or 32."""
+    return "2^64" if most == MAX_COORDINATE else f"{most:g}"
+
+
 def _positive(values: tuple[float, ...], where: str, most: float = math.inf) -> None:
     if not all(math.isfinite(v) and 0 < v <= most for v in values):
-        bound = "" if most == math.inf else f" up to {most:g}"
+        bound = "" if most == math.inf else f", at most {_bound(most)}"
         raise _fail(where, list(values) if len(values) > 1 else values[0], f"finite and > 0{bound}")
 
 
 def _within(values: tuple[float, ...], where: str, most: float) -> None:
     if not all(math.isfinite(v) and abs(v) <= most for v in values):
-        raise _fail(where, list(values) if len(values) > 1 else values[0], f"finite and within +-{most:g}")
+        value = list(values) if len(values) > 1 else values[0]
+        raise _fail(where, value, f"finite and within +-{_bound(most)}")
 
 
 @dataclass(frozen=True)
@@ -139,7 +145,7 @@ class PositionGrid:
         if not all(abs(t) <= bound for t in top):
             raise CodecError(
                 f"attribute codec header's position grid reaches {_show(list(top))} "
-                f"(lo + (2^bits - 1) step), beyond +-{bound:g}"
+                f"(lo + (2^bits - 1) step), beyond +-{_bound(bound)} (spec 10.1)"
             )
         if self.far is not None and self.contraction is None:
             raise CodecError("attribute codec header has a far set on a grid that is not contracted")
