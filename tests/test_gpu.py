@@ -11,8 +11,10 @@ gsplat 1.5's renders by the bound its alpha cap allows (gspc/render/gsplat_backe
 import dataclasses
 import importlib.machinery
 import math
+import re
 import sys
 import types
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -362,6 +364,25 @@ def test_float32_math_is_local_and_synchronize_is_free_on_cpu():
     assert (torch.backends.cudnn.allow_tf32, torch.backends.cuda.matmul.allow_tf32) == before
     synchronize(CPU)
     synchronize()
+
+
+def test_pyproject_pins_what_the_code_needs():
+    # Adam(fused=True) on CPU tensors (gspc/refine.py) needs torch 2.4; the [cuda] extra takes exactly the
+    # gsplat versions gsplat_backend.SUPPORTED renders with.
+    text = (Path(__file__).resolve().parent.parent / "pyproject.toml").read_text()
+    floor = re.search(r'"torch>=(\d+)\.(\d+)', text)
+    assert floor and (int(floor[1]), int(floor[2])) >= (2, 4)
+    (lo_major, lo_minor), (hi_major, hi_minor) = gb.SUPPORTED
+    assert f'"gsplat>={lo_major}.{lo_minor},<{hi_major}.{hi_minor}"' in text
+
+
+def test_stage_timers_wait_for_the_gpu(monkeypatch):
+    calls = []
+    monkeypatch.setattr(pipeline, "synchronize", lambda device=None: calls.append(device))
+    rep = pipeline.Report()
+    with rep.timed("render"):
+        pass
+    assert len(calls) == 2 and "render" in rep.seconds
 
 
 # --- CUDA machines -----------------------------------------------------------------------------------------
