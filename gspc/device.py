@@ -34,7 +34,7 @@ def renderer_info(device: torch.device, progress: Progress | None = None, encode
 
     On CUDA: gsplat with its version, and its alpha cap where it differs from the file's rules, or the torch
     renderer on the GPU and why gsplat is not used. ``encoder``: the encoder renders the residuals' images
-    with the torch renderer, which follows the rules (spec 14), whatever renders the rest."""
+    with the torch renderer, which follows the rules (spec 10.12), whatever renders the rest."""
     if device.type != "cuda":
         return f"torch on {device.type}"
     status = gsplat_status(device, progress)

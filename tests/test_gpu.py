@@ -5,7 +5,7 @@ on the GPU against the CPU.
 
 The attribute codec runs on the CPU whatever the device (gspc/device.py), so its bytes and decoded attributes
 must be identical on every device; renders, the check and refinement may differ by float round-off, and
-gsplat 1.5's renders by the bound its alpha cap allows (gspc/render/gsplat_backend.py, spec section 14).
+gsplat 1.5's renders by the bound its alpha cap allows (gspc/render/gsplat_backend.py, spec 10.12).
 """
 
 import dataclasses

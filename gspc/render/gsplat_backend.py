@@ -4,7 +4,7 @@ Same conventions as the torch backend (OpenCV camera, the low-pass and near plan
 camera centre, pixel centres at +0.5, classic 3DGS compositing). gsplat's kernels are float32: other dtypes
 are cast there and back (gradients flow through the casts).
 
-Where gsplat 1.5.x departs from the file's renderer rules (spec section 14, rules.py), and what it costs:
+Where gsplat 1.5.x departs from the file's renderer rules (spec 10.12, rules.py), and what it costs:
 - it caps alpha at 0.999, not 0.99. Only pixels where a Gaussian reaches the cap differ, by at most
   ``cap_miss_bound(0.999)`` = 0.1 of the colour range: the larger cap also stops a pixel earlier (a pixel
   stops before the Gaussian that would take its transmittance below 1e-4), so a capped Gaussian behind
@@ -75,7 +75,7 @@ class GsplatStatus:
         if self.alpha_cap is not None and self.alpha_cap != ALPHA_MAX:
             text += (
                 f" (alpha cap {self.alpha_cap:g}, the file's rules {ALPHA_MAX:g}: pixels may differ by up to "
-                f"{cap_miss_bound(self.alpha_cap):.2g} of the colour range, spec 14)"
+                f"{cap_miss_bound(self.alpha_cap):.2g} of the colour range, spec 10.12)"
             )
         if self.jit_seconds is not None:
             text += f" (no prebuilt kernels: its first call built or loaded them in {self.jit_seconds:.0f} s)"
