@@ -142,8 +142,8 @@ def encode_scene(
     if views:
         with rep.timed("render"):
             bg = opts.background
-            # The residuals go into the file, so they are rendered by the file's renderer rules (spec 10.12): the
-            # torch renderer follows them on every device, gsplat 1.5 does not (gspc/render/gsplat_backend.py)
+            # The residuals go into the file: rendered by the file's renderer rules (spec 10.12), which the
+            # torch renderer follows on every device and gsplat 1.5 does not (gspc/render/gsplat_backend.py)
             original = render_images(scene.to(device), view_cams, bg, progress, "render original", "torch")
             coded = render_images(enc.decoded.to(device), view_cams, bg, progress, "render coded", "torch")
         with _stage(rep, progress, "side info"):
