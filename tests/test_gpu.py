@@ -12,6 +12,7 @@ import dataclasses
 import importlib.machinery
 import math
 import re
+import subprocess
 import sys
 import types
 from pathlib import Path
@@ -383,6 +384,15 @@ def test_stage_timers_wait_for_the_gpu(monkeypatch):
     with rep.timed("render"):
         pass
     assert len(calls) == 2 and "render" in rep.seconds
+
+
+@without_cuda
+def test_gpu_bench_measures_nothing_without_a_gpu(tmp_path):
+    out = tmp_path / "scale_gpu.md"
+    tool = Path(__file__).resolve().parent.parent / "tools" / "bench_gpu.py"
+    proc = subprocess.run([sys.executable, str(tool), "--out", str(out)], capture_output=True, text=True)
+    assert proc.returncode != 0 and "no CUDA GPU here: nothing measured, nothing written" in proc.stderr
+    assert not out.exists()
 
 
 # --- CUDA machines -----------------------------------------------------------------------------------------
