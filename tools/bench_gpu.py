@@ -15,6 +15,7 @@ recorded, with the renderer its summary names. Without CUDA it measures nothing 
 from __future__ import annotations
 
 import argparse
+import importlib.metadata
 import json
 import os
 import platform
@@ -144,12 +145,10 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         for s in args.sizes.split(","):
             rows += run_size(Path(args.scenes) / f"scale_{s}", Path(tmp), args.threads)
-    try:
-        import gsplat
-
-        gsplat_version = gsplat.__version__
-    except Exception as e:  # reported, not fatal: the runs fall back to the torch renderer and say so
-        gsplat_version = f"not importable ({type(e).__name__})"
+    try:  # the installed distribution, without importing it (the runs' own probe says whether it works)
+        gsplat_version = importlib.metadata.version("gsplat")
+    except importlib.metadata.PackageNotFoundError:
+        gsplat_version = "not installed"
     lines = [
         "# Scale on a GPU: the scale scenes decoded on a CUDA GPU beside the CPU",
         "",
