@@ -41,6 +41,7 @@ from gspc.scene import GaussianScene
 # same. 1.4 culls tiles at 3 sigma; 1.6 needs torch >= 2.7 and no GPU run has checked it yet.
 SUPPORTED = ((1, 5), (1, 6))
 INSTALL = "pip install 'gspc[cuda]' (gsplat>=1.5,<1.6)"
+KERNELS_HINT = "gsplat needs its kernels prebuilt for this GPU, or the CUDA toolkit (nvcc) to build them"
 COMPILE_STAGE = "gsplat kernels (a first run compiles them with nvcc: minutes)"
 
 
@@ -74,8 +75,8 @@ class GsplatStatus:
         text = f"gsplat {self.version}"
         if self.alpha_cap is not None and self.alpha_cap != ALPHA_MAX:
             text += (
-                f" (alpha cap {self.alpha_cap:g}, the file's rules {ALPHA_MAX:g}: pixels may differ by up to "
-                f"{cap_miss_bound(self.alpha_cap):.2g} of the colour range, spec 10.12)"
+                f" (alpha cap {self.alpha_cap:g}, the file's rules {ALPHA_MAX:g}: pixels at capped Gaussians may differ by "
+                f"up to {cap_miss_bound(self.alpha_cap):.2g} of the colour range, spec 10.12)"
             )
         if self.jit_seconds is not None:
             text += f" (no prebuilt kernels: its first call built or loaded them in {self.jit_seconds:.0f} s)"
@@ -92,6 +93,8 @@ def gsplat_status(device: torch.device, progress: Progress | None = None) -> Gsp
 
     ``progress`` (the pipeline's) hears of the probe as a stage when gsplat has no prebuilt kernels, since
     its first call may then compile them for minutes."""
+    if device.type == "cuda" and device.index is None:  # "cuda" and "cuda:0" are one device, probed once
+        device = torch.device("cuda", torch.cuda.current_device())
     key = str(device)
     if key not in _STATUS:
         _STATUS[key] = _probe(device, progress)
@@ -115,9 +118,8 @@ def _probe(device: torch.device, progress: Progress | None) -> GsplatStatus:
     try:
         alpha = _centre_alpha(gsplat, device)
     except Exception as e:  # no kernels (extension None), a build failure, a driver too old, ...
-        return GsplatStatus(
-            False, f"gsplat {version}'s CUDA kernels do not run here ({_one_line(e)})", version
-        )
+        why = f"gsplat {version}'s CUDA kernels do not run here ({_one_line(e)}); {KERNELS_HINT}"
+        return GsplatStatus(False, why, version)
     finally:
         if jit and progress:
             progress(COMPILE_STAGE, 1, 1)
