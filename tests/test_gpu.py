@@ -268,7 +268,8 @@ def test_working_gsplat_is_named_with_its_version_and_measured_cap(fake_gsplat, 
     assert (status.jit_seconds is None) == prebuilt
     info = renderer_info(torch.device("cuda"))
     assert info.startswith(
-        "gsplat 1.5.3 (alpha cap 0.999, the file's rules 0.99: pixels at capped Gaussians may differ by up to 0.1"
+        "gsplat 1.5.3 (alpha cap 0.999, the file's rules 0.99: pixels at capped Gaussians may differ by up "
+        "to 0.1 of the colour range, spec 10.12)"
     )
     assert info.endswith(" on cuda") and ("first call built or loaded them" in info) != prebuilt
     assert renderer_info(torch.device("cuda"), encoder=True).endswith(

@@ -75,8 +75,8 @@ class GsplatStatus:
         text = f"gsplat {self.version}"
         if self.alpha_cap is not None and self.alpha_cap != ALPHA_MAX:
             text += (
-                f" (alpha cap {self.alpha_cap:g}, the file's rules {ALPHA_MAX:g}: pixels at capped Gaussians may differ by "
-                f"up to {cap_miss_bound(self.alpha_cap):.2g} of the colour range, spec 10.12)"
+                f" (alpha cap {self.alpha_cap:g}, the file's rules {ALPHA_MAX:g}: pixels at capped Gaussians "
+                f"may differ by up to {cap_miss_bound(self.alpha_cap):.2g} of the colour range, spec 10.12)"
             )
         if self.jit_seconds is not None:
             text += f" (no prebuilt kernels: its first call built or loaded them in {self.jit_seconds:.0f} s)"
