@@ -1,5 +1,6 @@
 """The compute device a run asks for (``--device``): checked before any work, by the encoder and the decoder
-alike, and what the run reports about it.
+alike; what the run reports about it; and the two things GPU work needs around it (synchronised clocks,
+float32 math).
 
 Rendering, restoration and refinement run on this device; the attribute codec always runs on the CPU
 (numpy, integer tables), so its bytes and its decoded attributes are the same on every device.
@@ -7,10 +8,14 @@ Rendering, restoration and refinement run on this device; the attribute codec al
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
+
 import torch
 
 from gspc.errors import DeviceError
-from gspc.render.api import backend_for
+from gspc.progress import Progress
+from gspc.render.gsplat_backend import gsplat_status
 
 DEVICES = ("cpu", "cuda")
 
@@ -24,10 +29,38 @@ def check_device(name: str) -> torch.device:
     return torch.device(name)
 
 
-def renderer_info(device: torch.device) -> str:
-    """Which renderer a run on ``device`` uses, for its report: without gsplat a CUDA run renders with the
-    torch renderer on the GPU (not on the CPU), and says so."""
-    backend = backend_for(device)
-    if device.type == "cuda" and backend == "torch":
-        return "torch on cuda (gsplat is not installed: pip install gspc[cuda])"
-    return f"{backend} on {device.type}"
+def renderer_info(device: torch.device, progress: Progress | None = None, encoder: bool = False) -> str:
+    """Which renderer a run on ``device`` uses, for its report (probing gsplat on CUDA, once per process).
+
+    On CUDA: gsplat with its version, and its alpha cap where it differs from the file's rules, or the torch
+    renderer on the GPU and why gsplat is not used. ``encoder``: the encoder renders the residuals' images
+    with the torch renderer, which follows the rules (spec 10.12), whatever renders the rest."""
+    if device.type != "cuda":
+        return f"torch on {device.type}"
+    status = gsplat_status(device, progress)
+    if not status.usable:
+        return f"torch on {device.type} (gsplat not used: {status.reason})"
+    text = f"{status.describe()} on {device.type}"
+    return text + ("; residuals rendered by the torch renderer (the file's rules)" if encoder else "")
+
+
+def synchronize(device: torch.device | None = None) -> None:
+    """Wait for the work queued on a CUDA ``device`` (None: the current one, if CUDA has been started), so
+    that a clock read next counts it; nothing on the CPU, which runs eagerly."""
+    if device is not None and device.type != "cuda":
+        return
+    if torch.cuda.is_available() and torch.cuda.is_initialized():
+        torch.cuda.synchronize(device)
+
+
+@contextmanager
+def float32_math() -> Iterator[None]:
+    """Full float32 convolutions and matrix products inside (no TF32, which CUDA convolutions use by
+    default on Ampere and later: SSIM's variances moved by ~1e-4); the flags are restored on exit. Also a
+    decorator."""
+    conv, matmul = torch.backends.cudnn.allow_tf32, torch.backends.cuda.matmul.allow_tf32
+    torch.backends.cudnn.allow_tf32 = torch.backends.cuda.matmul.allow_tf32 = False
+    try:
+        yield
+    finally:
+        torch.backends.cudnn.allow_tf32, torch.backends.cuda.matmul.allow_tf32 = conv, matmul

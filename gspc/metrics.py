@@ -15,6 +15,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from gspc.device import float32_math
 from gspc.errors import InputError
 
 SSIM_WINDOW = 11
@@ -52,6 +53,7 @@ def _gaussian_1d(window: int, sigma: float, dtype: torch.dtype, device: torch.de
     return (g / g.sum()).to(dtype=dtype, device=device)
 
 
+@float32_math()  # no TF32 on CUDA: it moved SSIM's variances by ~1e-4
 def _blur(x: torch.Tensor, g: torch.Tensor, padding: int) -> torch.Tensor:
     """Separable Gaussian filter of an (N, C, H, W) tensor, each channel on its own, zero padding."""
     c = x.shape[1]

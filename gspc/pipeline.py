@@ -20,7 +20,7 @@ from gspc import __version__
 from gspc.atomic import atomic_write_bytes
 from gspc.cameras import Camera
 from gspc.codec.attributes import EncodedAttributes, attribute_chunks, decode_attributes
-from gspc.device import check_device, renderer_info
+from gspc.device import check_device, renderer_info, synchronize
 from gspc.encoder.policy import CheckInputs, SideInfoDecision, check_cameras, check_side_info
 from gspc.encoder.side import SideCandidate, view_residuals
 from gspc.encoder.stages import (
@@ -84,9 +84,11 @@ class _Timer:
         self.sink, self.stage = sink, stage
 
     def __enter__(self):
+        synchronize()  # on a GPU, a stage's seconds are its own work, not what was queued before it
         self.t0 = time.perf_counter()
 
     def __exit__(self, *exc):
+        synchronize()
         self.sink[self.stage] = self.sink.get(self.stage, 0.0) + time.perf_counter() - self.t0
 
 
@@ -125,7 +127,7 @@ def encode_scene(
     device = check_device(opts.device)
     rep = rep or Report()
     rep.num_gaussians_in = scene.num_gaussians
-    rep.info["renderer"] = renderer_info(device)
+    rep.info["renderer"] = renderer_info(device, progress, encoder=True)
     cameras = encoder_cameras(scene, cameras, opts)
     restorer = load_restorer(opts.restorer, device=device)  # fails early on a name the package lacks
     with _stage(rep, progress, "attributes"):
@@ -175,8 +177,10 @@ def _side_information(
         return _EncoderChoice(enc, None, runs.refine)
     with rep.timed("render"):
         bg = opts.background
-        original = render_images(scene.to(device), view_cams, bg, progress, "render original")
-        coded = render_images(enc.decoded.to(device), view_cams, bg, progress, "render coded")
+        # The residuals go into the file: rendered by the file's renderer rules (spec 10.12), which the
+        # torch renderer follows on every device and gsplat 1.5 does not (gspc/render/gsplat_backend.py)
+        original = render_images(scene.to(device), view_cams, bg, progress, "render original", "torch")
+        coded = render_images(enc.decoded.to(device), view_cams, bg, progress, "render coded", "torch")
     with _stage(rep, progress, "side info"):
         candidates = side_candidates(opts, view_cams, view_residuals(original, coded), runs.check)
     # No residual anywhere: no chunk at all (cameras alone would be dead weight).
@@ -270,7 +274,7 @@ def decode_bytes(
     opts.validate()
     device = check_device(opts.device)
     rep = rep or Report()
-    rep.info["renderer"] = renderer_info(device)
+    rep.info["renderer"] = renderer_info(device, progress)
     with _stage(rep, progress, "read"):
         file = _read(data)
         restorer_name = opts.restorer if opts.restorer is not None else file.header.side_info.restorer

@@ -1,8 +1,9 @@
 """Decoder-side refinement: re-fit a decoded scene's attributes to restored renders (README.md, decoder).
 
 Adam over the chosen attributes with INRIA-3DGS-like per-attribute learning rates, loss
-0.8 * L1 + 0.2 * (1 - SSIM) on one view per iteration (drawn with a seeded generator, so a run is
-reproducible), the Gaussian count fixed (no densification or pruning).
+0.8 * L1 + 0.2 * (1 - SSIM) on one view per iteration (drawn with a seeded generator, so a run on the CPU is
+reproducible; on CUDA it is not bit for bit: gradients are summed with float atomics in varying order), the
+Gaussian count fixed (no densification or pruning).
 """
 
 from __future__ import annotations
@@ -100,6 +101,7 @@ def refine(
     scene and the iterations run; the input is left unchanged unless ``in_place`` (which saves a copy of
     the scene: 236 MB for a million Gaussians at SH degree 3), where it is the result.
     """
+    from gspc.device import float32_math, synchronize
     from gspc.metrics import ssim  # imported here: refinement is the only user on the decode path
     from gspc.render import render
 
@@ -155,7 +157,8 @@ def refine(
         l1 = (image - targets[v]).abs().mean()
         loss = (1 - SSIM_WEIGHT) * l1 + SSIM_WEIGHT * (1 - ssim(image, targets[v]))
         opt.zero_grad(set_to_none=True)
-        loss.backward()
+        with float32_math():  # SSIM's convolutions' gradients too (gspc/device.py)
+            loss.backward()
         opt.step()
         if cells is not None:
             with torch.no_grad():
@@ -164,6 +167,7 @@ def refine(
                         clamp_into(g["name"], g["params"][0], cells[g["name"]])
         it += 1
         if deadline is not None:
+            synchronize(device)  # the clock counts the queued GPU work
             now = time.perf_counter()
             if it == 1:
                 first_done = now

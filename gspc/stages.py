@@ -28,14 +28,15 @@ def render_images(
     background: Sequence[float],
     progress: Progress | None = None,
     stage: str = "render",
+    backend: str = "auto",
 ) -> list[torch.Tensor]:
-    """Clamped renders, one per camera (what a viewer displays)."""
+    """Clamped renders, one per camera (what a viewer displays), by render's ``backend``."""
     bg = torch.tensor(background, dtype=scene.means.dtype, device=scene.means.device)
     out = []
     if progress:
         progress(stage, 0, len(cameras))
     for i, cam in enumerate(cameras):
-        out.append(render(scene, cam, background=bg).image.clamp(0, 1))
+        out.append(render(scene, cam, background=bg, backend=backend).image.clamp(0, 1))
         if progress:
             progress(stage, i + 1, len(cameras))
     return out

@@ -6,7 +6,7 @@ import torch
 
 from gspc.cameras import Camera
 from gspc.errors import DeviceError, InputError
-from gspc.render.gsplat_backend import gsplat_available, render_gsplat
+from gspc.render.gsplat_backend import gsplat_status, render_gsplat
 from gspc.render.project import project
 from gspc.render.rasterize import composite
 from gspc.render.result import RenderResult
@@ -36,9 +36,9 @@ def render(
 
 
 def backend_for(device: torch.device) -> str:
-    """The backend that ``backend="auto"`` picks for a scene on ``device``: gsplat on CUDA when it imports,
-    else the torch renderer (on that same device)."""
-    return "gsplat" if device.type == "cuda" and gsplat_available() else "torch"
+    """The backend that ``backend="auto"`` picks for a scene on ``device``: gsplat on CUDA when its kernels
+    run there (gsplat_status probes them once), else the torch renderer on that same device."""
+    return "gsplat" if device.type == "cuda" and gsplat_status(device).usable else "torch"
 
 
 def _pick_backend(backend: str, ref: torch.Tensor) -> str:
@@ -52,9 +52,7 @@ def _pick_backend(backend: str, ref: torch.Tensor) -> str:
         raise DeviceError(
             "render backend 'gsplat' needs the scene on a CUDA device; use backend 'torch' on CPU"
         )
-    if not gsplat_available():
-        raise DeviceError("render backend 'gsplat' needs the gsplat package (pip install gspc[cuda])")
-    return "gsplat"
+    return "gsplat"  # render_gsplat refuses it, with the reason, where its kernels do not run
 
 
 def _render_torch(scene, camera: Camera, bg: torch.Tensor, deg: int) -> RenderResult:

@@ -1,6 +1,7 @@
-"""The compositing rules every render backend shares (spec 10.8, "Rendering convention"): INRIA 3DGS's and
-gsplat's. The torch backend (project.py, rasterize.py), the reference (reference.py) and the gsplat backend
-take their constants from here."""
+"""The file's renderer rules (spec 10.12): part of the decoder's definition, INRIA 3DGS's. The torch backend
+(project.py, rasterize.py) and the reference (reference.py) follow them and take their constants from here;
+the gsplat backend passes NEAR and LOWPASS to gsplat, whose 1.5.x kernels cap alpha at 0.999 instead of
+ALPHA_MAX and skip q < 0 (gsplat_backend.py says by how much that misses)."""
 
 from __future__ import annotations
 

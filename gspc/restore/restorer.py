@@ -23,6 +23,7 @@ from pathlib import Path
 import torch
 
 from gspc.atomic import atomic_write
+from gspc.device import float32_math
 from gspc.errors import CodecError, InputError
 from gspc.restore.architectures import DEFAULT_ARCHITECTURE, build
 from gspc.restore.nafnet import NAFNet
@@ -42,6 +43,7 @@ class Restorer:
         if model is not None:
             model.eval()
 
+    @float32_math()  # full float32 on CUDA too (no TF32 convolutions)
     def restore(self, degraded: torch.Tensor, residual: torch.Tensor) -> torch.Tensor:
         """I^ = I~ + R^ for one view; inputs and output are (H, W, 3) float tensors."""
         if degraded.ndim != 3 or degraded.shape[-1] != 3 or degraded.shape != residual.shape:

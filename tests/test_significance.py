@@ -1,0 +1,44 @@
+import numpy as np
+import torch
+from scenes import random_scene
+
+from gspc.encoder.significance import attribute_gradients, blend_weights, significance
+from gspc.render import render
+from gspc.views import synthesize_views
+
+
+def test_blend_weights_sum_to_the_rendered_alpha():
+    scene = random_scene(200, sh_degree=1, seed=3)
+    cam = synthesize_views(scene, 1, 48, 40)[0]
+    w = blend_weights(scene, cam)
+    assert w.shape == (200,) and (w >= 0).all()
+    assert torch.isclose(w.sum(), render(scene, cam).alpha.sum(), rtol=1e-5)
+
+
+def test_hidden_gaussian_weighs_nothing():
+    """A Gaussian behind an opaque one (alpha capped at 0.99 twice over) takes almost no weight."""
+    scene = random_scene(2, sh_degree=0, seed=0, log_scale=-2.0, opacity_logit=12.0)
+    cam = synthesize_views(scene, 1, 32, 32)[0]
+    centre = torch.tensor(cam.center, dtype=torch.float32)
+    with torch.no_grad():
+        scene.means[0] = 0.5 * centre  # half-way to the camera
+        scene.means[1] = -0.5 * centre  # behind the first, from the camera
+        scene.log_scales[1] = scene.log_scales[0] - 1.0  # and smaller on screen: wholly covered
+    w = blend_weights(scene, cam)
+    assert w[0] > 10 and w[1] < 0.02 * w[0]
+
+
+def test_attribute_gradients_cover_every_group_and_a_faint_speck_ranks_last():
+    scene = random_scene(60, sh_degree=2, seed=5)
+    with torch.no_grad():
+        scene.opacities[7] = -5.0  # alpha 0.0067: barely shows
+        scene.log_scales[7] = -7.0
+    cams = synthesize_views(scene, 3, 40, 40)
+    g = attribute_gradients(scene, cams[0], (0.0, 0.0, 0.0))
+    assert set(g) == {"means", "quats", "log_scales", "opacities", "sh_dc", "sh_rest"}
+    assert all(v.shape == (60,) and torch.isfinite(v).all() for v in g.values())
+    sig = significance(scene, cams)
+    for measure in ("weight", "gradient:quats", "gradient:sh_rest"):
+        order = sig.ranking(measure)
+        assert sorted(order.tolist()) == list(range(60))
+        assert np.where(order == 7)[0][0] >= 50  # among the least significant
