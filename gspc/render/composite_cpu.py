@@ -26,20 +26,18 @@ import math
 import numba
 import numpy as np
 
-from gspc.render.rules import ALPHA_MAX, ALPHA_MIN, T_MIN
+from gspc.render.kernels import JIT, set_threads
+from gspc.render.rules import ALPHA_MAX, ALPHA_MIN, EXTENT_ABS_MARGIN, PIXELS, T_MIN, TILE
 
-TILE = 8  # must equal rasterize.TILE (the tile lists are built there)
-PIXELS = TILE * TILE
 # The ellipse q <= 2 ln(255 o) bounds the pixels a pair visits; widened so that round-off never leaves out
 # a pixel whose computed alpha reaches 1/255 (alpha itself is then tested exactly as the rules say).
 SPAN_MARGIN = 1e-3  # pixels
 THRESHOLD_REL_MARGIN = 1e-6
 FIELDS = 7  # pack(): mean x, mean y, conic a, b, c, opacity, threshold; then the features
 GRADS = 6  # gradient columns before the features: d mean x, d mean y, d a, d b, d c, d opacity
-# Compiled once per machine (numba's cache; the first run takes some seconds). error_model "numpy": no
-# zero check per division; every divisor here is bounded away from 0 (conic a and its determinant by the
-# low-pass filter, 1 - alpha >= 0.01 by the cap, opacity >= 1/255 for a listed Gaussian).
-JIT = {"cache": True, "error_model": "numpy"}
+STATS = 2  # composite_forward's counts per tile: pairs walked, pixel visits
+# Divisors (kernels.JIT has no zero checks): conic a and its determinant are bounded away from 0 by the
+# low-pass filter, 1 - alpha >= 0.01 by the cap, opacity >= 1/255 for a listed Gaussian.
 
 
 @numba.njit(inline="always", error_model="numpy")
@@ -96,24 +94,41 @@ def _visit(trans, pix, raw):
     return alpha, tr, False
 
 
+@numba.njit(inline="always", error_model="numpy")
+def _tile_pixels(t, tiles_x, size, trans):
+    """Tile t's origin (x0, y0) and its pixels inside the image; trans = 1 there, and -1 (stopped from the
+    start) beyond the image's right and bottom edges, so that edge tiles end when their image pixels do."""
+    x0, y0 = (t % tiles_x) * TILE, (t // tiles_x) * TILE
+    live = 0
+    for row in range(TILE):
+        for col in range(TILE):
+            inside = x0 + col < size[0] and y0 + row < size[1]
+            trans[row * TILE + col] = 1.0 if inside else -1.0
+            live += inside
+    return x0, y0, live
+
+
 @numba.njit(**JIT)
-def _tile_forward(t, gaussians, gauss, start, count, tiles_x, out):
+def _tile_forward(t, gaussians, gauss, start, count, tiles_x, size, out, stats):
     """Tile t of composite_forward."""
     n = count[t]
     if n == 0:
         return
     k_feat = gaussians.shape[1] - FIELDS
-    x0, y0 = (t % tiles_x) * TILE, (t // tiles_x) * TILE
-    trans = np.ones(PIXELS)
+    trans = np.empty(PIXELS)
+    x0, y0, live = _tile_pixels(t, tiles_x, size, trans)
     acc = np.zeros((PIXELS, k_feat))
-    live = PIXELS
-    for p in range(start[t], start[t] + n):
+    visits = 0
+    p = start[t]
+    while p < start[t] + n and live > 0:
         rec = gaussians[gauss[p]]
+        p += 1
         mx, my, a, b, c, o, thr = rec[0], rec[1], rec[2], rec[3], rec[4], rec[5], rec[6]
         step2 = math.exp(-a)  # along a row, exp(-q / 2)'s factor to the next pixel changes by this
         row_lo, row_hi = _row_range(my, a, b, c, thr, y0)
         for row in range(row_lo, row_hi + 1):
             _, lo, hi, _, e, step = _row_start(mx, my, a, b, c, o, thr, row, x0, y0)
+            visits += max(hi - lo + 1, 0)
             for col in range(lo, hi + 1):
                 raw = e
                 e *= step
@@ -126,32 +141,31 @@ def _tile_forward(t, gaussians, gauss, start, count, tiles_x, out):
                 w = alpha * tr
                 for k in range(k_feat):
                     acc[pix, k] += w * rec[FIELDS + k]
-        if live == 0:
-            break
     out[t] = acc.T
+    stats[t, 0], stats[t, 1] = p - start[t], visits
 
 
 @numba.njit(**JIT)
-def _forward_serial(gaussians, gauss, start, count, tiles_x, out):
+def _forward_serial(gaussians, gauss, start, count, tiles_x, size, out, stats):
     for t in range(len(start)):
-        _tile_forward(t, gaussians, gauss, start, count, tiles_x, out)
+        _tile_forward(t, gaussians, gauss, start, count, tiles_x, size, out, stats)
 
 
 @numba.njit(parallel=True, **JIT)
-def _forward_parallel(gaussians, gauss, start, count, tiles_x, out):
+def _forward_parallel(gaussians, gauss, start, count, tiles_x, size, out, stats):
     for t in numba.prange(len(start)):
-        _tile_forward(t, gaussians, gauss, start, count, tiles_x, out)
+        _tile_forward(t, gaussians, gauss, start, count, tiles_x, size, out, stats)
 
 
 @numba.njit(**JIT)
-def _tile_backward(t, gaussians, gauss, start, count, tiles_x, grad_pix, out, dest, grads):
+def _tile_backward(t, gaussians, gauss, start, count, tiles_x, size, grad_pix, out, dest, grads):
     """Tile t of composite_backward."""
     n = count[t]
     if n == 0:
         return
     k_feat = gaussians.shape[1] - FIELDS
-    x0, y0 = (t % tiles_x) * TILE, (t // tiles_x) * TILE
-    trans = np.ones(PIXELS)
+    trans = np.empty(PIXELS)
+    x0, y0, live = _tile_pixels(t, tiles_x, size, trans)
     gpix = np.ascontiguousarray(grad_pix[t].T)  # (64, K)
     remaining = np.zeros(PIXELS)  # R: what the Gaussians not yet walked add to grad . output
     for pix in range(PIXELS):
@@ -160,7 +174,6 @@ def _tile_backward(t, gaussians, gauss, start, count, tiles_x, grad_pix, out, de
             s += gpix[pix, k] * out[t, k, pix]
         remaining[pix] = s
     d_feat = np.zeros(k_feat)
-    live = PIXELS
     for p in range(start[t], start[t] + n):
         rec = gaussians[gauss[p]]
         mx, my, a, b, c, o, thr = rec[0], rec[1], rec[2], rec[3], rec[4], rec[5], rec[6]
@@ -210,25 +223,58 @@ def _tile_backward(t, gaussians, gauss, start, count, tiles_x, grad_pix, out, de
 
 
 @numba.njit(**JIT)
-def _backward_serial(gaussians, gauss, start, count, tiles_x, grad_pix, out, dest, grads):
+def _backward_serial(gaussians, gauss, start, count, tiles_x, size, grad_pix, out, dest, grads):
     for t in range(len(start)):
-        _tile_backward(t, gaussians, gauss, start, count, tiles_x, grad_pix, out, dest, grads)
+        _tile_backward(t, gaussians, gauss, start, count, tiles_x, size, grad_pix, out, dest, grads)
 
 
 @numba.njit(parallel=True, **JIT)
-def _backward_parallel(gaussians, gauss, start, count, tiles_x, grad_pix, out, dest, grads):
+def _backward_parallel(gaussians, gauss, start, count, tiles_x, size, grad_pix, out, dest, grads):
     for t in numba.prange(len(start)):
-        _tile_backward(t, gaussians, gauss, start, count, tiles_x, grad_pix, out, dest, grads)
+        _tile_backward(t, gaussians, gauss, start, count, tiles_x, size, grad_pix, out, dest, grads)
+
+
+@numba.njit(inline="always", error_model="numpy")
+def _tile_columns(ty, e, lo_x, hi_x):
+    """First and last tile column of tile row ty whose pixel centres one Gaussian's ellipse reaches, within
+    its box's columns lo_x..hi_x (lo > hi: none). e: that Gaussian's row of rasterize.py's ellipse_terms:
+    mean x, y, conic a, b, a thr, det, half-extents hx, hy, and dy_r, the y offset of its rightmost point.
+
+    The ellipse meets the tile row's band of pixel centres in a convex set: its x range runs from the
+    chord's left end at the band's y nearest -dy_r (the leftmost point's) to the right end at the y nearest
+    dy_r, each end widened by EXTENT_ABS_MARGIN. rasterize.py's torch binning computes the same numbers in
+    the same order (its lists must equal these)."""
+    mx, my, a, b, ath, det, hx, hy, dyr = e[0], e[1], e[2], e[3], e[4], e[5], e[6], e[7], e[8]
+    ya = max(ty * TILE + 0.5 - my, -hy)
+    yb = min(ty * TILE + (TILE - 0.5) - my, hy)
+    if ya > yb:
+        return 1, 0
+    d = min(max(dyr, ya), yb)
+    right = hx if d == dyr else (math.sqrt(max(ath - det * d * d, 0.0)) - b * d) / a + EXTENT_ABS_MARGIN
+    d = min(max(-dyr, ya), yb)
+    left = -hx if d == -dyr else (-math.sqrt(max(ath - det * d * d, 0.0)) - b * d) / a - EXTENT_ABS_MARGIN
+    lo = math.ceil((mx + left - (TILE - 0.5)) / TILE)
+    hi = math.floor((mx + right - 0.5) / TILE)
+    return max(int(lo), lo_x), min(int(hi), hi_x)
+
+
+@numba.njit(inline="always", error_model="numpy")
+def _row_tiles(i, ty, lo, hi, terms, exact):
+    if exact:
+        return _tile_columns(ty, terms[i], lo[i, 0], hi[i, 0])
+    return lo[i, 0], hi[i, 0]
 
 
 @numba.njit(**JIT)
-def bin_boxes(lo, hi, tiles_x, num_tiles):
+def bin_ellipses(lo, hi, terms, exact, tiles_x, num_tiles):
     """Tile lists by a counting sort: (gauss, tile, start, count), pairs grouped by tile, Gaussians in input
-    order inside each tile, for Gaussian i covering tiles lo[i]..hi[i] (x, y; empty when hi < lo)."""
+    order inside each tile, for Gaussian i in the tiles lo[i]..hi[i] (x, y; none when hi < lo) of its box
+    that its ellipse reaches (``exact``; else every tile of the box). terms: rasterize.py's ellipse_terms."""
     count = np.zeros(num_tiles, np.int64)
     for i in range(len(lo)):
         for ty in range(lo[i, 1], hi[i, 1] + 1):
-            for tx in range(lo[i, 0], hi[i, 0] + 1):
+            c0, c1 = _row_tiles(i, ty, lo, hi, terms, exact)
+            for tx in range(c0, c1 + 1):
                 count[ty * tiles_x + tx] += 1
     start = np.cumsum(count) - count
     fill = start.copy()
@@ -236,7 +282,8 @@ def bin_boxes(lo, hi, tiles_x, num_tiles):
     gauss, tile = np.empty(total, np.int64), np.empty(total, np.int64)
     for i in range(len(lo)):
         for ty in range(lo[i, 1], hi[i, 1] + 1):
-            for tx in range(lo[i, 0], hi[i, 0] + 1):
+            c0, c1 = _row_tiles(i, ty, lo, hi, terms, exact)
+            for tx in range(c0, c1 + 1):
                 t = ty * tiles_x + tx
                 gauss[fill[t]], tile[fill[t]] = i, t
                 fill[t] += 1
@@ -288,15 +335,19 @@ def depth_order(depths: np.ndarray) -> np.ndarray:
 
 
 def composite_forward(
-    gaussians: np.ndarray, lists: tuple, tiles_x: int, out: np.ndarray, threads: int
-) -> None:
-    """out (tiles, K, 64) = sum_i w_i feat_i per pixel, for records from pack() and the tile lists
-    (gauss, start, count) of gspc/render/rasterize.py's TileBins."""
+    gaussians: np.ndarray, lists: tuple, tiles_x: int, size: tuple, out: np.ndarray, threads: int
+) -> np.ndarray:
+    """out (tiles, K, 64) = sum_i w_i feat_i per pixel of the image of ``size`` (width, height), for records
+    from pack() and the tile lists (gauss, start, count) of gspc/render/rasterize.py's TileBins; returns
+    (tiles, STATS) counts: the pairs each tile walked before its pixels stopped, and its pixel visits."""
+    stats = np.zeros((len(lists[1]), STATS), np.int64)
+    size = np.asarray(size, np.int64)
     if threads > 1:
-        _set_threads(threads)
-        _forward_parallel(gaussians, *lists, tiles_x, out)
+        set_threads(threads)
+        _forward_parallel(gaussians, *lists, tiles_x, size, out, stats)
     else:
-        _forward_serial(gaussians, *lists, tiles_x, out)
+        _forward_serial(gaussians, *lists, tiles_x, size, out, stats)
+    return stats
 
 
 def composite_backward(
@@ -305,6 +356,7 @@ def composite_backward(
     rows: np.ndarray,
     num: int,
     tiles_x: int,
+    size: tuple,
     grad_pix: np.ndarray,
     out: np.ndarray,
     threads: int,
@@ -314,16 +366,13 @@ def composite_backward(
     the forward's ``out``."""
     dest = rows[lists[0]]  # the caller's row of each pair
     cols = GRADS + gaussians.shape[1] - FIELDS
+    size = np.asarray(size, np.int64)
     if threads <= 1:  # one thread: every pair adds straight into its Gaussian's row
         grads = np.zeros((num, cols))
-        _backward_serial(gaussians, *lists, tiles_x, grad_pix, out, dest, grads)
+        _backward_serial(gaussians, *lists, tiles_x, size, grad_pix, out, dest, grads)
         return grads
     # Threads own tiles, and a Gaussian's pairs lie in several: each pair gets its own row, summed after.
-    _set_threads(threads)
+    set_threads(threads)
     per_pair = np.zeros((len(dest), cols))
-    _backward_parallel(gaussians, *lists, tiles_x, grad_pix, out, np.arange(len(dest)), per_pair)
+    _backward_parallel(gaussians, *lists, tiles_x, size, grad_pix, out, np.arange(len(dest)), per_pair)
     return np.stack([np.bincount(dest, weights=col, minlength=num) for col in per_pair.T], 1)
-
-
-def _set_threads(n: int) -> None:
-    numba.set_num_threads(max(1, min(int(n), numba.config.NUMBA_NUM_THREADS)))

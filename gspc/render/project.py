@@ -16,13 +16,10 @@ import torch
 
 from gspc.cameras import Camera
 from gspc.render.kernels import pick_kernel
-from gspc.render.rules import ALPHA_MIN, LOWPASS, NEAR
+from gspc.render.rules import ALPHA_MIN, EXTENT_ABS_MARGIN, EXTENT_REL_MARGIN, LOWPASS, NEAR
 from gspc.render.sh import C0, sh_basis
 
 FRUSTUM_SLACK = 1.3  # x/z, y/z are clamped to 1.3x the frustum before building the Jacobian
-# The box is widened slightly so that round-off in the compositor's alpha never reaches past it.
-EXTENT_REL_MARGIN = 1e-3
-EXTENT_ABS_MARGIN = 1e-2
 
 
 # Below this fraction of Gaussians in front of the camera, rows are copied out before projecting;

@@ -23,15 +23,14 @@ import math
 import numba
 import numpy as np
 
-from gspc.render.rules import ALPHA_MIN, LOWPASS, NEAR
+from gspc.render.kernels import JIT, set_threads
+from gspc.render.rules import ALPHA_MIN, EXTENT_ABS_MARGIN, EXTENT_REL_MARGIN, LOWPASS, NEAR
 from gspc.render.sh import C1, C2, C3
 from gspc.scene import SH_C0
 
-JIT = {"cache": True, "error_model": "numpy"}  # as composite_cpu.py; divisors: z > NEAR, |q| > 0, det > 0
+# Divisors (kernels.JIT has no zero checks): z > NEAR, |q| > 0, det > 0.
 CHUNK = 4096  # Gaussians per parallel task
 BASIS = 16  # SH basis functions up to degree 3
-EXTENT_REL_MARGIN = 1e-3  # as project.py (its comment says why)
-EXTENT_ABS_MARGIN = 1e-2
 C2_0, C2_1, C2_2, C2_3, C2_4 = C2
 C3_0, C3_1, C3_2, C3_3, C3_4, C3_5, C3_6 = C3
 OUTPUTS = 10  # columns of the forward's outputs' gradient: u, v, conic a, b, c, opacity, r, g, b, depth
@@ -343,7 +342,7 @@ def project_forward(arrays: tuple, cam: np.ndarray, degree: int, threads: int) -
     n, dt = len(arrays[0]), arrays[0].dtype
     outs = tuple(np.empty(shape, dt) for shape in ((n, 2), (n, 3), n, (n, 3), n, (n, 2)))
     if threads > 1:
-        _set_threads(threads)
+        set_threads(threads)
         _forward_parallel(*arrays, cam, degree, outs)
     else:
         _forward_serial(*arrays, cam, degree, outs)
@@ -357,12 +356,8 @@ def project_backward(
     float64 = dL/d (u, v, conic a, b, c, opacity, r, g, b, depth)."""
     grads = tuple(np.empty(x.shape, x.dtype) for x in arrays)
     if threads > 1:
-        _set_threads(threads)
+        set_threads(threads)
         _backward_parallel(*arrays, cam, degree, grad_out, grads)
     else:
         _backward_serial(*arrays, cam, degree, grad_out, grads)
     return grads
-
-
-def _set_threads(n: int) -> None:
-    numba.set_num_threads(max(1, min(int(n), numba.config.NUMBA_NUM_THREADS)))

@@ -8,11 +8,11 @@ alpha = min(0.99, o * exp(-q / 2)) with q = d^T conic d, d = pixel centre - mean
 that would take its transmittance below 1e-4. There is deliberately no "skip if q < 0" rule: q
 rounds slightly negative at a Gaussian's centre and that rule would drop the Gaussian there.
 
-How it is vectorised: each Gaussian is listed in every 8x8 tile its alpha >= 1/255 box touches
-(lists in depth order). Tiles are processed in chunks, and each chunk walks its lists in blocks of
-``BLOCK`` Gaussians, so one step works on a (tiles, BLOCK, 64 pixels) array; a tile leaves the walk
-when its list ends or all its pixels have stopped. In tile-centred pixel coordinates the exponent
-is a quadratic, log o - q/2 = k . [1, x, y, x^2, xy, y^2], so one matmul evaluates a whole block
+How it is vectorised: each Gaussian is listed in every 8x8 tile whose pixel centres its alpha >= 1/255
+ellipse reaches (``bin_tiles``; lists in depth order). Tiles are processed in chunks, and each chunk walks
+its lists in blocks of ``BLOCK`` Gaussians, so one step works on a (tiles, BLOCK, 64 pixels) array; a tile
+leaves the walk when its list ends or all its pixels have stopped. In tile-centred pixel coordinates the
+exponent is a quadratic, log o - q/2 = k . [1, x, y, x^2, xy, y^2], so one matmul evaluates a whole block
 (in base 2: exp2 is several times faster than exp on CPU). Elementwise work is in place and avoids
 boolean masks, which are slow on CPU. The backward pass repeats the walk (nothing per pixel and
 Gaussian is stored; the per-pair arrays are kept from the forward) and uses the closed-form gradient of
@@ -31,10 +31,16 @@ import torch
 import torch.nn.functional as F
 
 from gspc.render.kernels import pick_kernel
-from gspc.render.rules import ALPHA_MAX, ALPHA_MIN, T_MIN
+from gspc.render.rules import (
+    ALPHA_MAX,
+    ALPHA_MIN,
+    EXTENT_ABS_MARGIN,
+    EXTENT_REL_MARGIN,
+    PIXELS,
+    T_MIN,
+    TILE,
+)
 
-TILE = 8
-PIXELS = TILE * TILE
 BLOCK = 32  # Gaussians per tile per step
 STEP_BUDGET = 1 << 19  # elements of one (tiles, BLOCK, pixels) array; bounds memory
 DEAD_POWER = -1e4  # exponent of padding entries: exp2() is exactly 0
@@ -88,8 +94,8 @@ def composite(
         )
     else:
         order = drawn.index_select(0, torch.sort(depths.detach().index_select(0, drawn), stable=True).indices)
-    ext = extents.detach().index_select(0, order)
-    bins = bin_tiles(means2d.detach().index_select(0, order), ext, width, height, compiled)
+    sel = (x.detach().index_select(0, order) for x in (means2d, conics, opacities, extents))
+    bins = bin_tiles(*sel, width, height, compiled)
     if compiled:  # its records are copied out in depth order (a tile's list then reads them in order)
         out = _CompositeCompiled.apply(means2d, conics, opacities, features, order, bins, width, height)
     else:
@@ -101,10 +107,22 @@ def composite(
 
 
 def bin_tiles(
-    means2d: torch.Tensor, extents: torch.Tensor, width: int, height: int, compiled: bool = False
+    means2d: torch.Tensor,
+    conics: torch.Tensor,
+    opacities: torch.Tensor,
+    extents: torch.Tensor,
+    width: int,
+    height: int,
+    compiled: bool = False,
+    exact: bool = True,
 ) -> TileBins:
-    """List every Gaussian in each tile whose pixel centres its box reaches, keeping input order
-    (``compiled``: by gspc/render/composite_cpu.py's counting sort, CPU only; the same lists)."""
+    """List every Gaussian in each tile whose pixel centres its alpha >= 1/255 ellipse, q <= 2 ln(255 o),
+    reaches (``exact``; else every tile its box of half-sizes ``extents`` reaches), keeping input order.
+
+    ``compiled``: by gspc/render/composite_cpu.py's counting sort, CPU only; the same lists (the per-row
+    numbers are computed in the same float64 operations, in the same order). The exact test matters for
+    thin rotated Gaussians, whose box holds many tiles their ellipse never reaches (bench/render.md).
+    """
     tiles_x, tiles_y = -(-width // TILE), -(-height // TILE)
     dev = means2d.device
     # Tile i holds pixel centres i*TILE + 0.5 ... i*TILE + TILE - 0.5.
@@ -112,29 +130,68 @@ def bin_tiles(
     hi = torch.floor((means2d + extents - 0.5) / TILE)
     lo = torch.maximum(lo, torch.zeros_like(lo)).long()
     hi = torch.minimum(hi, torch.tensor([tiles_x - 1, tiles_y - 1], device=dev, dtype=hi.dtype)).long()
+    if exact:
+        terms = ellipse_terms(means2d, conics, opacities)
+    else:
+        terms = torch.zeros(0, 9, dtype=torch.float64, device=dev)
     if compiled:
-        from gspc.render.composite_cpu import bin_boxes
+        from gspc.render.composite_cpu import bin_ellipses
 
-        lists = bin_boxes(lo.numpy(), hi.numpy(), tiles_x, tiles_x * tiles_y)
+        lists = bin_ellipses(lo.numpy(), hi.numpy(), terms.numpy(), exact, tiles_x, tiles_x * tiles_y)
         return TileBins(*(torch.from_numpy(x) for x in lists), tiles_x, tiles_y)
-    span = (hi - lo + 1).clamp_min(0)
-    n = span[:, 0] * span[:, 1]
-    gauss = torch.repeat_interleave(torch.arange(len(n), device=dev), n)
-    # Per pair: its rank k inside its Gaussian's box, the box's first tile and width.
-    per_gauss = torch.stack([torch.cumsum(n, 0) - n, lo[:, 0], lo[:, 1], span[:, 0]], 1).index_select(
-        0, gauss
-    )
-    first, x0, y0, sx = per_gauss.unbind(1)
-    k = torch.arange(len(gauss), device=dev) - first
-    # k // sx by float64 division: exact for these small non-negative integers, and several times faster
-    # than integer floor division on CPU.
-    row = torch.floor(k.double() / sx.double()).long()
-    tile = (y0 + row) * tiles_x + x0 + (k - row * sx)
+    # One entry per (Gaussian, tile row of its box), then per tile of that row the ellipse reaches.
+    rows_n = (hi[:, 1] - lo[:, 1] + 1).clamp_min(0) * (hi[:, 0] >= lo[:, 0])
+    gauss_row = torch.repeat_interleave(torch.arange(len(rows_n), device=dev), rows_n)
+    first = (torch.cumsum(rows_n, 0) - rows_n).index_select(0, gauss_row)
+    ty = lo[:, 1].index_select(0, gauss_row) + torch.arange(len(gauss_row), device=dev) - first
+    c0, c1 = lo[:, 0].index_select(0, gauss_row), hi[:, 0].index_select(0, gauss_row)
+    if exact:
+        c0, c1 = _tile_columns(ty, terms.index_select(0, gauss_row), c0, c1)
+    n = (c1 - c0 + 1).clamp_min(0)
+    pair_row = torch.repeat_interleave(torch.arange(len(n), device=dev), n)
+    k = torch.arange(len(pair_row), device=dev) - (torch.cumsum(n, 0) - n).index_select(0, pair_row)
+    tile = ty.index_select(0, pair_row) * tiles_x + c0.index_select(0, pair_row) + k
+    gauss = gauss_row.index_select(0, pair_row)
     # A stable sort groups pairs by tile and keeps the depth order inside each tile.
     tile, perm = torch.sort(tile.int(), stable=True)
     gauss, tile = gauss.index_select(0, perm), tile.long()
     count = torch.bincount(tile, minlength=tiles_x * tiles_y)
     return TileBins(gauss, tile, torch.cumsum(count, 0) - count, count, tiles_x, tiles_y)
+
+
+def ellipse_terms(means2d: torch.Tensor, conics: torch.Tensor, opacities: torch.Tensor) -> torch.Tensor:
+    """(M, 9) float64 per Gaussian, what the exact tile test reads: mean x, y, conic a, b, a thr,
+    det = ac - b^2, the half-extents hx = sqrt(thr Sigma_xx), hy = sqrt(thr Sigma_yy) of the ellipse q <= thr
+    (widened as the box is), and dy_r = -b sqrt(thr / (c det)), the y offset of its rightmost point;
+    thr = 2 ln(255 o) with composite_cpu.py's relative margin (its compositor walks that ellipse)."""
+    from gspc.render.composite_cpu import THRESHOLD_REL_MARGIN
+
+    mx, my = means2d.to(torch.float64).unbind(1)
+    a, b, c = conics.to(torch.float64).unbind(1)
+    thr = (2.0 * torch.log(opacities.to(torch.float64) / ALPHA_MIN)).clamp_min(0.0)
+    thr = thr * (1.0 + THRESHOLD_REL_MARGIN) + THRESHOLD_REL_MARGIN
+    det = a * c - b * b
+    hx = torch.sqrt(thr * c / det) * (1.0 + EXTENT_REL_MARGIN) + EXTENT_ABS_MARGIN
+    hy = torch.sqrt(thr * a / det) * (1.0 + EXTENT_REL_MARGIN) + EXTENT_ABS_MARGIN
+    dyr = -b * torch.sqrt(thr / (c * det))
+    return torch.stack([mx, my, a, b, a * thr, det, hx, hy, dyr], 1).contiguous()
+
+
+def _tile_columns(ty, e, lo_x, hi_x):
+    """composite_cpu.py's _tile_columns for many (tile row, Gaussian) entries at once; the same operations."""
+    mx, my, a, b, ath, det, hx, hy, dyr = e.unbind(1)
+    ya = torch.maximum(ty * TILE + 0.5 - my, -hy)
+    yb = torch.minimum(ty * TILE + (TILE - 0.5) - my, hy)
+    d = torch.minimum(torch.maximum(dyr, ya), yb)
+    chord = (torch.sqrt((ath - det * d * d).clamp_min(0.0)) - b * d) / a + EXTENT_ABS_MARGIN
+    right = torch.where(d == dyr, hx, chord)
+    d = torch.minimum(torch.maximum(-dyr, ya), yb)
+    chord = (-torch.sqrt((ath - det * d * d).clamp_min(0.0)) - b * d) / a - EXTENT_ABS_MARGIN
+    left = torch.where(d == -dyr, -hx, chord)
+    lo = torch.ceil((mx + left - (TILE - 0.5)) / TILE).long()
+    hi = torch.floor((mx + right - 0.5) / TILE).long()
+    empty = ya > yb
+    return torch.maximum(lo, lo_x), torch.where(empty, lo_x - 1, torch.minimum(hi, hi_x))
 
 
 def _pixel_basis(dtype: torch.dtype, device: torch.device) -> torch.Tensor:
@@ -215,19 +272,21 @@ class _CompositeCompiled(torch.autograd.Function):
         )
         records = kern.pack(rows.index_select(0, order).to(torch.float64).numpy())
         out = np.zeros((len(bins.count), features.shape[1] + 1, PIXELS))
-        kern.composite_forward(records, _lists(bins), bins.tiles_x, out, torch.get_num_threads())
+        size = (width, height)
+        kern.composite_forward(records, _lists(bins), bins.tiles_x, size, out, torch.get_num_threads())
         if any(ctx.needs_input_grad[:4]):
-            ctx.saved = (records, out, order, bins, len(opacities))
+            ctx.saved = (records, out, order, bins, len(opacities), size)
         return _tiles_to_image(torch.from_numpy(out), bins, width, height).to(means2d.dtype)
 
     @staticmethod
     def backward(ctx, grad_out):
         from gspc.render import composite_cpu as kern
 
-        records, out, order, bins, num = ctx.saved
+        records, out, order, bins, num, size = ctx.saved
         grad_pix = _image_to_tiles(grad_out.detach().to(torch.float64), bins).contiguous().numpy()
+        lists, threads = _lists(bins), torch.get_num_threads()
         grads = kern.composite_backward(
-            records, _lists(bins), order.numpy(), num, bins.tiles_x, grad_pix, out, torch.get_num_threads()
+            records, lists, order.numpy(), num, bins.tiles_x, size, grad_pix, out, threads
         )
         g = torch.from_numpy(grads).to(grad_out.dtype)
         nf = grads.shape[1] - kern.GRADS - 1  # the last column is the alpha channel's

@@ -1,6 +1,6 @@
 """The compositing rules every render backend shares (spec 10.8, "Rendering convention"): INRIA 3DGS's and
-gsplat's. The torch backend (project.py, rasterize.py), the reference (reference.py) and the gsplat backend
-take their constants from here."""
+gsplat's. The torch backend (project.py, rasterize.py), its compiled CPU kernels (project_cpu.py,
+composite_cpu.py), the reference (reference.py) and the gsplat backend take their constants from here."""
 
 from __future__ import annotations
 
@@ -9,3 +9,13 @@ LOWPASS = 0.3  # added to the 2D covariance diagonal (3DGS's screen-space low-pa
 ALPHA_MIN = 1.0 / 255.0  # contributions below this alpha are skipped
 ALPHA_MAX = 0.99  # a Gaussian's alpha is capped here
 T_MIN = 1e-4  # a pixel stops before the Gaussian that would take its transmittance below this
+
+# How the torch backend culls (not part of the image: any culling that keeps every pixel whose alpha reaches
+# ALPHA_MIN gives the same image). Pixels are walked in TILE x TILE tiles, each with a list of the Gaussians
+# whose alpha >= 1/255 ellipse, q <= 2 ln(255 o), reaches one of its pixel centres (rasterize.py bin_tiles).
+TILE = 8
+PIXELS = TILE * TILE
+# The ellipse's box and its tile test are widened slightly so that round-off in the compositor's alpha never
+# reaches past them: half-extents by this fraction plus this many pixels.
+EXTENT_REL_MARGIN = 1e-3
+EXTENT_ABS_MARGIN = 1e-2
