@@ -27,12 +27,20 @@ import numba
 import numpy as np
 
 from gspc.render.kernels import JIT, set_threads
-from gspc.render.rules import ALPHA_MAX, ALPHA_MIN, EXTENT_ABS_MARGIN, PIXELS, T_MIN, TILE
+from gspc.render.rules import (
+    ALPHA_MAX,
+    ALPHA_MIN,
+    EXTENT_ABS_MARGIN,
+    EXTENT_REL_MARGIN,
+    PIXELS,
+    T_MIN,
+    THRESHOLD_REL_MARGIN,
+    TILE,
+)
 
 # The ellipse q <= 2 ln(255 o) bounds the pixels a pair visits; widened so that round-off never leaves out
 # a pixel whose computed alpha reaches 1/255 (alpha itself is then tested exactly as the rules say).
 SPAN_MARGIN = 1e-3  # pixels
-THRESHOLD_REL_MARGIN = 1e-6
 FIELDS = 7  # pack(): mean x, mean y, conic a, b, c, opacity, threshold; then the features
 GRADS = 6  # gradient columns before the features: d mean x, d mean y, d a, d b, d c, d opacity
 STATS = 2  # composite_forward's counts per tile: pairs walked, pixel visits
@@ -262,16 +270,27 @@ def _backward_parallel(gaussians, gauss, start, count, tiles_x, size, grad_pix, 
 
 
 @numba.njit(inline="always", error_model="numpy")
-def _tile_columns(ty, e, lo_x, hi_x):
+def ellipse_terms(mx, my, a, b, c, thr):
+    """What the exact tile test reads of one Gaussian: (a thr, det = ac - b^2, the half-extents
+    hx = sqrt(thr Sigma_xx), hy = sqrt(thr Sigma_yy) of the ellipse q <= thr widened as the box is, and
+    dy_r = -b sqrt(thr / (c det)), the y offset of its rightmost point). rasterize.py's torch binning
+    computes the same numbers in the same float64 operations, in the same order (its lists must equal these
+    lists), from the same thr."""
+    det = a * c - b * b
+    hx = math.sqrt(thr * c / det) * (1.0 + EXTENT_REL_MARGIN) + EXTENT_ABS_MARGIN
+    hy = math.sqrt(thr * a / det) * (1.0 + EXTENT_REL_MARGIN) + EXTENT_ABS_MARGIN
+    return a * thr, det, hx, hy, -b * math.sqrt(thr / (c * det))
+
+
+@numba.njit(inline="always", error_model="numpy")
+def tile_columns(ty, mx, my, a, b, terms, lo_x, hi_x):
     """First and last tile column of tile row ty whose pixel centres one Gaussian's ellipse reaches, within
-    its box's columns lo_x..hi_x (lo > hi: none). e: that Gaussian's row of rasterize.py's ellipse_terms:
-    mean x, y, conic a, b, a thr, det, half-extents hx, hy, and dy_r, the y offset of its rightmost point.
+    its box's columns lo_x..hi_x (lo > hi: none); ``terms`` from ellipse_terms().
 
     The ellipse meets the tile row's band of pixel centres in a convex set: its x range runs from the
     chord's left end at the band's y nearest -dy_r (the leftmost point's) to the right end at the y nearest
-    dy_r, each end widened by EXTENT_ABS_MARGIN. rasterize.py's torch binning computes the same numbers in
-    the same order (its lists must equal these)."""
-    mx, my, a, b, ath, det, hx, hy, dyr = e[0], e[1], e[2], e[3], e[4], e[5], e[6], e[7], e[8]
+    dy_r, each end widened by EXTENT_ABS_MARGIN. rasterize.py computes the same (see ellipse_terms)."""
+    ath, det, hx, hy, dyr = terms
     ya = max(ty * TILE + 0.5 - my, -hy)
     yb = min(ty * TILE + (TILE - 0.5) - my, hy)
     if ya > yb:
@@ -285,36 +304,46 @@ def _tile_columns(ty, e, lo_x, hi_x):
     return max(int(lo), lo_x), min(int(hi), hi_x)
 
 
-@numba.njit(inline="always", error_model="numpy")
-def _row_tiles(i, ty, lo, hi, terms, exact):
-    if exact:
-        return _tile_columns(ty, terms[i], lo[i, 0], hi[i, 0])
-    return lo[i, 0], hi[i, 0]
-
-
 @numba.njit(**JIT)
-def bin_ellipses(lo, hi, terms, exact, tiles_x, num_tiles):
-    """Tile lists by a counting sort: (gauss, tile, start, count), pairs grouped by tile, Gaussians in input
-    order inside each tile, for Gaussian i in the tiles lo[i]..hi[i] (x, y; none when hi < lo) of its box
-    that its ellipse reaches (``exact``; else every tile of the box). terms: rasterize.py's ellipse_terms."""
-    count = np.zeros(num_tiles, np.int64)
+def bin_ellipses(lo, hi, means2d, conics, thr, exact, tiles_x, num_tiles):
+    """Tile lists by a counting sort: (gauss, start, count), pairs grouped by tile, Gaussians in input order
+    inside each tile, for Gaussian i in the tiles lo[i]..hi[i] (x, y; none when hi < lo) of its box that its
+    ellipse q <= thr[i] reaches (``exact``; else every tile of the box)."""
+    rows = 0
     for i in range(len(lo)):
+        if hi[i, 0] >= lo[i, 0]:
+            rows += max(hi[i, 1] - lo[i, 1] + 1, 0)
+    cols = np.empty((rows, 2), np.int64)  # each (Gaussian, tile row)'s first and last tile column
+    count = np.zeros(num_tiles, np.int64)
+    r = 0
+    for i in range(len(lo)):
+        if hi[i, 0] < lo[i, 0]:
+            continue
+        mx, my, a, b, c = means2d[i, 0], means2d[i, 1], conics[i, 0], conics[i, 1], conics[i, 2]
+        terms = ellipse_terms(mx, my, a, b, c, thr[i]) if exact else (0.0, 1.0, 0.0, 0.0, 0.0)
         for ty in range(lo[i, 1], hi[i, 1] + 1):
-            c0, c1 = _row_tiles(i, ty, lo, hi, terms, exact)
+            c0, c1 = lo[i, 0], hi[i, 0]
+            if exact:
+                c0, c1 = tile_columns(ty, mx, my, a, b, terms, c0, c1)
+            cols[r, 0], cols[r, 1] = c0, c1
+            r += 1
             for tx in range(c0, c1 + 1):
                 count[ty * tiles_x + tx] += 1
     start = np.cumsum(count) - count
     fill = start.copy()
     total = start[-1] + count[-1] if num_tiles else 0
-    gauss, tile = np.empty(total, np.int64), np.empty(total, np.int64)
+    gauss = np.empty(total, np.int64)
+    r = 0
     for i in range(len(lo)):
+        if hi[i, 0] < lo[i, 0]:
+            continue
         for ty in range(lo[i, 1], hi[i, 1] + 1):
-            c0, c1 = _row_tiles(i, ty, lo, hi, terms, exact)
-            for tx in range(c0, c1 + 1):
+            for tx in range(cols[r, 0], cols[r, 1] + 1):
                 t = ty * tiles_x + tx
-                gauss[fill[t]], tile[fill[t]] = i, t
+                gauss[fill[t]] = i
                 fill[t] += 1
-    return gauss, tile, start, count
+            r += 1
+    return gauss, start, count
 
 
 def pack(rows: np.ndarray) -> np.ndarray:

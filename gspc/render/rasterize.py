@@ -38,6 +38,7 @@ from gspc.render.rules import (
     EXTENT_REL_MARGIN,
     PIXELS,
     T_MIN,
+    THRESHOLD_REL_MARGIN,
     TILE,
 )
 
@@ -57,11 +58,15 @@ class TileBins:
     """Which Gaussians (indices into depth-sorted arrays) touch which tile, tile lists contiguous."""
 
     gauss: torch.Tensor  # (P,) Gaussian of each (tile, Gaussian) pair, grouped by tile, depth order within
-    tile: torch.Tensor  # (P,) tile of each pair
     start: torch.Tensor  # (tiles,) first pair of each tile
     count: torch.Tensor  # (tiles,) pairs of each tile
     tiles_x: int
     tiles_y: int
+
+    @property
+    def tile(self) -> torch.Tensor:
+        """(P,) the tile of each pair (the torch walk's; the compiled kernels need none)."""
+        return torch.repeat_interleave(torch.arange(len(self.count), device=self.count.device), self.count)
 
 
 def composite(
@@ -85,15 +90,7 @@ def composite(
     """
     c = features.shape[1]
     compiled = pick_kernel(kernel, means2d) == "compiled"
-    drawn = torch.nonzero(extents.detach()[:, 0] >= 0).squeeze(1)  # drop the never-drawn (extents -1)
-    if compiled:
-        from gspc.render.composite_cpu import depth_order
-
-        order = drawn.index_select(
-            0, torch.from_numpy(depth_order(depths.detach().index_select(0, drawn).numpy()))
-        )
-    else:
-        order = drawn.index_select(0, torch.sort(depths.detach().index_select(0, drawn), stable=True).indices)
+    order = _drawn_in_depth_order(depths, extents, compiled)
     sel = (x.detach().index_select(0, order) for x in (means2d, conics, opacities, extents))
     bins = bin_tiles(*sel, width, height, compiled)
     if compiled:  # its records are copied out in depth order (a tile's list then reads them in order)
@@ -104,6 +101,64 @@ def composite(
         bins.gauss = order.index_select(0, bins.gauss)
         out = _Composite.apply(means2d, conics, opacities, features, bins, width, height)
     return out[..., :c], out[..., c]
+
+
+@dataclass(frozen=True)
+class WalkCounts:
+    """The work of one compiled forward composite (bench/render.md reports these per pixel)."""
+
+    pixels: int  # width * height
+    pairs: int  # (tile, Gaussian) pairs in the tile lists
+    walked: int  # pairs walked before their tile's pixels had all stopped
+    visits: int  # pixels those pairs evaluated (their alpha >= 1/255 ellipse's, row by row)
+
+
+def walk_counts(
+    means2d: torch.Tensor,
+    conics: torch.Tensor,
+    opacities: torch.Tensor,
+    features: torch.Tensor,
+    depths: torch.Tensor,
+    extents: torch.Tensor,
+    width: int,
+    height: int,
+    exact: bool = True,
+    whole_tiles: bool = False,
+) -> WalkCounts:
+    """Count what composite()'s compiled forward does for these inputs (CPU tensors, no gradients).
+    ``exact=False``: with box tile lists; ``whole_tiles``: edge tiles walk their pixels beyond the image too
+    (both as the renderer before bench/render.md's latest rerun did)."""
+    from gspc.render import composite_cpu as kern
+
+    with torch.no_grad():
+        order = _drawn_in_depth_order(depths, extents, True)
+        sel = (x.index_select(0, order) for x in (means2d, conics, opacities, extents))
+        bins = bin_tiles(*sel, width, height, True, exact)
+        records = _records(means2d, conics, opacities, features, order)
+    out = np.zeros((len(bins.count), features.shape[1] + 1, PIXELS))
+    size = (bins.tiles_x * TILE, bins.tiles_y * TILE) if whole_tiles else (width, height)
+    stats = kern.composite_forward(records, _lists(bins), bins.tiles_x, size, out, 1)
+    walked, visits = (int(x) for x in stats.sum(0))
+    return WalkCounts(width * height, len(bins.gauss), walked, visits)
+
+
+def _drawn_in_depth_order(depths: torch.Tensor, extents: torch.Tensor, compiled: bool) -> torch.Tensor:
+    """Rows of the Gaussians drawn (extents >= 0), by increasing depth, ties in row order."""
+    drawn = torch.nonzero(extents.detach()[:, 0] >= 0).squeeze(1)
+    key = depths.detach().index_select(0, drawn)
+    if compiled:
+        from gspc.render.composite_cpu import depth_order
+
+        return drawn.index_select(0, torch.from_numpy(depth_order(key.numpy())))
+    return drawn.index_select(0, torch.sort(key, stable=True).indices)
+
+
+def _records(means2d, conics, opacities, features, order: torch.Tensor) -> np.ndarray:
+    """The compiled kernels' records (composite_cpu.py pack) of rows ``order``, in that order."""
+    from gspc.render.composite_cpu import pack
+
+    rows = torch.cat([means2d.detach(), conics.detach(), opacities.detach()[:, None], features.detach()], 1)
+    return pack(rows.index_select(0, order).to(torch.float64).numpy())
 
 
 def bin_tiles(
@@ -130,14 +185,15 @@ def bin_tiles(
     hi = torch.floor((means2d + extents - 0.5) / TILE)
     lo = torch.maximum(lo, torch.zeros_like(lo)).long()
     hi = torch.minimum(hi, torch.tensor([tiles_x - 1, tiles_y - 1], device=dev, dtype=hi.dtype)).long()
-    if exact:
-        terms = ellipse_terms(means2d, conics, opacities)
-    else:
-        terms = torch.zeros(0, 9, dtype=torch.float64, device=dev)
+    # thr = 2 ln(255 o) with the compositor's relative margin (composite_cpu.py walks that ellipse).
+    thr = (2.0 * torch.log(opacities.to(torch.float64) / ALPHA_MIN)).clamp_min(0.0)
+    thr = thr * (1.0 + THRESHOLD_REL_MARGIN) + THRESHOLD_REL_MARGIN
+    means2d, conics = means2d.to(torch.float64), conics.to(torch.float64)
     if compiled:
         from gspc.render.composite_cpu import bin_ellipses
 
-        lists = bin_ellipses(lo.numpy(), hi.numpy(), terms.numpy(), exact, tiles_x, tiles_x * tiles_y)
+        args = (x.contiguous().numpy() for x in (lo, hi, means2d, conics, thr))
+        lists = bin_ellipses(*args, exact, tiles_x, tiles_x * tiles_y)
         return TileBins(*(torch.from_numpy(x) for x in lists), tiles_x, tiles_y)
     # One entry per (Gaussian, tile row of its box), then per tile of that row the ellipse reaches.
     rows_n = (hi[:, 1] - lo[:, 1] + 1).clamp_min(0) * (hi[:, 0] >= lo[:, 0])
@@ -146,7 +202,8 @@ def bin_tiles(
     ty = lo[:, 1].index_select(0, gauss_row) + torch.arange(len(gauss_row), device=dev) - first
     c0, c1 = lo[:, 0].index_select(0, gauss_row), hi[:, 0].index_select(0, gauss_row)
     if exact:
-        c0, c1 = _tile_columns(ty, terms.index_select(0, gauss_row), c0, c1)
+        per_row = torch.cat([means2d, conics, thr[:, None]], 1).index_select(0, gauss_row)
+        c0, c1 = _tile_columns(ty, per_row, c0, c1)
     n = (c1 - c0 + 1).clamp_min(0)
     pair_row = torch.repeat_interleave(torch.arange(len(n), device=dev), n)
     k = torch.arange(len(pair_row), device=dev) - (torch.cumsum(n, 0) - n).index_select(0, pair_row)
@@ -154,32 +211,18 @@ def bin_tiles(
     gauss = gauss_row.index_select(0, pair_row)
     # A stable sort groups pairs by tile and keeps the depth order inside each tile.
     tile, perm = torch.sort(tile.int(), stable=True)
-    gauss, tile = gauss.index_select(0, perm), tile.long()
-    count = torch.bincount(tile, minlength=tiles_x * tiles_y)
-    return TileBins(gauss, tile, torch.cumsum(count, 0) - count, count, tiles_x, tiles_y)
+    count = torch.bincount(tile.long(), minlength=tiles_x * tiles_y)
+    return TileBins(gauss.index_select(0, perm), torch.cumsum(count, 0) - count, count, tiles_x, tiles_y)
 
 
-def ellipse_terms(means2d: torch.Tensor, conics: torch.Tensor, opacities: torch.Tensor) -> torch.Tensor:
-    """(M, 9) float64 per Gaussian, what the exact tile test reads: mean x, y, conic a, b, a thr,
-    det = ac - b^2, the half-extents hx = sqrt(thr Sigma_xx), hy = sqrt(thr Sigma_yy) of the ellipse q <= thr
-    (widened as the box is), and dy_r = -b sqrt(thr / (c det)), the y offset of its rightmost point;
-    thr = 2 ln(255 o) with composite_cpu.py's relative margin (its compositor walks that ellipse)."""
-    from gspc.render.composite_cpu import THRESHOLD_REL_MARGIN
-
-    mx, my = means2d.to(torch.float64).unbind(1)
-    a, b, c = conics.to(torch.float64).unbind(1)
-    thr = (2.0 * torch.log(opacities.to(torch.float64) / ALPHA_MIN)).clamp_min(0.0)
-    thr = thr * (1.0 + THRESHOLD_REL_MARGIN) + THRESHOLD_REL_MARGIN
+def _tile_columns(ty: torch.Tensor, g: torch.Tensor, lo_x: torch.Tensor, hi_x: torch.Tensor):
+    """composite_cpu.py's ellipse_terms and tile_columns for many (tile row, Gaussian) entries at once, in
+    the same float64 operations and order (the lists must be equal); g: mean x, y, conic a, b, c, thr."""
+    mx, my, a, b, c, thr = g.unbind(1)
     det = a * c - b * b
     hx = torch.sqrt(thr * c / det) * (1.0 + EXTENT_REL_MARGIN) + EXTENT_ABS_MARGIN
     hy = torch.sqrt(thr * a / det) * (1.0 + EXTENT_REL_MARGIN) + EXTENT_ABS_MARGIN
-    dyr = -b * torch.sqrt(thr / (c * det))
-    return torch.stack([mx, my, a, b, a * thr, det, hx, hy, dyr], 1).contiguous()
-
-
-def _tile_columns(ty, e, lo_x, hi_x):
-    """composite_cpu.py's _tile_columns for many (tile row, Gaussian) entries at once; the same operations."""
-    mx, my, a, b, ath, det, hx, hy, dyr = e.unbind(1)
+    ath, dyr = a * thr, -b * torch.sqrt(thr / (c * det))
     ya = torch.maximum(ty * TILE + 0.5 - my, -hy)
     yb = torch.minimum(ty * TILE + (TILE - 0.5) - my, hy)
     d = torch.minimum(torch.maximum(dyr, ya), yb)
@@ -190,8 +233,7 @@ def _tile_columns(ty, e, lo_x, hi_x):
     left = torch.where(d == -dyr, -hx, chord)
     lo = torch.ceil((mx + left - (TILE - 0.5)) / TILE).long()
     hi = torch.floor((mx + right - 0.5) / TILE).long()
-    empty = ya > yb
-    return torch.maximum(lo, lo_x), torch.where(empty, lo_x - 1, torch.minimum(hi, hi_x))
+    return torch.maximum(lo, lo_x), torch.where(ya > yb, lo_x - 1, torch.minimum(hi, hi_x))
 
 
 def _pixel_basis(dtype: torch.dtype, device: torch.device) -> torch.Tensor:
@@ -267,10 +309,7 @@ class _CompositeCompiled(torch.autograd.Function):
     def forward(ctx, means2d, conics, opacities, features, order, bins: TileBins, width: int, height: int):
         from gspc.render import composite_cpu as kern
 
-        rows = torch.cat(
-            [means2d.detach(), conics.detach(), opacities.detach()[:, None], features.detach()], 1
-        )
-        records = kern.pack(rows.index_select(0, order).to(torch.float64).numpy())
+        records = _records(means2d, conics, opacities, features, order)
         out = np.zeros((len(bins.count), features.shape[1] + 1, PIXELS))
         size = (width, height)
         kern.composite_forward(records, _lists(bins), bins.tiles_x, size, out, torch.get_num_threads())

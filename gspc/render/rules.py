@@ -19,3 +19,6 @@ PIXELS = TILE * TILE
 # reaches past them: half-extents by this fraction plus this many pixels.
 EXTENT_REL_MARGIN = 1e-3
 EXTENT_ABS_MARGIN = 1e-2
+# The compiled compositor walks the ellipse q <= thr (1 + this) + this, thr = 2 ln(255 o), and the tile test
+# lists the tiles of that ellipse.
+THRESHOLD_REL_MARGIN = 1e-6
