@@ -344,7 +344,7 @@ def test_compiled_row_spans_cover_every_drawn_pixel():
         cov += 0.3 * np.eye(2)
         a, b, cc = np.linalg.inv(cov)[[0, 0, 1], [0, 1, 1]]
         o = float(torch.rand(1, generator=g)) * 0.98 + 0.01
-        record = composite_cpu.pack(np.array([[0.0, 0.0, 1.0, 0.0, 1.0, o, 0.0]]))
+        record = composite_cpu.pack(np.array([[0.0, 0.0, 1.0, 0.0, 1.0, o, 0.0, 0.0, 0.0, 0.0]]))
         thr = float(record[0, 6])
         mx, my = (torch.rand(2, generator=g, dtype=F64) * 8.0).tolist()
         row_lo, row_hi = composite_cpu._row_range(my, a, b, cc, thr, 0)

@@ -85,11 +85,13 @@ def composite(
     means2d (M, 2) pixels, conics (M, 3) as (a, b, c), opacities (M,), features (M, C), depths (M,)
     sort key (ties keep input order), extents (M, 2) half-sizes of the box outside which alpha < 1/255,
     negative for Gaussians never drawn (others need opacity >= 1/255). Differentiable w.r.t. means2d,
-    conics, opacities and features. ``kernel``: "auto" (compiled on the CPU, the torch walk elsewhere),
-    "torch" or "compiled"; both give the same image up to round-off.
+    conics, opacities and features. ``kernel``: "auto" (compiled on the CPU for C = 4, colour and depth, as
+    render() composites; else the torch walk), "torch" or "compiled"; the same image up to round-off.
     """
     c = features.shape[1]
     compiled = pick_kernel(kernel, means2d) == "compiled"
+    if compiled and kernel == "auto" and c != 4:  # the compiled kernels composite colour and depth only
+        compiled = False
     order = _drawn_in_depth_order(depths, extents, compiled)
     sel = (x.detach().index_select(0, order) for x in (means2d, conics, opacities, extents))
     bins = bin_tiles(*sel, width, height, compiled)
