@@ -347,10 +347,11 @@ def test_compiled_row_spans_cover_every_drawn_pixel():
         record = composite_cpu.pack(np.array([[0.0, 0.0, 1.0, 0.0, 1.0, o, 0.0, 0.0, 0.0, 0.0]]))
         thr = float(record[0, 6])
         mx, my = (torch.rand(2, generator=g, dtype=F64) * 8.0).tolist()
-        row_lo, row_hi = composite_cpu._row_range(my, a, b, cc, thr, 0)
+        ell = composite_cpu._ellipse(np.array([mx, my, a, b, cc, o, thr]))
+        row_lo, row_hi = composite_cpu._row_range(ell, 0)
         for row in range(8):
             dy = row + 0.5 - my
-            lo, hi = composite_cpu._row_span(mx, a, b, cc, thr, dy, 0)
+            lo, hi = composite_cpu._row_span(ell, dy, 0)
             for col in range(8):
                 dx = col + 0.5 - mx
                 alpha = o * math.exp(-0.5 * (a * dx * dx + 2 * b * dx * dy + cc * dy * dy))

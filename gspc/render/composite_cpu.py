@@ -53,31 +53,43 @@ STATS = 2  # composite_forward's counts per tile: pairs walked, pixel visits
 
 
 @numba.njit(inline="always", error_model="numpy")
-def _row_span(mx, a, b, c, thr, dy, x0):
+def _ellipse(rec):
+    """A pair's constants: (mean x, y, conic a, b, c, opacity, and of the ellipse q <= thr: a thr,
+    det = ac - b^2, 1 / a, -b / a), computed once per pair rather than once per row."""
+    a, b, c, thr = rec[2], rec[3], rec[4], rec[6]
+    inv_a = 1.0 / a
+    return rec[0], rec[1], a, b, c, rec[5], a * thr, a * c - b * b, inv_a, -b * inv_a
+
+
+@numba.njit(inline="always", error_model="numpy")
+def _row_span(ell, dy, x0):
     """First and last pixel column (0..TILE-1) of the tile starting at x0 whose centre can lie inside the
-    ellipse a dx^2 + 2 b dx dy + c dy^2 <= thr on this row; (1, 0) when none does."""
-    disc = (b * dy) * (b * dy) - a * (c * dy * dy - thr)
+    ellipse a dx^2 + 2 b dx dy + c dy^2 <= thr on this row; (1, 0) when none does. On the row, that is
+    dx + b dy / a within +-sqrt(a thr - det dy^2) / a; ``ell`` from _ellipse()."""
+    mx, ath, det, inv_a, nba = ell[0], ell[6], ell[7], ell[8], ell[9]
+    disc = ath - det * dy * dy
     if disc < 0.0:
         return 1, 0
-    half = math.sqrt(disc) / a
-    centre = mx - b * dy / a
+    half = math.sqrt(disc) * inv_a
+    centre = mx + nba * dy
     lo = math.ceil(centre - half - SPAN_MARGIN - 0.5 - x0)
     hi = math.floor(centre + half + SPAN_MARGIN - 0.5 - x0)
     return max(int(lo), 0), min(int(hi), TILE - 1)
 
 
 @numba.njit(inline="always", error_model="numpy")
-def _row_range(my, a, b, c, thr, y0):
-    """First and last pixel row (0..TILE-1) of the tile starting at y0 that the ellipse
-    a dx^2 + 2 b dx dy + c dy^2 <= thr can reach: |dy| <= sqrt(thr a / (a c - b^2))."""
-    half = math.sqrt(max(thr, 0.0) * a / (a * c - b * b))
+def _row_range(ell, y0):
+    """First and last pixel row (0..TILE-1) of the tile starting at y0 that the ellipse can reach:
+    |dy| <= sqrt(a thr / det); ``ell`` from _ellipse()."""
+    my, ath, det = ell[1], ell[6], ell[7]
+    half = math.sqrt(max(ath, 0.0) / det)
     lo = math.ceil(my - half - SPAN_MARGIN - 0.5 - y0)
     hi = math.floor(my + half + SPAN_MARGIN - 0.5 - y0)
     return max(int(lo), 0), min(int(hi), TILE - 1)
 
 
 @numba.njit(inline="always", error_model="numpy")
-def _row_start(mx, my, a, b, c, o, thr, row, x0, y0, state, factors):
+def _row_start(ell, row, x0, y0, state, factors):
     """Where a pair's walk along one pixel row starts: (dy, first column, last column, dx at the first
     column, and the new state); lo > hi when the row is out of reach. ``state`` = (column, o exp(-q / 2)
     there, its factor to the next column, its factor to the next row; column -1 before the first row in
@@ -88,8 +100,9 @@ def _row_start(mx, my, a, b, c, o, thr, row, x0, y0, state, factors):
     Every point the state visits lies inside the alpha >= 1/255 ellipse or one row or tile width from it, so
     nothing under- or overflows in float64 and the relative error stays at round-off (tests/test_render.py).
     """
+    mx, my, a, b, c, o = ell[0], ell[1], ell[2], ell[3], ell[4], ell[5]
     dy = y0 + row + 0.5 - my
-    lo, hi = _row_span(mx, a, b, c, thr, dy, x0)
+    lo, hi = _row_span(ell, dy, x0)
     dx = x0 + lo + 0.5 - mx
     col, e, s, v = state
     ea, eb, ec = factors
@@ -162,13 +175,13 @@ def _tile_forward(t, gaussians, gauss, start, count, tiles_x, size, out, stats):
     while p < start[t] + n and live > 0:
         rec = gaussians[gauss[p]]
         p += 1
-        mx, my, a, b, c, o, thr = rec[0], rec[1], rec[2], rec[3], rec[4], rec[5], rec[6]
+        ell = _ellipse(rec)
         f0, f1, f2, f3, f4 = _features(rec)
-        factors = (math.exp(-a), math.exp(-b), math.exp(-c))
+        factors = (math.exp(-ell[2]), math.exp(-ell[3]), math.exp(-ell[4]))
         state = (-1, 0.0, 0.0, 0.0)
-        row_lo, row_hi = _row_range(my, a, b, c, thr, y0)
+        row_lo, row_hi = _row_range(ell, y0)
         for row in range(row_lo, row_hi + 1):
-            _, lo, hi, _, state = _row_start(mx, my, a, b, c, o, thr, row, x0, y0, state, factors)
+            _, lo, hi, _, state = _row_start(ell, row, x0, y0, state, factors)
             visits += max(hi - lo + 1, 0)
             e, step = state[1], state[2]
             for col in range(lo, hi + 1):
@@ -216,15 +229,16 @@ def _tile_backward(t, gaussians, gauss, start, count, tiles_x, size, grad_pix, o
             remaining[pix] += gpix[k, pix] * out[t, k, pix]
     for p in range(start[t], start[t] + n):
         rec = gaussians[gauss[p]]
-        mx, my, a, b, c, o, thr = rec[0], rec[1], rec[2], rec[3], rec[4], rec[5], rec[6]
+        ell = _ellipse(rec)
+        a, b, c, o = ell[2], ell[3], ell[4], ell[5]
         f0, f1, f2, f3, f4 = _features(rec)
         d_mx = d_my = d_a = d_b = d_c = d_pow = 0.0
         d0 = d1 = d2 = d3 = d4 = 0.0
         factors = (math.exp(-a), math.exp(-b), math.exp(-c))
         state = (-1, 0.0, 0.0, 0.0)
-        row_lo, row_hi = _row_range(my, a, b, c, thr, y0)
+        row_lo, row_hi = _row_range(ell, y0)
         for row in range(row_lo, row_hi + 1):
-            dy, lo, hi, dx0, state = _row_start(mx, my, a, b, c, o, thr, row, x0, y0, state, factors)
+            dy, lo, hi, dx0, state = _row_start(ell, row, x0, y0, state, factors)
             e, step = state[1], state[2]
             for col in range(lo, hi + 1):
                 raw = e
