@@ -187,6 +187,16 @@ def _hard_cases() -> dict[str, tuple]:
     cases["equal_depths"] = dict(
         means=eq, opacities=torch.full((n,), 1.0, dtype=F64), log_scales=r(n, 3) * 0.2 - 1.5
     )
+    # Centres on tile borders and corners (the axis camera puts x = -0.8, 0, 0.8 and y = -0.4, 0.4 at
+    # z = 0 on pixel 8, 16, 24 column and row edges), thin and rotated, near-opaque: the exact tile lists
+    # and each pair's walk along rows from its leftmost column.
+    grid = torch.tensor([[x, y, 0.0] for x in (-0.8, 0.0, 0.8) for y in (-0.4, 0.4)], dtype=F64)
+    thin = torch.tensor([-0.6, -6.0, -6.0], dtype=F64)
+    cases["tile_borders"] = dict(
+        means=torch.cat([grid, grid, grid, grid])[:n] + r(n, 3) * torch.tensor([1e-9, 1e-9, 0.05]),
+        log_scales=thin + r(n, 3) * 0.3,
+        opacities=torch.full((n,), 6.0, dtype=F64) + r(n),
+    )
     # Camera inside a Gaussian whose centre is just in front of it, and inside one whose centre is behind.
     inside = torch.tensor([[0.0, 0.0, -2.7], [0.1, 0.0, -3.2]], dtype=F64)
     cases["camera_inside"] = dict(
@@ -202,7 +212,8 @@ def test_hard_cases_match_reference(case, kernel):
     override = _hard_cases()[case]
     n = 24 if "means" not in override else len(override["means"])
     scene = random_scene(n, 3, seed=2, **override)
-    cam = axis_camera() if case in ("equal_depths", "near_plane", "camera_inside") else camera()
+    axis = case in ("equal_depths", "near_plane", "camera_inside", "tile_borders")
+    cam = axis_camera() if axis else camera()
     check_against_reference(scene, cam, background=[0.1, 0.2, 0.3])
 
 

@@ -89,39 +89,35 @@ def _row_range(ell, y0):
 
 
 @numba.njit(inline="always", error_model="numpy")
-def _row_start(ell, row, x0, y0, state, factors):
-    """Where a pair's walk along one pixel row starts: (dy, first column, last column, dx at the first
-    column, and the new state); lo > hi when the row is out of reach. ``state`` = (column, o exp(-q / 2)
-    there, its factor to the next column, its factor to the next row; column -1 before the first row in
-    reach), moved to the row's first column.
+def _pair_start(ell, row, x0, y0):
+    """Where a pair's walk starts: (col0, e, s, v, factors): col0 a column left of every pixel the ellipse
+    reaches in this tile (its leftmost point's, less a margin, or 0); at (col0, ``row``), e = o exp(-q / 2),
+    s its factor to the next column, v its factor to the next row; factors = (exp(-a), exp(-b), exp(-c)).
 
-    Why recurrences: the factors change by the constants ``factors`` = exp(-a), exp(-b), exp(-c) per column
-    or row, so a pair needs three exponentials for its first row and six for all, rather than two per row.
-    Every point the state visits lies inside the alpha >= 1/255 ellipse or one row or tile width from it, so
-    nothing under- or overflows in float64 and the relative error stays at round-off (tests/test_render.py).
+    Why: every row of the pair then starts at col0, one row down from the last (e, s, v times v, exp(-b),
+    exp(-c)), and reaches its first pixel by multiplications along the row (e times s, s times exp(-a)): a
+    pair needs six exponentials, not two per row, and no row needs a division. Every point so walked lies
+    inside the tile, at most a tile's width from the ellipse, where exp(-q / 2) > 1e-150 (q <= 128 / 0.3 by
+    the low-pass filter): nothing under- or overflows in float64, and the error stays at round-off.
     """
-    mx, my, a, b, c, o = ell[0], ell[1], ell[2], ell[3], ell[4], ell[5]
-    dy = y0 + row + 0.5 - my
-    lo, hi = _row_span(ell, dy, x0)
-    dx = x0 + lo + 0.5 - mx
-    col, e, s, v = state
-    ea, eb, ec = factors
-    if col >= 0:  # one row down, at the same column
-        e, s, v = e * v, s * eb, v * ec
-    if lo <= hi:
-        if col < 0:
-            e = o * math.exp(-0.5 * (a * dx * dx + 2.0 * b * dx * dy + c * dy * dy))
-            s = math.exp(-(a * dx + b * dy) - 0.5 * a)
-            v = math.exp(-(b * dx + c * dy) - 0.5 * c)
-            col = lo
-        while col < lo:
-            e, v, s = e * s, v * eb, s * ea
-            col += 1
-        while col > lo:
-            s = s / ea
-            e, v = e / s, v / eb
-            col -= 1
-    return dy, lo, hi, dx, (col, e, s, v)
+    mx, my, a, b, c, o, ath, det, inv_a = (
+        ell[0],
+        ell[1],
+        ell[2],
+        ell[3],
+        ell[4],
+        ell[5],
+        ell[6],
+        ell[7],
+        ell[8],
+    )
+    half_x = math.sqrt(max(ath, 0.0) * c * inv_a / det)  # |dx| <= sqrt(thr Sigma_xx)
+    col0 = max(int(math.ceil(mx - half_x - 2.0 * SPAN_MARGIN - 0.5 - x0)), 0)
+    dx, dy = x0 + col0 + 0.5 - mx, y0 + row + 0.5 - my
+    e = o * math.exp(-0.5 * (a * dx * dx + 2.0 * b * dx * dy + c * dy * dy))
+    s = math.exp(-(a * dx + b * dy) - 0.5 * a)
+    v = math.exp(-(b * dx + c * dy) - 0.5 * c)
+    return col0, e, s, v, (math.exp(-a), math.exp(-b), math.exp(-c))
 
 
 @numba.njit(inline="always", error_model="numpy")
@@ -177,17 +173,19 @@ def _tile_forward(t, gaussians, gauss, start, count, tiles_x, size, out, stats):
         p += 1
         ell = _ellipse(rec)
         f0, f1, f2, f3, f4 = _features(rec)
-        factors = (math.exp(-ell[2]), math.exp(-ell[3]), math.exp(-ell[4]))
-        state = (-1, 0.0, 0.0, 0.0)
         row_lo, row_hi = _row_range(ell, y0)
+        col0, e_row, s_row, v_row, (ea, eb, ec) = _pair_start(ell, row_lo, x0, y0)
         for row in range(row_lo, row_hi + 1):
-            _, lo, hi, _, state = _row_start(ell, row, x0, y0, state, factors)
+            lo, hi = _row_span(ell, y0 + row + 0.5 - ell[1], x0)
             visits += max(hi - lo + 1, 0)
-            e, step = state[1], state[2]
-            for col in range(lo, hi + 1):
+            e, step = e_row, s_row
+            e_row, s_row, v_row = e_row * v_row, s_row * eb, v_row * ec
+            for col in range(col0, hi + 1):
                 raw = e
                 e *= step
-                step *= factors[0]
+                step *= ea
+                if col < lo:
+                    continue
                 pix = row * TILE + col
                 alpha, tr, stopped = _visit(trans, pix, raw)
                 live -= stopped
@@ -234,16 +232,19 @@ def _tile_backward(t, gaussians, gauss, start, count, tiles_x, size, grad_pix, o
         f0, f1, f2, f3, f4 = _features(rec)
         d_mx = d_my = d_a = d_b = d_c = d_pow = 0.0
         d0 = d1 = d2 = d3 = d4 = 0.0
-        factors = (math.exp(-a), math.exp(-b), math.exp(-c))
-        state = (-1, 0.0, 0.0, 0.0)
         row_lo, row_hi = _row_range(ell, y0)
+        col0, e_row, s_row, v_row, (ea, eb, ec) = _pair_start(ell, row_lo, x0, y0)
         for row in range(row_lo, row_hi + 1):
-            dy, lo, hi, dx0, state = _row_start(ell, row, x0, y0, state, factors)
-            e, step = state[1], state[2]
-            for col in range(lo, hi + 1):
+            dy = y0 + row + 0.5 - ell[1]
+            lo, hi = _row_span(ell, dy, x0)
+            e, step = e_row, s_row
+            e_row, s_row, v_row = e_row * v_row, s_row * eb, v_row * ec
+            for col in range(col0, hi + 1):
                 raw = e
                 e *= step
-                step *= factors[0]
+                step *= ea
+                if col < lo:
+                    continue
                 pix = row * TILE + col
                 alpha, tr, stopped = _visit(trans, pix, raw)
                 live -= stopped
@@ -257,7 +258,7 @@ def _tile_backward(t, gaussians, gauss, start, count, tiles_x, size, grad_pix, o
                 remaining[pix] = rem
                 if raw < ALPHA_MAX:  # above the cap alpha does not move
                     gp = (gw * tr - rem / (1.0 - alpha)) * alpha  # dL/d power, power = ln o - q / 2
-                    dx = dx0 + (col - lo)
+                    dx = x0 + col + 0.5 - ell[0]
                     d_pow += gp
                     d_mx += gp * (a * dx + b * dy)
                     d_my += gp * (b * dx + c * dy)
