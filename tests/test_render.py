@@ -355,7 +355,10 @@ def test_compiled_row_spans_cover_every_drawn_pixel():
         cov += 0.3 * np.eye(2)
         a, b, cc = np.linalg.inv(cov)[[0, 0, 1], [0, 1, 1]]
         o = float(torch.rand(1, generator=g)) * 0.98 + 0.01
-        record = composite_cpu.pack(np.array([[0.0, 0.0, 1.0, 0.0, 1.0, o, 0.0, 0.0, 0.0, 0.0]]))
+        one = np.ones((1, 1))
+        record = composite_cpu.pack(
+            np.zeros(1, np.int64), one * [0.0, 0.0], one * [1, 0, 1], one[0] * o, one * [0, 0, 0, 0]
+        )
         thr = float(record[0, 6])
         mx, my = (torch.rand(2, generator=g, dtype=F64) * 8.0).tolist()
         ell = composite_cpu._ellipse(np.array([mx, my, a, b, cc, o, thr]))

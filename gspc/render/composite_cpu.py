@@ -370,18 +370,25 @@ def bin_ellipses(lo, hi, means2d, conics, thr, exact, tiles_x, num_tiles):
     return gauss, start, count
 
 
-def pack(rows: np.ndarray) -> np.ndarray:
-    """(M, FIELDS + FEATURES) float64 records mean x, mean y, conic a, b, c, opacity, threshold, the
-    features and a 1 (its composite is the alpha image), from rows (M, 6 + FEATURES - 1) = mean x, mean y,
-    a, b, c, opacity, features: one Gaussian's data in one or two cache lines (the kernels read Gaussians
-    scattered)."""
-    if rows.shape[1] != 6 + FEATURES - 1:
-        raise ValueError(f"the compiled compositor takes {FEATURES - 1} features (colour, depth)")
-    out = np.empty((len(rows), FIELDS + FEATURES))
-    out[:, :6], out[:, FIELDS:-1], out[:, -1] = rows[:, :6], rows[:, 6:], 1.0
-    with np.errstate(divide="ignore"):
-        thr = 2.0 * np.log(out[:, 5] / ALPHA_MIN)
-    out[:, 6] = thr * (1.0 + THRESHOLD_REL_MARGIN) + THRESHOLD_REL_MARGIN
+@numba.njit(**JIT)
+def pack(order, means2d, conics, opacities, features):
+    """(len(order), FIELDS + FEATURES) float64 records of the Gaussians ``order``, in that order: mean x,
+    mean y, conic a, b, c, opacity, threshold, the FEATURES - 1 features (colour, depth) and a 1 (its
+    composite is the alpha image): one Gaussian's data in one or two cache lines (the kernels read Gaussians
+    scattered). One pass, reading the projection's arrays in their own dtype."""
+    out = np.empty((len(order), FIELDS + FEATURES))
+    for r in range(len(order)):
+        i = order[r]
+        rec = out[r]
+        rec[0], rec[1] = means2d[i, 0], means2d[i, 1]
+        rec[2], rec[3], rec[4] = conics[i, 0], conics[i, 1], conics[i, 2]
+        o = np.float64(opacities[i])
+        rec[5] = o
+        thr = 2.0 * math.log(o / ALPHA_MIN) if o > 0.0 else -np.inf
+        rec[6] = thr * (1.0 + THRESHOLD_REL_MARGIN) + THRESHOLD_REL_MARGIN
+        for k in range(FEATURES - 1):
+            rec[FIELDS + k] = features[i, k]
+        rec[FIELDS + FEATURES - 1] = 1.0
     return out
 
 

@@ -157,10 +157,12 @@ def _drawn_in_depth_order(depths: torch.Tensor, extents: torch.Tensor, compiled:
 
 def _records(means2d, conics, opacities, features, order: torch.Tensor) -> np.ndarray:
     """The compiled kernels' records (composite_cpu.py pack) of rows ``order``, in that order."""
-    from gspc.render.composite_cpu import pack
+    from gspc.render.composite_cpu import FEATURES, pack
 
-    rows = torch.cat([means2d.detach(), conics.detach(), opacities.detach()[:, None], features.detach()], 1)
-    return pack(rows.index_select(0, order).to(torch.float64).numpy())
+    if features.shape[1] != FEATURES - 1:
+        raise ValueError(f"the compiled compositor takes {FEATURES - 1} features (colour, depth)")
+    arrays = (x.detach().contiguous().numpy() for x in (means2d, conics, opacities, features))
+    return pack(order.numpy(), *arrays)
 
 
 def bin_tiles(
