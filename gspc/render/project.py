@@ -33,7 +33,7 @@ class Projected:
     means2d: torch.Tensor  # (M, 2) pixel coordinates (pixel centres at x + 0.5)
     conics: torch.Tensor  # (M, 3) inverse 2D covariance (a, b, c) as [[a, b], [b, c]]
     opacities: torch.Tensor  # (M,)
-    colors: torch.Tensor  # (M, 3)
+    colors: torch.Tensor  # (M, 3); the compiled kernel leaves the never-drawn at 0
     depths: torch.Tensor  # (M,) camera-space z
     extents: torch.Tensor  # (M, 2) half-sizes of the alpha >= 1/255 box; -1 = never drawn; no grad
 
