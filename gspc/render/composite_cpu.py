@@ -149,23 +149,28 @@ def _tile_pixels(t, tiles_x, size, trans):
     start) beyond the image's right and bottom edges, so that edge tiles end when their image pixels do."""
     x0, y0 = (t % tiles_x) * TILE, (t // tiles_x) * TILE
     live = 0
-    for row in range(TILE):
-        for col in range(TILE):
-            inside = x0 + col < size[0] and y0 + row < size[1]
-            trans[row * TILE + col] = 1.0 if inside else -1.0
-            live += inside
+    for pix in range(PIXELS):
+        inside = _inside(x0, y0, pix, size)
+        trans[pix] = 1.0 if inside else -1.0
+        live += inside
     return x0, y0, live
 
 
+@numba.njit(inline="always", error_model="numpy")
+def _inside(x0, y0, pix, size):
+    """Whether pixel pix of the tile at (x0, y0) lies inside the image of ``size`` (width, height)."""
+    return x0 + pix % TILE < size[0] and y0 + pix // TILE < size[1]
+
+
 @numba.njit(**JIT)
-def _tile_forward(t, gaussians, gauss, start, count, tiles_x, size, out, stats):
+def _tile_forward(t, gaussians, gauss, start, count, tiles_x, size, image, stats):
     """Tile t of composite_forward."""
     n = count[t]
     if n == 0:
         return
     trans = np.empty(PIXELS)
     x0, y0, live = _tile_pixels(t, tiles_x, size, trans)
-    acc = out[t]  # (FEATURES, 64), zero
+    acc = np.zeros((FEATURES, PIXELS))
     visits = 0
     p = start[t]
     while p < start[t] + n and live > 0:
@@ -198,33 +203,40 @@ def _tile_forward(t, gaussians, gauss, start, count, tiles_x, size, out, stats):
                 acc[3, pix] += w * f3
                 acc[4, pix] += w * f4
     stats[t, 0], stats[t, 1] = p - start[t], visits
+    for pix in range(PIXELS):
+        if _inside(x0, y0, pix, size):
+            for k in range(FEATURES):
+                image[y0 + pix // TILE, x0 + pix % TILE, k] = acc[k, pix]
 
 
 @numba.njit(**JIT)
-def _forward_serial(gaussians, gauss, start, count, tiles_x, size, out, stats):
+def _forward_serial(gaussians, gauss, start, count, tiles_x, size, image, stats):
     for t in range(len(start)):
-        _tile_forward(t, gaussians, gauss, start, count, tiles_x, size, out, stats)
+        _tile_forward(t, gaussians, gauss, start, count, tiles_x, size, image, stats)
 
 
 @numba.njit(parallel=True, **JIT)
-def _forward_parallel(gaussians, gauss, start, count, tiles_x, size, out, stats):
+def _forward_parallel(gaussians, gauss, start, count, tiles_x, size, image, stats):
     for t in numba.prange(len(start)):
-        _tile_forward(t, gaussians, gauss, start, count, tiles_x, size, out, stats)
+        _tile_forward(t, gaussians, gauss, start, count, tiles_x, size, image, stats)
 
 
 @numba.njit(**JIT)
-def _tile_backward(t, gaussians, gauss, start, count, tiles_x, size, grad_pix, out, dest, grads):
+def _tile_backward(t, gaussians, gauss, start, count, tiles_x, size, grad_image, image, dest, grads):
     """Tile t of composite_backward."""
     n = count[t]
     if n == 0:
         return
     trans = np.empty(PIXELS)
     x0, y0, live = _tile_pixels(t, tiles_x, size, trans)
-    gpix = grad_pix[t]  # (FEATURES, 64)
+    gpix = np.zeros((FEATURES, PIXELS))  # dL/d image, 0 beyond it
     remaining = np.zeros(PIXELS)  # R: what the Gaussians not yet walked add to grad . output
-    for k in range(FEATURES):
-        for pix in range(PIXELS):
-            remaining[pix] += gpix[k, pix] * out[t, k, pix]
+    for pix in range(PIXELS):
+        if _inside(x0, y0, pix, size):
+            y, x = y0 + pix // TILE, x0 + pix % TILE
+            for k in range(FEATURES):
+                gpix[k, pix] = grad_image[y, x, k]
+                remaining[pix] += grad_image[y, x, k] * image[y, x, k]
     for p in range(start[t], start[t] + n):
         rec = gaussians[gauss[p]]
         ell = _ellipse(rec)
@@ -282,15 +294,15 @@ def _tile_backward(t, gaussians, gauss, start, count, tiles_x, size, grad_pix, o
 
 
 @numba.njit(**JIT)
-def _backward_serial(gaussians, gauss, start, count, tiles_x, size, grad_pix, out, dest, grads):
+def _backward_serial(gaussians, gauss, start, count, tiles_x, size, grad_image, image, dest, grads):
     for t in range(len(start)):
-        _tile_backward(t, gaussians, gauss, start, count, tiles_x, size, grad_pix, out, dest, grads)
+        _tile_backward(t, gaussians, gauss, start, count, tiles_x, size, grad_image, image, dest, grads)
 
 
 @numba.njit(parallel=True, **JIT)
-def _backward_parallel(gaussians, gauss, start, count, tiles_x, size, grad_pix, out, dest, grads):
+def _backward_parallel(gaussians, gauss, start, count, tiles_x, size, grad_image, image, dest, grads):
     for t in numba.prange(len(start)):
-        _tile_backward(t, gaussians, gauss, start, count, tiles_x, size, grad_pix, out, dest, grads)
+        _tile_backward(t, gaussians, gauss, start, count, tiles_x, size, grad_image, image, dest, grads)
 
 
 @numba.njit(inline="always", error_model="numpy")
@@ -425,19 +437,19 @@ def depth_order(depths: np.ndarray) -> np.ndarray:
 
 
 def composite_forward(
-    gaussians: np.ndarray, lists: tuple, tiles_x: int, size: tuple, out: np.ndarray, threads: int
+    gaussians: np.ndarray, lists: tuple, tiles_x: int, size: tuple, image: np.ndarray, threads: int
 ) -> np.ndarray:
-    """out (tiles, FEATURES, 64), zeros, += sum_i w_i feat_i per pixel of the image of ``size`` (width,
-    height), for records
-    from pack() and the tile lists (gauss, start, count) of gspc/render/rasterize.py's TileBins; returns
-    (tiles, STATS) counts: the pairs each tile walked before its pixels stopped, and its pixel visits."""
+    """image (height, width, FEATURES) float64 = sum_i w_i feat_i per pixel of the image of ``size`` (width,
+    height), for records from pack() and the tile lists (gauss, start, count) of gspc/render/rasterize.py's
+    TileBins (tiles without pairs are left as they are: pass zeros); returns (tiles, STATS) counts: the pairs
+    each tile walked before its pixels stopped, and its pixel visits."""
     stats = np.zeros((len(lists[1]), STATS), np.int64)
     size = np.asarray(size, np.int64)
     if threads > 1:
         set_threads(threads)
-        _forward_parallel(gaussians, *lists, tiles_x, size, out, stats)
+        _forward_parallel(gaussians, *lists, tiles_x, size, image, stats)
     else:
-        _forward_serial(gaussians, *lists, tiles_x, size, out, stats)
+        _forward_serial(gaussians, *lists, tiles_x, size, image, stats)
     return stats
 
 
@@ -448,22 +460,22 @@ def composite_backward(
     num: int,
     tiles_x: int,
     size: tuple,
-    grad_pix: np.ndarray,
-    out: np.ndarray,
+    grad_image: np.ndarray,
+    image: np.ndarray,
     threads: int,
 ) -> np.ndarray:
     """(num, GRADS + FEATURES): dL/d (mean x, mean y, conic a, b, c, opacity, features) of every Gaussian,
-    record r being the caller's Gaussian rows[r] (the others get zeros), for dL/d out = grad_pix
-    (tiles, FEATURES, 64) and the forward's ``out``."""
+    record r being the caller's Gaussian rows[r] (the others get zeros), for dL/d image = grad_image
+    (height, width, FEATURES) float64 and the forward's ``image``."""
     dest = rows[lists[0]]  # the caller's row of each pair
-    cols = GRADS + gaussians.shape[1] - FIELDS
+    cols = GRADS + FEATURES
     size = np.asarray(size, np.int64)
     if threads <= 1:  # one thread: every pair adds straight into its Gaussian's row
         grads = np.zeros((num, cols))
-        _backward_serial(gaussians, *lists, tiles_x, size, grad_pix, out, dest, grads)
+        _backward_serial(gaussians, *lists, tiles_x, size, grad_image, image, dest, grads)
         return grads
     # Threads own tiles, and a Gaussian's pairs lie in several: each pair gets its own row, summed after.
     set_threads(threads)
     per_pair = np.zeros((len(dest), cols))
-    _backward_parallel(gaussians, *lists, tiles_x, size, grad_pix, out, np.arange(len(dest)), per_pair)
+    _backward_parallel(gaussians, *lists, tiles_x, size, grad_image, image, np.arange(len(dest)), per_pair)
     return np.stack([np.bincount(dest, weights=col, minlength=num) for col in per_pair.T], 1)

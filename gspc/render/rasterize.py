@@ -137,9 +137,9 @@ def walk_counts(
         sel = (x.index_select(0, order) for x in (means2d, conics, opacities, extents))
         bins = bin_tiles(*sel, width, height, True, exact)
         records = _records(means2d, conics, opacities, features, order)
-    out = np.zeros((len(bins.count), features.shape[1] + 1, PIXELS))
     size = (bins.tiles_x * TILE, bins.tiles_y * TILE) if whole_tiles else (width, height)
-    stats = kern.composite_forward(records, _lists(bins), bins.tiles_x, size, out, 1)
+    image = np.zeros((size[1], size[0], kern.FEATURES))
+    stats = kern.composite_forward(records, _lists(bins), bins.tiles_x, size, image, 1)
     walked, visits = (int(x) for x in stats.sum(0))
     return WalkCounts(width * height, len(bins.gauss), walked, visits)
 
@@ -314,22 +314,22 @@ class _CompositeCompiled(torch.autograd.Function):
         from gspc.render import composite_cpu as kern
 
         records = _records(means2d, conics, opacities, features, order)
-        out = np.zeros((len(bins.count), features.shape[1] + 1, PIXELS))
+        image = np.zeros((height, width, kern.FEATURES))
         size = (width, height)
-        kern.composite_forward(records, _lists(bins), bins.tiles_x, size, out, torch.get_num_threads())
+        kern.composite_forward(records, _lists(bins), bins.tiles_x, size, image, torch.get_num_threads())
         if any(ctx.needs_input_grad[:4]):
-            ctx.saved = (records, out, order, bins, len(opacities), size)
-        return _tiles_to_image(torch.from_numpy(out), bins, width, height).to(means2d.dtype)
+            ctx.saved = (records, image, order, bins, len(opacities), size)
+        return torch.from_numpy(image).to(means2d.dtype)
 
     @staticmethod
     def backward(ctx, grad_out):
         from gspc.render import composite_cpu as kern
 
-        records, out, order, bins, num, size = ctx.saved
-        grad_pix = _image_to_tiles(grad_out.detach().to(torch.float64), bins).contiguous().numpy()
+        records, image, order, bins, num, size = ctx.saved
+        grad_image = grad_out.detach().to(torch.float64).contiguous().numpy()
         lists, threads = _lists(bins), torch.get_num_threads()
         grads = kern.composite_backward(
-            records, lists, order.numpy(), num, bins.tiles_x, size, grad_pix, out, threads
+            records, lists, order.numpy(), num, bins.tiles_x, size, grad_image, image, threads
         )
         g = torch.from_numpy(grads).to(grad_out.dtype)
         nf = grads.shape[1] - kern.GRADS - 1  # the last column is the alpha channel's
