@@ -187,6 +187,16 @@ def _hard_cases() -> dict[str, tuple]:
     cases["equal_depths"] = dict(
         means=eq, opacities=torch.full((n,), 1.0, dtype=F64), log_scales=r(n, 3) * 0.2 - 1.5
     )
+    # Centres on tile borders and corners (the axis camera puts x = -0.8, 0, 0.8 and y = -0.4, 0.4 at
+    # z = 0 on pixel 8, 16, 24 column and row edges), thin and rotated, near-opaque: the exact tile lists
+    # and each pair's walk along rows from its leftmost column.
+    grid = torch.tensor([[x, y, 0.0] for x in (-0.8, 0.0, 0.8) for y in (-0.4, 0.4)], dtype=F64)
+    thin = torch.tensor([-0.6, -6.0, -6.0], dtype=F64)
+    cases["tile_borders"] = dict(
+        means=torch.cat([grid, grid, grid, grid])[:n] + r(n, 3) * torch.tensor([1e-9, 1e-9, 0.05]),
+        log_scales=thin + r(n, 3) * 0.3,
+        opacities=torch.full((n,), 6.0, dtype=F64) + r(n),
+    )
     # Camera inside a Gaussian whose centre is just in front of it, and inside one whose centre is behind.
     inside = torch.tensor([[0.0, 0.0, -2.7], [0.1, 0.0, -3.2]], dtype=F64)
     cases["camera_inside"] = dict(
@@ -202,7 +212,8 @@ def test_hard_cases_match_reference(case, kernel):
     override = _hard_cases()[case]
     n = 24 if "means" not in override else len(override["means"])
     scene = random_scene(n, 3, seed=2, **override)
-    cam = axis_camera() if case in ("equal_depths", "near_plane", "camera_inside") else camera()
+    axis = case in ("equal_depths", "near_plane", "camera_inside", "tile_borders")
+    cam = axis_camera() if axis else camera()
     check_against_reference(scene, cam, background=[0.1, 0.2, 0.3])
 
 
@@ -304,13 +315,29 @@ def test_compiled_kernel_on_several_threads_matches_one():
         assert_close(g_two[name], g_one[name], 1e-12, f"d/d {name}")
 
 
-def test_compiled_tile_lists_equal_the_torch_ones():
-    g = torch.Generator().manual_seed(3)
-    means = torch.rand(400, 2, generator=g, dtype=F64) * torch.tensor([60.0, 40.0]) - 10.0  # some off-image
-    extents = torch.rand(400, 2, generator=g, dtype=F64) * 12.0
+def random_ellipses(n: int, seed: int, spread=(60.0, 40.0), log_scale=(0.0, 1.0)):
+    """Screen-space Gaussians as the compositor gets them: means (n, 2), conics (n, 3), opacities (n,) and
+    the alpha >= 1/255 boxes' half-sizes (n, 2); some off-image, some thin and rotated, some below 1/255."""
+    g = torch.Generator().manual_seed(seed)
+    means = torch.rand(n, 2, generator=g, dtype=F64) * torch.tensor(spread, dtype=F64) - 10.0
+    sx, sy = (torch.exp(torch.randn(2, n, generator=g, dtype=F64) * log_scale[1] + log_scale[0])).unbind(0)
+    rot = torch.rand(n, generator=g, dtype=F64) * math.pi
+    c, s = torch.cos(rot), torch.sin(rot)
+    cxx, cyy = c * c * sx * sx + s * s * sy * sy + 0.3, s * s * sx * sx + c * c * sy * sy + 0.3
+    cxy = c * s * (sx * sx - sy * sy)
+    det = cxx * cyy - cxy * cxy
+    conics = torch.stack([cyy / det, -cxy / det, cxx / det], 1)
+    opacities = torch.rand(n, generator=g, dtype=F64) * 1.05
+    extents = proj.alpha_extents(cxx, cyy, opacities)
+    return means, conics, opacities, extents
+
+
+@pytest.mark.parametrize("exact", [True, False])
+def test_compiled_tile_lists_equal_the_torch_ones(exact):
+    means, conics, opacities, extents = random_ellipses(400, seed=3)
     extents[::7] = -1.0  # never drawn
-    a = rast.bin_tiles(means, extents, 45, 29)
-    b = rast.bin_tiles(means, extents, 45, 29, compiled=True)
+    a = rast.bin_tiles(means, conics, opacities, extents, 45, 29, exact=exact)
+    b = rast.bin_tiles(means, conics, opacities, extents, 45, 29, compiled=True, exact=exact)
     for field in ("gauss", "tile", "start", "count"):
         assert torch.equal(getattr(a, field), getattr(b, field)), field
     assert len(a.gauss) > 400
@@ -328,13 +355,17 @@ def test_compiled_row_spans_cover_every_drawn_pixel():
         cov += 0.3 * np.eye(2)
         a, b, cc = np.linalg.inv(cov)[[0, 0, 1], [0, 1, 1]]
         o = float(torch.rand(1, generator=g)) * 0.98 + 0.01
-        record = composite_cpu.pack(np.array([[0.0, 0.0, 1.0, 0.0, 1.0, o, 0.0]]))
+        one = np.ones((1, 1))
+        record = composite_cpu.pack(
+            np.zeros(1, np.int64), one * [0.0, 0.0], one * [1, 0, 1], one[0] * o, one * [0, 0, 0, 0]
+        )
         thr = float(record[0, 6])
         mx, my = (torch.rand(2, generator=g, dtype=F64) * 8.0).tolist()
-        row_lo, row_hi = composite_cpu._row_range(my, a, b, cc, thr, 0)
+        ell = composite_cpu._ellipse(np.array([mx, my, a, b, cc, o, thr]))
+        row_lo, row_hi = composite_cpu._row_range(ell, 0)
         for row in range(8):
             dy = row + 0.5 - my
-            lo, hi = composite_cpu._row_span(mx, a, b, cc, thr, dy, 0)
+            lo, hi = composite_cpu._row_span(ell, dy, 0)
             for col in range(8):
                 dx = col + 0.5 - mx
                 alpha = o * math.exp(-0.5 * (a * dx * dx + 2 * b * dx * dy + cc * dy * dy))
@@ -385,8 +416,10 @@ def test_compiled_projection_matches_pytorch(behind, dtype):
     b, gb = projected_and_grads(scene, camera(), 1, "compiled")
     assert torch.equal(a.index, b.index) and torch.equal(a.drawn, b.drawn)
     assert (~b.drawn).sum() > behind and b.means2d.dtype == dtype
-    for name in ("means2d", "conics", "opacities", "colors", "depths", "extents"):
+    for name in ("means2d", "conics", "opacities", "depths", "extents"):
         assert_close(getattr(b, name), getattr(a, name), tol, name)
+    assert_close(b.colors[b.drawn], a.colors[a.drawn], tol, "colors")  # (the never-drawn: 0, unread)
+    assert not b.colors[~b.drawn].any()
     for name, x, y in zip(ATTRIBUTE_NAMES, gb, ga, strict=True):
         assert x.dtype == dtype and torch.isfinite(x).all(), name
         assert_close(x, y, tol, f"d/d {name}")
@@ -402,3 +435,51 @@ def test_depth_order_is_torchs_stable_sort(dtype):
     g.shuffle(depths)
     expected = torch.sort(torch.from_numpy(depths), stable=True).indices.numpy()
     assert np.array_equal(composite_cpu.depth_order(depths), expected)
+
+
+def _listed(bins: rast.TileBins) -> set[tuple[int, int]]:
+    return set(zip(bins.tile.tolist(), bins.gauss.tolist(), strict=True))
+
+
+@pytest.mark.parametrize(
+    "case",
+    ["mixed", "thin_rotated", "huge", "near_opaque", "on_tile_borders"],
+)
+def test_exact_tile_lists_hold_every_drawn_pixel_and_are_in_the_box(case):
+    # Every (tile, Gaussian) whose alpha reaches 1/255 at one of the tile's pixel centres is listed (checked
+    # pixel by pixel in float64), and no pair outside the alpha >= 1/255 box is.
+    width, height = 45, 29
+    n, log_scale = (40, (3.5, 0.5)) if case == "huge" else (300, (0.0, 1.0))
+    means, conics, opacities, extents = random_ellipses(n, seed=5, log_scale=log_scale)
+    if case == "thin_rotated":  # one long axis, the other at the low-pass floor
+        g = torch.Generator().manual_seed(6)
+        rot = torch.rand(n, generator=g, dtype=F64) * math.pi
+        long = torch.exp(torch.rand(n, generator=g, dtype=F64) * 3.0)
+        c, s = torch.cos(rot), torch.sin(rot)
+        cxx, cyy, cxy = c * c * long**2 + 0.3, s * s * long**2 + 0.3, c * s * long**2
+        det = cxx * cyy - cxy * cxy
+        conics = torch.stack([cyy / det, -cxy / det, cxx / det], 1)
+        extents = proj.alpha_extents(cxx, cyy, opacities)
+    if case == "near_opaque":
+        opacities = 1.0 - torch.rand(n, dtype=F64, generator=torch.Generator().manual_seed(7)) * 1e-3
+        cov = torch.linalg.inv(torch.stack([conics[:, [0, 1]], conics[:, [1, 2]]], 1))
+        extents = proj.alpha_extents(cov[:, 0, 0], cov[:, 1, 1], opacities)
+    if case == "on_tile_borders":  # centres on tile borders and pixel centres
+        means = torch.round(means / 4.0) * 4.0 + torch.tensor([0.0, 0.5], dtype=F64)
+    exact = rast.bin_tiles(means, conics, opacities, extents, width, height, compiled=True)
+    box = rast.bin_tiles(means, conics, opacities, extents, width, height, compiled=True, exact=False)
+    listed, in_box = _listed(exact), _listed(box)
+    assert listed <= in_box
+    ys, xs = torch.meshgrid(
+        torch.arange(height, dtype=F64) + 0.5, torch.arange(width, dtype=F64) + 0.5, indexing="ij"
+    )
+    tile = (ys.long() // rast.TILE) * exact.tiles_x + xs.long() // rast.TILE
+    needed = set()
+    for i in range(n):
+        a, b, c = conics[i].tolist()
+        dx, dy = xs - means[i, 0], ys - means[i, 1]
+        alpha = opacities[i] * torch.exp(-0.5 * (a * dx * dx + 2 * b * dx * dy + c * dy * dy))
+        needed |= {(t, i) for t in tile[alpha >= rast.ALPHA_MIN * (1 - 1e-9)].unique().tolist()}
+    assert needed and needed <= listed
+    if case in ("mixed", "thin_rotated"):
+        assert len(listed) < 0.9 * len(in_box)  # the corners of boxes go (thin rotated ones: most tiles)

@@ -1,11 +1,18 @@
-"""Benchmark the torch renderer: forward and forward+backward seconds and peak memory, before and after.
+"""Benchmark the CPU renderer: its work (tile pairs, pixel visits) and seconds per render, before and after.
 
     git archive BASE gspc | tar -x -C /tmp/gspc_before      # the renderer to compare against
-    python tools/bench_render.py --before /tmp/gspc_before [--out bench/render.md] [--repeats 5]
+    python tools/bench_render.py --before /tmp/gspc_before [--out bench/render.md] [--repeats 3] \\
+        [--scene examples/lego/point_cloud.ply:examples/lego/cameras.json] [--scene statue.sog]
 
-Each (Gaussians, resolution) case runs in fresh subprocesses so its peak RSS is its own: the code under
-``--before`` (put first on PYTHONPATH) and this checkout alternate, ``--repeats`` rounds of each, so both
-see the same machine load. A last table times this checkout's 100k 400x300 case on 1 and 2 threads.
+Cases: synthetic scenes (CASES) and real ones (``--scene PLY_OR_SOG[:CAMERAS_JSON]``; without cameras,
+gspc.views.synthesize_views). Each case runs in fresh subprocesses, three variants alternating for
+``--repeats`` rounds so that all see the same machine load: "before" (the gspc under ``--before``, first on
+PYTHONPATH), "box" (this checkout with box tile lists instead of the exact ellipse test) and "after" (this
+checkout). Times are CPU seconds of one thread per render (mean over a case's views; the median of a
+round's calls, then of the rounds). The "after" process also counts the work: pairs in the tile lists,
+pairs walked before their tile stopped, and pixel visits, for its lists and for the previous renderer's
+(box lists, edge tiles walked whole); and every variant saves its images, so the table gives the largest
+difference from "before". A last table times this checkout on 1 and 2 threads (wall seconds).
 """
 
 from __future__ import annotations
@@ -15,21 +22,22 @@ import json
 import math
 import os
 import platform
-import resource
 import subprocess
 import sys
 import tempfile
 import time
+from functools import partial
 
 import numpy as np
 import torch
 
-# (Gaussians, width, height, camera distance); the last case fills the frame, as real scenes do.
+# (Gaussians, width, height, camera distance); 1.5 fills the frame, as real scenes do.
 CASES = [(20_000, 256, 256, 3.0), (20_000, 400, 300, 3.0), (20_000, 800, 600, 3.0), (100_000, 256, 256, 3.0),
          (100_000, 400, 300, 3.0), (100_000, 800, 600, 3.0), (100_000, 400, 300, 1.5),
          (300_000, 400, 300, 3.0), (1_000_000, 400, 300, 3.0)]  # fmt: skip
-THREADS_CASE = (100_000, 400, 300, 3.0)
+THREADS_CASES = [(100_000, 400, 300, 3.0), (100_000, 400, 300, 1.5)]
 PER_PROCESS = 3  # calls per subprocess in a side-by-side round; the median is that round's figure
+SYNTH_VIEWS, SYNTH_SIZE, SCENE_VIEWS = 60, 320, 6  # real scenes without cameras: 6 of 60 views at 320x320
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
@@ -59,220 +67,227 @@ def bench_camera(width: int, height: int, dist: float = 3.0):
     return Camera(w2c, np.array([[f, 0, width / 2], [0, f, height / 2], [0, 0, 1.0]]), width, height)
 
 
-def _rss_mb() -> float:
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
-
-
-def run_case(n: int, width: int, height: int, dist: float, repeats: int, threads: int = 1) -> dict:
-    from gspc.render import render
-    from gspc.render.project import project
-    from gspc.render.rasterize import bin_tiles
-
-    torch.set_num_threads(threads)
-    scene, cam = bench_scene(n), bench_camera(width, height, dist)
-    with torch.no_grad():
-        p = project(
-            scene.means, scene.quats, scene.log_scales, scene.opacities, scene.sh_dc, scene.sh_rest, cam, 3
+def load_case(spec: dict):
+    """(name, scene, cameras) of a case spec: {"n", "w", "h", "dist"} or {"scene", "cameras"}."""
+    if "n" in spec:
+        return (
+            f"{spec['n']:,} synthetic",
+            bench_scene(spec["n"]),
+            [bench_camera(spec["w"], spec["h"], spec["dist"])],
         )
-        order = torch.sort(p.depths, stable=True).indices
-        order = order[p.drawn[order]]
-        pairs = len(bin_tiles(p.means2d[order], p.extents[order], width, height).gauss)
-    for t in scene.tensors().values():
-        t.requires_grad_(True)
-    # One untimed call: compiled kernels load (or compile) on first use, once per process.
-    render(scene, cam, backend="torch").image.sum().backward()
-    base = _rss_mb()
-    runs = {"fwd": [], "both": [], "fwd_cpu": [], "both_cpu": []}
-    for i in range(repeats):
-        t0, c0 = time.perf_counter(), time.process_time()
-        with torch.no_grad():
-            r = render(scene, cam, backend="torch")
-        runs["fwd"].append(time.perf_counter() - t0)
-        runs["fwd_cpu"].append(time.process_time() - c0)
-        if i == 0:
-            fwd_peak, mean_alpha = _rss_mb() - base, float(r.alpha.mean())
-        t0, c0 = time.perf_counter(), time.process_time()
-        r = render(scene, cam, backend="torch")
-        (r.image.sum() + r.depth.sum()).backward()
-        runs["both"].append(time.perf_counter() - t0)
-        runs["both_cpu"].append(time.process_time() - c0)
-        if i == 0:
-            both_peak = _rss_mb() - base
-    res = {
-        "n": n,
-        "w": width,
-        "h": height,
-        "dist": dist,
-        "visible": int(p.drawn.sum()),
-        "pairs": pairs,
-        "alpha": mean_alpha,
-    }
-    res.update({k: float(np.median(v)) for k, v in runs.items()})
-    return res | {"fwd_mb": fwd_peak, "both_mb": both_peak}
-
-
-def fit_scene_case(folder: str, every: int, repeats: int) -> None:
-    """A tools/fit_scene.py fit, every ``every``-th of its cameras: forward+backward CPU s per render with the
-    compiled compositor and the torch walk, alternating in this process; prints a Markdown table."""
-    from functools import partial
-
     from gspc.io import read_scene
     from gspc.io.camera_files import load_cameras
+    from gspc.views import synthesize_views
+
+    scene = read_scene(spec["scene"])
+    if spec.get("cameras"):
+        cams = load_cameras(spec["cameras"])
+    else:
+        cams = synthesize_views(scene, SYNTH_VIEWS, width=SYNTH_SIZE, height=SYNTH_SIZE)
+    cams = cams[:: max(1, len(cams) // SCENE_VIEWS)][:SCENE_VIEWS]
+    name = os.path.basename(os.path.dirname(spec["scene"])) if spec["scene"].endswith(".ply") else ""
+    return (name or os.path.basename(spec["scene"])), scene, cams
+
+
+def count_work(scene, cams) -> dict:
+    """Per pixel, summed over the views: tile pairs, pairs walked, pixel visits; "old_*" the same for the
+    previous renderer's walk (box tile lists, edge tiles walked whole)."""
+    from gspc.render.project import project
+    from gspc.render.rasterize import walk_counts
+
+    sums = dict.fromkeys(("pixels", "pairs", "walked", "visits", "old_pairs", "old_walked", "old_visits"), 0)
+    for cam in cams:
+        with torch.no_grad():
+            p = project(*(scene.tensors()[k] for k in _ATTRS), cam, scene.sh_degree)
+        args = (p.means2d, p.conics, p.opacities, torch.cat([p.colors, p.depths[:, None]], 1), p.depths)
+        new = walk_counts(*args, p.extents, cam.width, cam.height)
+        old = walk_counts(*args, p.extents, cam.width, cam.height, exact=False, whole_tiles=True)
+        for k in ("pairs", "walked", "visits"):
+            sums[k] += getattr(new, k)
+            sums["old_" + k] += getattr(old, k)
+        sums["pixels"] += new.pixels
+    return sums
+
+
+_ATTRS = ("means", "quats", "log_scales", "opacities", "sh_dc", "sh_rest")
+
+
+def run_case(spec: dict, repeats: int, threads: int, variant: str, images: str | None) -> dict:
+    """Time one case in this process: per render (mean over the views) a no-grad forward and a forward +
+    backward, ``repeats`` times; CPU seconds, or wall seconds for the variant "wall"."""
     from gspc.render import api, rasterize
 
-    torch.set_num_threads(1)
-    scene = read_scene(os.path.join(folder, "point_cloud.ply"))
+    torch.set_num_threads(threads)
+    if variant == "box":  # this checkout with the box tile lists (the exact tile test off)
+        rasterize.bin_tiles = partial(rasterize.bin_tiles, exact=False)
+    name, scene, cams = load_case(spec)
     for t in scene.tensors().values():
         t.requires_grad_(True)
-    cams = load_cameras(os.path.join(folder, "cameras.json"))[::every]
-    composite = rasterize.composite
-
-    def per_render(kernel: str) -> float:
-        api.composite = partial(composite, kernel=kernel)
-        c0 = time.process_time()
-        for cam in cams:
-            api.render(scene, cam).image.sum().backward()
-        return (time.process_time() - c0) / len(cams)
-
-    per_render("compiled"), per_render("torch")  # compile / warm up
-    runs = {"compiled": [], "torch": []}
+    clock = time.perf_counter if variant == "wall" else time.process_time
+    with torch.no_grad():  # one untimed pass: compiled kernels load (or compile) on first use
+        first = [api.render(scene, cam, backend="torch").image.numpy() for cam in cams]
+    if images:
+        np.savez(images, *first)
+    runs = {"fwd": [], "both": []}
     for _ in range(repeats):
-        for k in runs:
-            runs[k].append(per_render(k))
-    # Depth complexity: Gaussian-tile pairs in the tile lists per pixel (what compositing walks).
-    pairs, bin_tiles = [], rasterize.bin_tiles
-
-    def counted(*args, **kwargs):
-        pairs.append(bin_tiles(*args, **kwargs))
-        return pairs[-1]
-
-    rasterize.bin_tiles = counted
-    with torch.no_grad():
+        t0 = clock()
+        with torch.no_grad():
+            for cam in cams:
+                api.render(scene, cam, backend="torch")
+        runs["fwd"].append((clock() - t0) / len(cams))
+        t0 = clock()
         for cam in cams:
-            api.render(scene, cam)
-    rasterize.bin_tiles, api.composite = bin_tiles, composite
-    per_pixel = np.mean([int(b.count.sum()) for b in pairs]) / (cams[0].width * cams[0].height)
-    compiled, walk = np.median(runs["compiled"]), np.median(runs["torch"])
-    print("| scene | views | pairs per pixel | compiled fwd+bwd CPU s | torch walk fwd+bwd CPU s |")
-    print("|---|---|---|---|---|")
-    name, size = os.path.basename(folder), f"{cams[0].width}x{cams[0].height}"
-    print(f"| {name} | {len(cams)} ({size}) | {per_pixel:.1f} | {compiled:.3f} | {walk:.3f} |")
+            r = api.render(scene, cam, backend="torch")
+            (r.image.sum() + r.depth.sum()).backward()
+        runs["both"].append((clock() - t0) / len(cams))
+    res = {"name": name, "views": len(cams), "size": f"{cams[0].width}x{cams[0].height}"}
+    res |= {"gaussians": scene.num_gaussians} | {k: float(np.median(v)) for k, v in runs.items()}
+    if variant == "after":
+        res |= count_work(scene, cams)
+    return res
 
 
-def _case(spec: str, repeats: int, threads: int, path: str) -> dict:
+def _case(spec: dict, threads: int, variant: str, path: str, images: str | None) -> dict:
     """One case in a fresh subprocess with ``path`` first on PYTHONPATH (the gspc it imports)."""
-    cmd = [sys.executable, __file__, "--case", spec, "--repeats", str(repeats), "--threads", str(threads)]
+    cmd = [sys.executable, __file__, "--case", json.dumps(spec), "--variant", variant]
+    cmd += ["--repeats", str(PER_PROCESS), "--threads", str(threads)]
+    cmd += ["--images", images] if images else []
     env = dict(os.environ, PYTHONPATH=path)
     out = subprocess.run(cmd, check=True, capture_output=True, text=True, env=env).stdout
     return json.loads(out.splitlines()[-1])
 
 
-def _side_by_side(spec: str, repeats: int, paths: dict[str, str], threads: dict[str, int]) -> dict:
-    """``repeats`` alternating rounds, one subprocess per variant and round (each the median of
-    PER_PROCESS calls); the medians of the rounds per variant, and the largest peak MB."""
-    runs: dict[str, list[dict]] = {k: [] for k in paths}
-    for _ in range(repeats):
-        for k in paths:
-            runs[k].append(_case(spec, PER_PROCESS, threads[k], paths[k]))
+def _max_diff(a: str, b: str) -> float:
+    with np.load(a) as x, np.load(b) as y:
+        return max(float(np.abs(x[k].astype(np.float64) - y[k]).max()) for k in x.files)
+
+
+def side_by_side(spec: dict, repeats: int, variants: dict[str, tuple[str, int, str]], tmp: str) -> dict:
+    """``repeats`` alternating rounds, one subprocess per variant (path, threads, run_case's variant) and
+    round; per variant the medians of the rounds, plus the largest image difference from the first one."""
+    runs: dict[str, list[dict]] = {k: [] for k in variants}
+    for r in range(repeats):
+        for k, (path, threads, mode) in variants.items():
+            images = os.path.join(tmp, f"{k}.npz") if r == 0 else None
+            runs[k].append(_case(spec, threads, mode, path, images))
     res = {}
     for k, rs in runs.items():
-        res[k] = dict(rs[0])
-        for key in ("fwd", "both", "fwd_cpu", "both_cpu"):
-            res[k][key] = float(np.median([r[key] for r in rs]))
-        for key in ("fwd_mb", "both_mb"):
-            res[k][key] = max(r[key] for r in rs)
+        res[k] = dict(rs[0]) | {key: float(np.median([r[key] for r in rs])) for key in ("fwd", "both")}
+    first = next(iter(variants))
+    for k in variants:
+        res[k]["max_diff"] = _max_diff(os.path.join(tmp, f"{first}.npz"), os.path.join(tmp, f"{k}.npz"))
     return res
+
+
+def _scene_spec(arg: str) -> dict:
+    path, _, cams = arg.partition(":")
+    return {"scene": path, "cameras": cams or None}
+
+
+def _work_columns(r: dict) -> str:
+    px = r["pixels"]
+    cells = [f"{r['old_' + k] / px:.2f} / {r[k] / px:.2f}" for k in ("pairs", "walked", "visits")]
+    return " | ".join(cells)
+
+
+def _table(rows: list[dict], variants: list[str]) -> list[str]:
+    head = (
+        "| case | Gaussians | views | pairs/px | walked pairs/px | visits/px | fwd s "
+        + " / ".join(variants)
+        + " | fwd+bwd s "
+        + " / ".join(variants)
+        + " | ns/visit fwd | ns/visit fwd+bwd | after/before fwd+bwd | max image diff |"
+    )
+    lines = [head, "|---" * 12 + "|"]
+    for res in rows:
+        a, b = res["after"], res[variants[0]]
+        old_v, new_v = a["old_visits"] / a["views"], a["visits"] / a["views"]
+        fwd = " / ".join(f"{res[k]['fwd']:.4f}" for k in variants)
+        both = " / ".join(f"{res[k]['both']:.4f}" for k in variants)
+        nsf = f"{b['fwd'] / old_v * 1e9:.1f} / {a['fwd'] / new_v * 1e9:.1f}"
+        nsb = f"{b['both'] / old_v * 1e9:.1f} / {a['both'] / new_v * 1e9:.1f}"
+        lines.append(
+            f"| {a['name']} {a['size']} | {a['gaussians']:,} | {a['views']} | {_work_columns(a)} | {fwd} | "
+            f"{both} | {nsf} | {nsb} | {a['both'] / b['both']:.2f} | {a['max_diff']:.1e} |"
+        )
+    return lines
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default="bench/render.md")
     ap.add_argument("--repeats", type=int, default=3, help="alternating rounds per case")
-    ap.add_argument("--before", required=False, help="folder holding the gspc package to compare against")
-    ap.add_argument("--max-n", type=int, default=10**9, help="skip cases with more Gaussians")
-    ap.add_argument("--fit", help="instead: a fit_scene.py folder, compiled vs torch compositor (Markdown)")
-    ap.add_argument("--every", type=int, default=20, help="with --fit: every n-th view")
-    ap.add_argument("--case", help=argparse.SUPPRESS)  # "n,w,h,dist": run one case, print JSON
+    ap.add_argument("--before", help="folder holding the gspc package to compare against")
+    ap.add_argument("--max-n", type=int, default=10**9, help="skip synthetic cases with more Gaussians")
+    ap.add_argument("--scene", action="append", default=[], help="PLY_OR_SOG[:CAMERAS_JSON], repeatable")
+    ap.add_argument("--no-threads", action="store_true", help="skip the 1 vs 2 threads table")
+    ap.add_argument("--case", help=argparse.SUPPRESS)  # JSON case spec: run it here, print JSON
+    ap.add_argument("--variant", default="after", help=argparse.SUPPRESS)
     ap.add_argument("--threads", type=int, default=1, help=argparse.SUPPRESS)
+    ap.add_argument("--images", help=argparse.SUPPRESS)
     args = ap.parse_args()
-    if args.fit:
-        fit_scene_case(args.fit, args.every, args.repeats)
-        return
     if args.case:
-        n, w, h, dist = args.case.split(",")
-        print(json.dumps(run_case(int(n), int(w), int(h), float(dist), args.repeats, args.threads)))
+        spec = json.loads(args.case)
+        print(json.dumps(run_case(spec, args.repeats, args.threads, args.variant, args.images)))
         return
-    paths = {"after": REPO}
+    variants = {"box": (REPO, 1, "box"), "after": (REPO, 1, "after")}
     if args.before:
-        paths = {"before": os.path.abspath(args.before), "after": REPO}
-    rows = []
-    for n, w, h, dist in CASES:
-        if n > args.max_n:
-            continue
-        res = _side_by_side(f"{n},{w},{h},{dist}", args.repeats, paths, {k: 1 for k in paths})
-        print(json.dumps(res), flush=True)
-        rows.append(res)
-    threads = _side_by_side(
-        ",".join(map(str, THREADS_CASE)), args.repeats, {"1": REPO, "2": REPO}, {"1": 1, "2": 2}
-    )
-    print(json.dumps(threads), flush=True)
-    before = "before" in paths
-    cols = ["fwd", "both", "fwd_cpu", "both_cpu", "fwd_mb", "both_mb"]
-    names = ["fwd s", "fwd+bwd s", "fwd CPU s", "fwd+bwd CPU s", "fwd peak MB", "fwd+bwd peak MB"]
-    head = "| N | image | camera distance | drawn | tile pairs | mean alpha |"
-    for c in names:
-        head += f" {c} before | {c} after |" if before else f" {c} |"
+        variants = {"before": (os.path.abspath(args.before), 1, "before")} | variants
+    specs = [{"n": n, "w": w, "h": h, "dist": d} for n, w, h, d in CASES if n <= args.max_n]
+    specs += [_scene_spec(s) for s in args.scene]
+    load = os.getloadavg()[0]
+    rows, threads = [], []
+    with tempfile.TemporaryDirectory() as tmp:
+        for spec in specs:
+            rows.append(side_by_side(spec, args.repeats, variants, tmp))
+            print(json.dumps(rows[-1]), flush=True)
+        if not args.no_threads:
+            for n, w, h, d in THREADS_CASES:
+                spec = {"n": n, "w": w, "h": h, "dist": d}
+                pair = {"1": (REPO, 1, "wall"), "2": (REPO, 2, "wall")}
+                threads.append(side_by_side(spec, args.repeats, pair, tmp))
+                print(json.dumps(threads[-1]), flush=True)
+    names = list(variants)
     lines = [
-        "# CPU renderer speed (one thread), before and after",
+        "# CPU renderer: work and seconds per render (one thread), before and after",
         "",
-        f"Command: `python tools/bench_render.py --before {args.before or '-'} --repeats {args.repeats}`"
-        + (" with `--before` a `git archive` of the base commit's `gspc/`" if before else ""),
+        f"Command: `python tools/bench_render.py --before {args.before or '-'} --repeats {args.repeats}"
+        + "".join(f" --scene {s}" for s in args.scene)
+        + "`",
         "",
-        f"Machine: {platform.machine()}, {os.cpu_count()} vCPUs (AMD EPYC), torch {torch.__version__}, "
-        f"one torch thread (`torch.set_num_threads(1)`) unless stated. No GPU. Load average when the run "
-        f"started: {os.getloadavg()[0]:.2f} (other processes on the machine: see the reading below); wall "
-        "times carry their load, CPU seconds (this process's user + system time) less so, though shared "
-        "cores and caches still inflate them. Before and after ran alternately, one subprocess per round, "
-        "so both saw the same load. Each process renders once untimed first (compiled kernels load then).",
+        f"Machine: {platform.machine()}, {os.cpu_count()} vCPUs, torch {torch.__version__}, one thread "
+        f"(`torch.set_num_threads(1)`) unless stated; no GPU. Load average at the start: {load:.2f} (the "
+        "machine is shared: see the reading). Seconds are CPU seconds of this process per render, the mean "
+        f"over a case's views; the median over {args.repeats} rounds of each round's median of "
+        f"{PER_PROCESS} calls, a fresh process per round and variant, variants alternating. Variants: "
+        + ", ".join(names)
+        + " (tools/bench_render.py's docstring). Work columns: before / after per pixel (before = box "
+        "tile lists, edge tiles walked whole, as the previous renderer walks), counted by "
+        "gspc.render.rasterize.walk_counts; ns/visit = seconds / pixel visits, before / after. Max image "
+        "diff: the largest |after - before| of any pixel and channel over the views' forward images.",
         "",
-        "Scene: N Gaussians uniform in the unit cube, log-scales log(0.01) + 0.5 randn, random rotations, "
-        "opacity logits 1.5 randn, SH degree 3; focal = image width; camera 3 units from the centre (the "
-        "cube covers ~1/3 of the width) or 1.5 units (the cube fills the frame, as a real scene does). "
-        f"Seconds are medians over {args.repeats} rounds of each round's median of {PER_PROCESS} calls (a "
-        "fresh process per round and variant; each call a no-grad forward, then forward + backward); "
-        "peak MB is the growth of the process's max RSS during those calls (largest "
-        "round).",
-        "",
-        head,
-        "|---|---|---|---|---|---|" + "---|" * (len(cols) * (2 if before else 1)),
+        *_table(rows, names),
     ]
-    for res in rows:
-        r = res["after"]
-        line = (
-            f"| {r['n']:,} | {r['w']}x{r['h']} | {r['dist']:g} | {r['visible']:,} | {r['pairs']:,} | "
-            f"{r['alpha']:.2f} |"
-        )
-        for c in cols:
-            fmt = ".0f" if c.endswith("mb") else ".3f"
-            vals = [res["before"][c], r[c]] if before else [r[c]]
-            line += "".join(f" {v:{fmt}} |" for v in vals)
-        lines.append(line)
-    lines += [
-        "",
-        f"Threads (this checkout, {THREADS_CASE[0]:,} Gaussians at {THREADS_CASE[1]}x{THREADS_CASE[2]}, "
-        "medians of the same alternating rounds):",
-        "",
-        "| torch threads | fwd s | fwd+bwd s | fwd CPU s | fwd+bwd CPU s |",
-        "|---|---|---|---|---|",
-    ]
-    for k, r in threads.items():
-        lines.append(f"| {k} | {r['fwd']:.3f} | {r['both']:.3f} | {r['fwd_cpu']:.3f} | {r['both_cpu']:.3f} |")
+    if threads:
+        lines += [
+            "",
+            "Threads (this checkout; wall seconds, both processes alternating on the same machine):",
+            "",
+            "| case | fwd s 1 thread | fwd s 2 threads | fwd+bwd s 1 thread | fwd+bwd s 2 threads |",
+            "|---|---|---|---|---|",
+        ]
+        for res in threads:
+            one, two = res["1"], res["2"]
+            lines.append(
+                f"| {one['name']} {one['size']} | {one['fwd']:.4f} | {two['fwd']:.4f} | {one['both']:.4f} | "
+                f"{two['both']:.4f} |"
+            )
     text = "\n".join(lines) + "\n"
     os.makedirs(os.path.dirname(args.out) or ".", exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=os.path.dirname(args.out) or ".", suffix=".tmp")
+    fd, tmp_out = tempfile.mkstemp(dir=os.path.dirname(args.out) or ".", suffix=".tmp")
     with os.fdopen(fd, "w") as f:
         f.write(text)
-    os.replace(tmp, args.out)
+    os.replace(tmp_out, args.out)
     print(text)
 
 

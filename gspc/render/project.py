@@ -16,13 +16,10 @@ import torch
 
 from gspc.cameras import Camera
 from gspc.render.kernels import pick_kernel
-from gspc.render.rules import ALPHA_MIN, LOWPASS, NEAR
+from gspc.render.rules import ALPHA_MIN, EXTENT_ABS_MARGIN, EXTENT_REL_MARGIN, LOWPASS, NEAR
 from gspc.render.sh import C0, sh_basis
 
 FRUSTUM_SLACK = 1.3  # x/z, y/z are clamped to 1.3x the frustum before building the Jacobian
-# The box is widened slightly so that round-off in the compositor's alpha never reaches past it.
-EXTENT_REL_MARGIN = 1e-3
-EXTENT_ABS_MARGIN = 1e-2
 
 
 # Below this fraction of Gaussians in front of the camera, rows are copied out before projecting;
@@ -36,7 +33,7 @@ class Projected:
     means2d: torch.Tensor  # (M, 2) pixel coordinates (pixel centres at x + 0.5)
     conics: torch.Tensor  # (M, 3) inverse 2D covariance (a, b, c) as [[a, b], [b, c]]
     opacities: torch.Tensor  # (M,)
-    colors: torch.Tensor  # (M, 3)
+    colors: torch.Tensor  # (M, 3); the compiled kernel leaves the never-drawn at 0
     depths: torch.Tensor  # (M,) camera-space z
     extents: torch.Tensor  # (M, 2) half-sizes of the alpha >= 1/255 box; -1 = never drawn; no grad
 

@@ -8,7 +8,8 @@ differentiated, in registers.
 Same conventions as project.py (its comments say why each step is as it is): EWA splatting with the
 Jacobian's x/z, y/z clamped to the widened frustum, the low-pass added to the 2D covariance, the
 alpha >= 1/255 box, colour max(SH + 0.5, 0) in INRIA's basis (sh.py). A Gaussian whose centre has
-z <= NEAR gets the stand-in depth 1, extents -1 and zero gradients. Inputs are read in their own dtype
+z <= NEAR gets the stand-in depth 1, extents -1 and zero gradients; never-drawn ones (extents -1) get colour 0
+(nothing reads it) and cost no SH evaluation. Inputs are read in their own dtype
 (float32 from a scene, float64 in the reference tests) and every number is float64 from there; outputs and
 gradients are written back in the input dtype.
 
@@ -23,15 +24,14 @@ import math
 import numba
 import numpy as np
 
-from gspc.render.rules import ALPHA_MIN, LOWPASS, NEAR
+from gspc.render.kernels import JIT, set_threads
+from gspc.render.rules import ALPHA_MIN, EXTENT_ABS_MARGIN, EXTENT_REL_MARGIN, LOWPASS, NEAR
 from gspc.render.sh import C1, C2, C3
 from gspc.scene import SH_C0
 
-JIT = {"cache": True, "error_model": "numpy"}  # as composite_cpu.py; divisors: z > NEAR, |q| > 0, det > 0
+# Divisors (kernels.JIT has no zero checks): z > NEAR, |q| > 0, det > 0.
 CHUNK = 4096  # Gaussians per parallel task
 BASIS = 16  # SH basis functions up to degree 3
-EXTENT_REL_MARGIN = 1e-3  # as project.py (its comment says why)
-EXTENT_ABS_MARGIN = 1e-2
 C2_0, C2_1, C2_2, C2_3, C2_4 = C2
 C3_0, C3_1, C3_2, C3_3, C3_4, C3_5, C3_6 = C3
 OUTPUTS = 10  # columns of the forward's outputs' gradient: u, v, conic a, b, c, opacity, r, g, b, depth
@@ -180,19 +180,21 @@ def _forward_rows(lo, hi, means, quats, log_scales, logits, sh_dc, sh_rest, cam,
         means2d[i, 0], means2d[i, 1] = u, v
         conics[i, 0], conics[i, 1], conics[i, 2] = cyy / det, -cxy / det, cxx / det
         opacities[i], depths[i] = o, z
-        ux, uy, uz, _ = _direction(i, means, cam)
-        _basis(ux, uy, uz, degree, basis)
-        for c in range(3):
-            rgb = SH_C0 * np.float64(sh_dc[i, c])
-            for k in range(1, nb):
-                rgb += basis[k] * np.float64(sh_rest[i, k - 1, c])
-            colors[i, c] = max(rgb + 0.5, 0.0)
         # The alpha >= 1/255 box (project.py alpha_extents); -1 when never drawn.
         thr = 2.0 * math.log(o / ALPHA_MIN)
         ex = math.sqrt(max(thr, 0.0) * cxx) * (1.0 + EXTENT_REL_MARGIN) + EXTENT_ABS_MARGIN
         ey = math.sqrt(max(thr, 0.0) * cyy) * (1.0 + EXTENT_REL_MARGIN) + EXTENT_ABS_MARGIN
         seen = front and thr >= 0.0 and u + ex >= 0.5 and u - ex <= cam[23] - 0.5
         seen = seen and v + ey >= 0.5 and v - ey <= cam[24] - 0.5
+        colors[i, 0] = colors[i, 1] = colors[i, 2] = 0.0
+        if seen:  # colour only for the drawn (most of a capture's room is behind or beside each view)
+            ux, uy, uz, _ = _direction(i, means, cam)
+            _basis(ux, uy, uz, degree, basis)
+            for c in range(3):
+                rgb = SH_C0 * np.float64(sh_dc[i, c])
+                for k in range(1, nb):
+                    rgb += basis[k] * np.float64(sh_rest[i, k - 1, c])
+                colors[i, c] = max(rgb + 0.5, 0.0)
         extents[i, 0], extents[i, 1] = (ex, ey) if seen else (-1.0, -1.0)
 
 
@@ -235,8 +237,11 @@ def _backward_rows(lo, hi, means, quats, log_scales, logits, sh_dc, sh_rest, cam
         nothing = True
         for k in range(OUTPUTS):
             nothing = nothing and g[k] == 0.0
+        if nothing:  # every gradient is linear in g (the never-drawn get none)
+            _zero_row(i, grads)
+            continue
         x, y, z, front, quat, clamp, cov = _geometry(i, means, quats, log_scales, cam, rq, jw, a, s, t)
-        if nothing or not front:  # every gradient is linear in g; the culled pass none
+        if not front:  # the culled pass none
             _zero_row(i, grads)
             continue
         w, qx, qy, qz, qn = quat
@@ -343,7 +348,7 @@ def project_forward(arrays: tuple, cam: np.ndarray, degree: int, threads: int) -
     n, dt = len(arrays[0]), arrays[0].dtype
     outs = tuple(np.empty(shape, dt) for shape in ((n, 2), (n, 3), n, (n, 3), n, (n, 2)))
     if threads > 1:
-        _set_threads(threads)
+        set_threads(threads)
         _forward_parallel(*arrays, cam, degree, outs)
     else:
         _forward_serial(*arrays, cam, degree, outs)
@@ -357,12 +362,8 @@ def project_backward(
     float64 = dL/d (u, v, conic a, b, c, opacity, r, g, b, depth)."""
     grads = tuple(np.empty(x.shape, x.dtype) for x in arrays)
     if threads > 1:
-        _set_threads(threads)
+        set_threads(threads)
         _backward_parallel(*arrays, cam, degree, grad_out, grads)
     else:
         _backward_serial(*arrays, cam, degree, grad_out, grads)
     return grads
-
-
-def _set_threads(n: int) -> None:
-    numba.set_num_threads(max(1, min(int(n), numba.config.NUMBA_NUM_THREADS)))

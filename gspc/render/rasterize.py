@@ -8,11 +8,11 @@ alpha = min(0.99, o * exp(-q / 2)) with q = d^T conic d, d = pixel centre - mean
 that would take its transmittance below 1e-4. There is deliberately no "skip if q < 0" rule: q
 rounds slightly negative at a Gaussian's centre and that rule would drop the Gaussian there.
 
-How it is vectorised: each Gaussian is listed in every 8x8 tile its alpha >= 1/255 box touches
-(lists in depth order). Tiles are processed in chunks, and each chunk walks its lists in blocks of
-``BLOCK`` Gaussians, so one step works on a (tiles, BLOCK, 64 pixels) array; a tile leaves the walk
-when its list ends or all its pixels have stopped. In tile-centred pixel coordinates the exponent
-is a quadratic, log o - q/2 = k . [1, x, y, x^2, xy, y^2], so one matmul evaluates a whole block
+How it is vectorised: each Gaussian is listed in every 8x8 tile whose pixel centres its alpha >= 1/255
+ellipse reaches (``bin_tiles``; lists in depth order). Tiles are processed in chunks, and each chunk walks
+its lists in blocks of ``BLOCK`` Gaussians, so one step works on a (tiles, BLOCK, 64 pixels) array; a tile
+leaves the walk when its list ends or all its pixels have stopped. In tile-centred pixel coordinates the
+exponent is a quadratic, log o - q/2 = k . [1, x, y, x^2, xy, y^2], so one matmul evaluates a whole block
 (in base 2: exp2 is several times faster than exp on CPU). Elementwise work is in place and avoids
 boolean masks, which are slow on CPU. The backward pass repeats the walk (nothing per pixel and
 Gaussian is stored; the per-pair arrays are kept from the forward) and uses the closed-form gradient of
@@ -31,10 +31,17 @@ import torch
 import torch.nn.functional as F
 
 from gspc.render.kernels import pick_kernel
-from gspc.render.rules import ALPHA_MAX, ALPHA_MIN, T_MIN
+from gspc.render.rules import (
+    ALPHA_MAX,
+    ALPHA_MIN,
+    EXTENT_ABS_MARGIN,
+    EXTENT_REL_MARGIN,
+    PIXELS,
+    T_MIN,
+    THRESHOLD_REL_MARGIN,
+    TILE,
+)
 
-TILE = 8
-PIXELS = TILE * TILE
 BLOCK = 32  # Gaussians per tile per step
 STEP_BUDGET = 1 << 19  # elements of one (tiles, BLOCK, pixels) array; bounds memory
 DEAD_POWER = -1e4  # exponent of padding entries: exp2() is exactly 0
@@ -51,11 +58,15 @@ class TileBins:
     """Which Gaussians (indices into depth-sorted arrays) touch which tile, tile lists contiguous."""
 
     gauss: torch.Tensor  # (P,) Gaussian of each (tile, Gaussian) pair, grouped by tile, depth order within
-    tile: torch.Tensor  # (P,) tile of each pair
     start: torch.Tensor  # (tiles,) first pair of each tile
     count: torch.Tensor  # (tiles,) pairs of each tile
     tiles_x: int
     tiles_y: int
+
+    @property
+    def tile(self) -> torch.Tensor:
+        """(P,) the tile of each pair (the torch walk's; the compiled kernels need none)."""
+        return torch.repeat_interleave(torch.arange(len(self.count), device=self.count.device), self.count)
 
 
 def composite(
@@ -74,22 +85,16 @@ def composite(
     means2d (M, 2) pixels, conics (M, 3) as (a, b, c), opacities (M,), features (M, C), depths (M,)
     sort key (ties keep input order), extents (M, 2) half-sizes of the box outside which alpha < 1/255,
     negative for Gaussians never drawn (others need opacity >= 1/255). Differentiable w.r.t. means2d,
-    conics, opacities and features. ``kernel``: "auto" (compiled on the CPU, the torch walk elsewhere),
-    "torch" or "compiled"; both give the same image up to round-off.
+    conics, opacities and features. ``kernel``: "auto" (compiled on the CPU for C = 4, colour and depth, as
+    render() composites; else the torch walk), "torch" or "compiled"; the same image up to round-off.
     """
     c = features.shape[1]
     compiled = pick_kernel(kernel, means2d) == "compiled"
-    drawn = torch.nonzero(extents.detach()[:, 0] >= 0).squeeze(1)  # drop the never-drawn (extents -1)
-    if compiled:
-        from gspc.render.composite_cpu import depth_order
-
-        order = drawn.index_select(
-            0, torch.from_numpy(depth_order(depths.detach().index_select(0, drawn).numpy()))
-        )
-    else:
-        order = drawn.index_select(0, torch.sort(depths.detach().index_select(0, drawn), stable=True).indices)
-    ext = extents.detach().index_select(0, order)
-    bins = bin_tiles(means2d.detach().index_select(0, order), ext, width, height, compiled)
+    if compiled and kernel == "auto" and c != 4:  # the compiled kernels composite colour and depth only
+        compiled = False
+    order = _drawn_in_depth_order(depths, extents, compiled)
+    sel = (x.detach().index_select(0, order) for x in (means2d, conics, opacities, extents))
+    bins = bin_tiles(*sel, width, height, compiled)
     if compiled:  # its records are copied out in depth order (a tile's list then reads them in order)
         out = _CompositeCompiled.apply(means2d, conics, opacities, features, order, bins, width, height)
     else:
@@ -100,11 +105,83 @@ def composite(
     return out[..., :c], out[..., c]
 
 
+@dataclass(frozen=True)
+class WalkCounts:
+    """The work of one compiled forward composite (bench/render.md reports these per pixel)."""
+
+    pixels: int  # width * height
+    pairs: int  # (tile, Gaussian) pairs in the tile lists
+    walked: int  # pairs walked before their tile's pixels had all stopped
+    visits: int  # pixels those pairs evaluated (their alpha >= 1/255 ellipse's, row by row)
+
+
+def walk_counts(
+    means2d: torch.Tensor,
+    conics: torch.Tensor,
+    opacities: torch.Tensor,
+    features: torch.Tensor,
+    depths: torch.Tensor,
+    extents: torch.Tensor,
+    width: int,
+    height: int,
+    exact: bool = True,
+    whole_tiles: bool = False,
+) -> WalkCounts:
+    """Count what composite()'s compiled forward does for these inputs (CPU tensors, no gradients).
+    ``exact=False``: with box tile lists; ``whole_tiles``: edge tiles walk their pixels beyond the image too
+    (both as the renderer before bench/render.md's latest rerun did)."""
+    from gspc.render import composite_cpu as kern
+
+    with torch.no_grad():
+        order = _drawn_in_depth_order(depths, extents, True)
+        sel = (x.index_select(0, order) for x in (means2d, conics, opacities, extents))
+        bins = bin_tiles(*sel, width, height, True, exact)
+        records = _records(means2d, conics, opacities, features, order)
+    size = (bins.tiles_x * TILE, bins.tiles_y * TILE) if whole_tiles else (width, height)
+    image = np.zeros((size[1], size[0], kern.FEATURES))
+    stats = kern.composite_forward(records, _lists(bins), bins.tiles_x, size, image, 1)
+    walked, visits = (int(x) for x in stats.sum(0))
+    return WalkCounts(width * height, len(bins.gauss), walked, visits)
+
+
+def _drawn_in_depth_order(depths: torch.Tensor, extents: torch.Tensor, compiled: bool) -> torch.Tensor:
+    """Rows of the Gaussians drawn (extents >= 0), by increasing depth, ties in row order."""
+    drawn = torch.nonzero(extents.detach()[:, 0] >= 0).squeeze(1)
+    key = depths.detach().index_select(0, drawn)
+    if compiled:
+        from gspc.render.composite_cpu import depth_order
+
+        return drawn.index_select(0, torch.from_numpy(depth_order(key.numpy())))
+    return drawn.index_select(0, torch.sort(key, stable=True).indices)
+
+
+def _records(means2d, conics, opacities, features, order: torch.Tensor) -> np.ndarray:
+    """The compiled kernels' records (composite_cpu.py pack) of rows ``order``, in that order."""
+    from gspc.render.composite_cpu import FEATURES, pack
+
+    if features.shape[1] != FEATURES - 1:
+        raise ValueError(f"the compiled compositor takes {FEATURES - 1} features (colour, depth)")
+    arrays = (x.detach().contiguous().numpy() for x in (means2d, conics, opacities, features))
+    return pack(order.numpy(), *arrays)
+
+
 def bin_tiles(
-    means2d: torch.Tensor, extents: torch.Tensor, width: int, height: int, compiled: bool = False
+    means2d: torch.Tensor,
+    conics: torch.Tensor,
+    opacities: torch.Tensor,
+    extents: torch.Tensor,
+    width: int,
+    height: int,
+    compiled: bool = False,
+    exact: bool = True,
 ) -> TileBins:
-    """List every Gaussian in each tile whose pixel centres its box reaches, keeping input order
-    (``compiled``: by gspc/render/composite_cpu.py's counting sort, CPU only; the same lists)."""
+    """List every Gaussian in each tile whose pixel centres its alpha >= 1/255 ellipse, q <= 2 ln(255 o),
+    reaches (``exact``; else every tile its box of half-sizes ``extents`` reaches), keeping input order.
+
+    ``compiled``: by gspc/render/composite_cpu.py's counting sort, CPU only; the same lists (the per-row
+    numbers are computed in the same float64 operations, in the same order). The exact test matters for
+    thin rotated Gaussians, whose box holds many tiles their ellipse never reaches (bench/render.md).
+    """
     tiles_x, tiles_y = -(-width // TILE), -(-height // TILE)
     dev = means2d.device
     # Tile i holds pixel centres i*TILE + 0.5 ... i*TILE + TILE - 0.5.
@@ -112,29 +189,55 @@ def bin_tiles(
     hi = torch.floor((means2d + extents - 0.5) / TILE)
     lo = torch.maximum(lo, torch.zeros_like(lo)).long()
     hi = torch.minimum(hi, torch.tensor([tiles_x - 1, tiles_y - 1], device=dev, dtype=hi.dtype)).long()
+    # thr = 2 ln(255 o) with the compositor's relative margin (composite_cpu.py walks that ellipse).
+    thr = (2.0 * torch.log(opacities.to(torch.float64) / ALPHA_MIN)).clamp_min(0.0)
+    thr = thr * (1.0 + THRESHOLD_REL_MARGIN) + THRESHOLD_REL_MARGIN
+    means2d, conics = means2d.to(torch.float64), conics.to(torch.float64)
     if compiled:
-        from gspc.render.composite_cpu import bin_boxes
+        from gspc.render.composite_cpu import bin_ellipses
 
-        lists = bin_boxes(lo.numpy(), hi.numpy(), tiles_x, tiles_x * tiles_y)
+        args = (x.contiguous().numpy() for x in (lo, hi, means2d, conics, thr))
+        lists = bin_ellipses(*args, exact, tiles_x, tiles_x * tiles_y)
         return TileBins(*(torch.from_numpy(x) for x in lists), tiles_x, tiles_y)
-    span = (hi - lo + 1).clamp_min(0)
-    n = span[:, 0] * span[:, 1]
-    gauss = torch.repeat_interleave(torch.arange(len(n), device=dev), n)
-    # Per pair: its rank k inside its Gaussian's box, the box's first tile and width.
-    per_gauss = torch.stack([torch.cumsum(n, 0) - n, lo[:, 0], lo[:, 1], span[:, 0]], 1).index_select(
-        0, gauss
-    )
-    first, x0, y0, sx = per_gauss.unbind(1)
-    k = torch.arange(len(gauss), device=dev) - first
-    # k // sx by float64 division: exact for these small non-negative integers, and several times faster
-    # than integer floor division on CPU.
-    row = torch.floor(k.double() / sx.double()).long()
-    tile = (y0 + row) * tiles_x + x0 + (k - row * sx)
+    # One entry per (Gaussian, tile row of its box), then per tile of that row the ellipse reaches.
+    rows_n = (hi[:, 1] - lo[:, 1] + 1).clamp_min(0) * (hi[:, 0] >= lo[:, 0])
+    gauss_row = torch.repeat_interleave(torch.arange(len(rows_n), device=dev), rows_n)
+    first = (torch.cumsum(rows_n, 0) - rows_n).index_select(0, gauss_row)
+    ty = lo[:, 1].index_select(0, gauss_row) + torch.arange(len(gauss_row), device=dev) - first
+    c0, c1 = lo[:, 0].index_select(0, gauss_row), hi[:, 0].index_select(0, gauss_row)
+    if exact:
+        per_row = torch.cat([means2d, conics, thr[:, None]], 1).index_select(0, gauss_row)
+        c0, c1 = _tile_columns(ty, per_row, c0, c1)
+    n = (c1 - c0 + 1).clamp_min(0)
+    pair_row = torch.repeat_interleave(torch.arange(len(n), device=dev), n)
+    k = torch.arange(len(pair_row), device=dev) - (torch.cumsum(n, 0) - n).index_select(0, pair_row)
+    tile = ty.index_select(0, pair_row) * tiles_x + c0.index_select(0, pair_row) + k
+    gauss = gauss_row.index_select(0, pair_row)
     # A stable sort groups pairs by tile and keeps the depth order inside each tile.
     tile, perm = torch.sort(tile.int(), stable=True)
-    gauss, tile = gauss.index_select(0, perm), tile.long()
-    count = torch.bincount(tile, minlength=tiles_x * tiles_y)
-    return TileBins(gauss, tile, torch.cumsum(count, 0) - count, count, tiles_x, tiles_y)
+    count = torch.bincount(tile.long(), minlength=tiles_x * tiles_y)
+    return TileBins(gauss.index_select(0, perm), torch.cumsum(count, 0) - count, count, tiles_x, tiles_y)
+
+
+def _tile_columns(ty: torch.Tensor, g: torch.Tensor, lo_x: torch.Tensor, hi_x: torch.Tensor):
+    """composite_cpu.py's ellipse_terms and tile_columns for many (tile row, Gaussian) entries at once, in
+    the same float64 operations and order (the lists must be equal); g: mean x, y, conic a, b, c, thr."""
+    mx, my, a, b, c, thr = g.unbind(1)
+    det = a * c - b * b
+    hx = torch.sqrt(thr * c / det) * (1.0 + EXTENT_REL_MARGIN) + EXTENT_ABS_MARGIN
+    hy = torch.sqrt(thr * a / det) * (1.0 + EXTENT_REL_MARGIN) + EXTENT_ABS_MARGIN
+    ath, dyr = a * thr, -b * torch.sqrt(thr / (c * det))
+    ya = torch.maximum(ty * TILE + 0.5 - my, -hy)
+    yb = torch.minimum(ty * TILE + (TILE - 0.5) - my, hy)
+    d = torch.minimum(torch.maximum(dyr, ya), yb)
+    chord = (torch.sqrt((ath - det * d * d).clamp_min(0.0)) - b * d) / a + EXTENT_ABS_MARGIN
+    right = torch.where(d == dyr, hx, chord)
+    d = torch.minimum(torch.maximum(-dyr, ya), yb)
+    chord = (-torch.sqrt((ath - det * d * d).clamp_min(0.0)) - b * d) / a - EXTENT_ABS_MARGIN
+    left = torch.where(d == -dyr, -hx, chord)
+    lo = torch.ceil((mx + left - (TILE - 0.5)) / TILE).long()
+    hi = torch.floor((mx + right - 0.5) / TILE).long()
+    return torch.maximum(lo, lo_x), torch.where(ya > yb, lo_x - 1, torch.minimum(hi, hi_x))
 
 
 def _pixel_basis(dtype: torch.dtype, device: torch.device) -> torch.Tensor:
@@ -210,24 +313,23 @@ class _CompositeCompiled(torch.autograd.Function):
     def forward(ctx, means2d, conics, opacities, features, order, bins: TileBins, width: int, height: int):
         from gspc.render import composite_cpu as kern
 
-        rows = torch.cat(
-            [means2d.detach(), conics.detach(), opacities.detach()[:, None], features.detach()], 1
-        )
-        records = kern.pack(rows.index_select(0, order).to(torch.float64).numpy())
-        out = np.zeros((len(bins.count), features.shape[1] + 1, PIXELS))
-        kern.composite_forward(records, _lists(bins), bins.tiles_x, out, torch.get_num_threads())
+        records = _records(means2d, conics, opacities, features, order)
+        image = np.zeros((height, width, kern.FEATURES))
+        size = (width, height)
+        kern.composite_forward(records, _lists(bins), bins.tiles_x, size, image, torch.get_num_threads())
         if any(ctx.needs_input_grad[:4]):
-            ctx.saved = (records, out, order, bins, len(opacities))
-        return _tiles_to_image(torch.from_numpy(out), bins, width, height).to(means2d.dtype)
+            ctx.saved = (records, image, order, bins, len(opacities), size)
+        return torch.from_numpy(image).to(means2d.dtype)
 
     @staticmethod
     def backward(ctx, grad_out):
         from gspc.render import composite_cpu as kern
 
-        records, out, order, bins, num = ctx.saved
-        grad_pix = _image_to_tiles(grad_out.detach().to(torch.float64), bins).contiguous().numpy()
+        records, image, order, bins, num, size = ctx.saved
+        grad_image = grad_out.detach().to(torch.float64).contiguous().numpy()
+        lists, threads = _lists(bins), torch.get_num_threads()
         grads = kern.composite_backward(
-            records, _lists(bins), order.numpy(), num, bins.tiles_x, grad_pix, out, torch.get_num_threads()
+            records, lists, order.numpy(), num, bins.tiles_x, size, grad_image, image, threads
         )
         g = torch.from_numpy(grads).to(grad_out.dtype)
         nf = grads.shape[1] - kern.GRADS - 1  # the last column is the alpha channel's
