@@ -19,6 +19,7 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
+from gspc.atomic import check_output_path
 from gspc.errors import GspcError
 from gspc.options import DecodeOptions, EncodeOptions
 from gspc.progress import ProgressLines
@@ -66,12 +67,26 @@ def default_threads() -> int:
         return max(1, os.cpu_count() or 1)
 
 
+def thread_count(value: str | None) -> int:
+    """The torch threads GSPC_THREADS=``value`` asks for: unset or empty means default_threads(); a whole
+    number from 1 up, clamped to default_threads() (more threads than cores only contend, and 10000 once
+    crashed libgomp); anything else is a GspcError naming the variable."""
+    cores = default_threads()
+    if value is None or not value.strip():
+        return cores
+    text = value.strip()
+    if not (text.isascii() and text.isdigit()) or not text.lstrip("0"):
+        raise GspcError(f"GSPC_THREADS={value!r}: give a whole number of threads, 1 or more, or unset it")
+    digits = text.lstrip("0")
+    return min(int(digits) if len(digits) <= 18 else cores, cores)  # int() refuses over 4300 digits
+
+
 def _use_threads() -> None:
     """Set torch's thread count (GSPC_THREADS, default the cores this process has): called by the
     commands that compute."""
     import torch
 
-    torch.set_num_threads(int(os.environ.get("GSPC_THREADS", "") or default_threads()))
+    torch.set_num_threads(thread_count(os.environ.get("GSPC_THREADS")))
 
 
 def _log_line(line: str) -> None:
@@ -140,7 +155,7 @@ def _option(cls: type, name: str, *flags: str):
 @_one_line_errors
 def encode(
     scene: Path = typer.Argument(..., help="input scene: INRIA PLY, PlayCanvas SOG or compressed PLY, SPZ"),
-    output: Path = typer.Option(..., "-o", "--output", help="output .gspc file"),
+    output: str = typer.Option(..., "-o", "--output", help="output .gspc file"),
     cameras: Path | None = typer.Option(None, help="cameras.json, transforms.json or COLMAP sparse folder"),
     quality: str = _option(EncodeOptions, "quality"),
     lam: float | None = _option(EncodeOptions, "lam"),
@@ -157,6 +172,7 @@ def encode(
     time_budget: float | None = _option(EncodeOptions, "time_budget"),
 ) -> None:
     """Compress a 3DGS scene into a .gspc file."""
+    check_output_path(output)  # the text as typed: a Path would drop a trailing slash
     from gspc.pipeline import encode as run
 
     _use_threads()
@@ -185,7 +201,7 @@ def encode(
 @_one_line_errors
 def decode(
     source: Path = typer.Argument(..., help="input .gspc file"),
-    output: Path = typer.Option(..., "-o", "--output", help="output PLY (INRIA layout)"),
+    output: str = typer.Option(..., "-o", "--output", help="output PLY (INRIA layout)"),
     iterations: int | None = _option(DecodeOptions, "iterations"),
     restore: bool = _option(DecodeOptions, "restore"),
     refine: bool = _option(DecodeOptions, "refine"),
@@ -195,6 +211,7 @@ def decode(
     time_budget: float | None = _option(DecodeOptions, "time_budget"),
 ) -> None:
     """Decode a .gspc file into a standard 3DGS PLY."""
+    check_output_path(output)
     from gspc.pipeline import decode as run
 
     _use_threads()
@@ -399,11 +416,12 @@ def evaluate(
 @_one_line_errors
 def convert(
     scene: Path = typer.Argument(..., help="scene file (PLY/SOG/compressed PLY/SPZ)"),
-    output: Path = typer.Option(..., "-o", "--output", help="output PLY (INRIA layout)"),
+    output: str = typer.Option(..., "-o", "--output", help="output PLY (INRIA layout)"),
 ) -> None:
     """Convert any readable scene to a standard INRIA 3DGS PLY."""
     from gspc.paths import refuse_output_over_input
 
+    check_output_path(output)
     refuse_output_over_input(output, scene)
     _use_threads()
     from gspc.io import read_scene, write_ply
