@@ -11,6 +11,7 @@ import dataclasses
 import functools
 import os
 import sys
+import warnings
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -32,13 +33,28 @@ err = Console(stderr=True)
 RENDER_DEVICE_HELP = "cpu or cuda (where the renders run)"
 
 
+@contextmanager
+def one_line_warnings(log=None):
+    """Within: each warning (e.g. lens distortion ignored) is one ``gspc: warning: ...`` line on stderr,
+    without Python's file name and source line (issue 26). ``log`` prints a line (default: stderr)."""
+    log = log or _log_line
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        log(f"warning: {message}")
+
+    with warnings.catch_warnings():
+        warnings.showwarning = show
+        yield
+
+
 def _one_line_errors(fn):
     """Turn every failure into one line on stderr (tracebacks only with GSPC_DEBUG=1)."""
 
     @functools.wraps(fn)
     def wrapper(*args, **kwargs):
         try:
-            return fn(*args, **kwargs)
+            with one_line_warnings():
+                return fn(*args, **kwargs)
         except GspcError as e:
             msg = str(e)
         except (OSError, MemoryError) as e:
