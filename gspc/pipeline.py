@@ -39,6 +39,7 @@ from gspc.format.chunks import ATTRIBUTE_TYPES, SIDE
 from gspc.format.header import FileHeader, SceneSummary, SideInfoHeader, check_view_sizes
 from gspc.io import read_scene, write_ply
 from gspc.io.camera_files import load_cameras
+from gspc.limits import default_refine_iterations
 from gspc.options import DecodeOptions, EncodeOptions
 from gspc.paths import refuse_output_over_input
 from gspc.progress import Progress
@@ -265,7 +266,9 @@ def decode_bytes(
         # With no residual anywhere every target equals the render: the gradients are only round-off, and
         # Adam would turn them into full-size steps (measured: 50.7 -> 41.7 dB on a statue), so skip.
         has_residual = any("residual" in v for v in views) and opts.restore
-        iterations = opts.iterations if opts.iterations is not None else fields.side_info.refine_iterations
+        # The file's number is a default, bounded by the Gaussians it codes (gspc/limits.py).
+        file_default = default_refine_iterations(fields.side_info.refine_iterations, scene.num_gaussians)
+        iterations = opts.iterations if opts.iterations is not None else file_default
         if opts.refine and iterations > 0 and not has_residual:
             rep.info["refine"] = "skipped (no view carries a residual)"
         if opts.refine and iterations > 0 and has_residual:

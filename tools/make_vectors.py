@@ -1091,7 +1091,7 @@ def codec_vectors() -> list[Vector]:
         "300000 Gaussians declared in a file of about 2 KB",
         scene_meta(dict(a0, n=300000)),
         attribute_entries(c0),
-        "per byte",
+        "payload bytes",
     )
     head = struct.calcsize("<IBBBB") + struct.calcsize("<II16s")
     first_gain = head + struct.calcsize("<48sI")  # view 0 has no image

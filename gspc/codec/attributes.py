@@ -29,7 +29,6 @@ from gspc.codec.attribute_header import (
     CONTRACTED_VERSION,
     FAR_VERSION,
     FORMAT_VERSION,
-    GAUSSIANS_PER_BYTE,
     check_attribute_header,
 )
 from gspc.codec.entropy import SYMBOL_LIMIT, decode_matrix, encode_matrix
@@ -43,6 +42,7 @@ from gspc.codec.quantisers import (
 )
 from gspc.errors import CodecError, ValueRangeError
 from gspc.format.chunks import ATTRIBUTE_TYPES, OPAC, POSN, ROTN, SCAL, SHDC, SHRS
+from gspc.limits import max_coded_gaussians
 from gspc.scene import GaussianScene, num_sh_rest
 
 
@@ -207,9 +207,9 @@ def decode_attributes(chunks: dict[str, bytes], meta: dict) -> GaussianScene:
     if degree == 0 and SHRS in chunks:
         raise CodecError("chunk SHRS in a file of SH degree 0")
     payload_bytes = sum(len(chunks.get(t, b"")) for t in ATTRIBUTE_TYPES)
-    if n > GAUSSIANS_PER_BYTE * payload_bytes:
+    if n > max_coded_gaussians(payload_bytes):  # gspc/limits.py: a minimum of coded bits per Gaussian
         raise CodecError(
-            f"{n} Gaussians from {payload_bytes} payload bytes (at most {GAUSSIANS_PER_BYTE} per byte)"
+            f"{n} Gaussians from {payload_bytes} payload bytes (at most {max_coded_gaussians(payload_bytes)})"
         )
     if POSN not in chunks:
         raise CodecError("chunk POSN is missing")

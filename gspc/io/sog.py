@@ -35,6 +35,7 @@ from gspc.limits import (
     SOG_MAX_MEMBER_RATIO,
     SOG_MEMBER_FLOOR,
     SOG_PIXELS_PER_ENTRY,
+    max_scene_gaussians,
 )
 from gspc.scene import GaussianScene, make_scene, num_sh_rest, validate_named
 
@@ -117,7 +118,23 @@ def _meta(path: Path, load: Callable[[str], bytes]) -> dict:
         raise InputError(f"{path}: scene has zero Gaussians")
     if count > MAX_SOG_MAP_PIXELS:
         raise InputError(f"{path}: meta.json count {count:,} exceeds the limit {MAX_SOG_MAP_PIXELS:,}")
+    # A lossless WebP of one colour is tiny whatever its size: the count is bounded by the archive's bytes
+    # before any map is decoded (gspc/limits.py).
+    size = _source_bytes(path)
+    if count > max_scene_gaussians(size):
+        raise InputError(
+            f"{path}: meta.json count {count:,} is more than a {size:,}-byte SOG may hold (at most "
+            f"{max_scene_gaussians(size):,})"
+        )
     return meta
+
+
+def _source_bytes(path: Path) -> int:
+    """Bytes of a SOG: the zip's, or those of the regular files in its folder."""
+    folder = path if path.is_dir() else path.parent if path.name == "meta.json" else None
+    if folder is None:
+        return path.stat().st_size
+    return sum(p.stat().st_size for p in folder.iterdir() if p.is_file())
 
 
 def _files(path: Path, meta: dict, key: str, n: int) -> list[str]:
