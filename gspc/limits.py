@@ -18,9 +18,10 @@ MAX_REFINE_ITERATIONS = 100_000
 # not make that default longer than its Gaussians warrant: at most max(REFINE_DEFAULT_FLOOR, n) iterations
 # for n coded Gaussians (one per Gaussian beyond the high preset's 1000). An iteration costs a few ms plus
 # time in proportion to n (bench/scale.md): a 1,000-Gaussian file naming 100,000 iterations ran about 10
-# minutes (issue 26, 6 ms each); under this rule it runs 1000 (about 6 s). The encoder's own choices (the presets' 300
-# and 1000, scaled down for large scenes by gspc/presets.py) are always within it. A decoder runs the
-# smaller of the file's number and this bound; --iterations asks for any length up to MAX_REFINE_ITERATIONS.
+# minutes (issue 26, 6 ms each); under this rule it runs 1000 (about 6 s). The encoder's own choices (the
+# presets' 300 and 1000, scaled down for large scenes by gspc/presets.py) are always within it. A decoder
+# runs the smaller of the file's number and this bound; --iterations asks for any length up to
+# MAX_REFINE_ITERATIONS.
 REFINE_DEFAULT_FLOOR = 1000
 
 
