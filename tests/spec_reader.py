@@ -11,6 +11,7 @@ Slow (one Python call per symbol): meant for the small files of spec/vectors/ an
 from __future__ import annotations
 
 import bisect
+import io
 import math
 import struct
 import zlib
@@ -26,9 +27,15 @@ PRECISION = 24
 INT_LIMIT = 1 << 48  # 10.0: matrix entries and model integers lie in -2^48 .. 2^48
 MAX_SYMBOLS = 1 << 22
 MAX_GAUSSIANS = 1 << 26
-GAUSSIANS_PER_BYTE = 64
+GAUSSIAN_FLOOR = 1 << 16  # 10.10: N <= max(2^16, floor(8 P / 12))
+MIN_CODED_BITS = 12
+MAX_MODELS_BYTES = 1 << 26  # 10.10: models content <= min(2^26, max(2^16, 32 x frame bytes))
+MODELS_FLOOR, MODELS_RATIO = 1 << 16, 32
+TABLE_FLOOR, TABLE_PER_BYTE = 1 << 22, 16  # 10.10: table entries <= max(2^22, 16 x ECM bytes)
 MAX_VIEW_PIXELS = 1 << 24
 MAX_TOTAL_PIXELS = 1 << 28
+PIXEL_FLOOR, PIXELS_PER_BYTE = 1 << 22, 1024  # 10.8: all views <= min(2^28, max(2^22, 1024 x file bytes))
+MAX_REFINE = 100_000
 SQRT_HALF = 0.7071067811865476
 LN2 = 0.6931471805599453
 BOOSTS = [1, 2, 3, 4, 6, 8, 11, 16, 23, 32, 45, 64, 91, 128, 181, 256, 362, 512, 724, 1024, 1448, 2048]
@@ -202,24 +209,37 @@ def decode_ecm(payload: bytes, m_expected: int, c_expected: int) -> list[list[in
         need(models == b"" and words == b"", "an empty ECM has empty models and words")
         return [[] for _ in range(c)]
     need(len(words) % 4 == 0, "words length")
-    d = zstandard.ZstdDecompressor().decompressobj()
+    limit = min(MAX_MODELS_BYTES, max(MODELS_FLOOR, MODELS_RATIO * len(models)))
     try:
+        need(zstandard.frame_content_size(models) <= limit, "models declare more bytes than allowed")
+        # At most limit + 1 bytes are ever inflated, with or without a declared size.
+        reader = zstandard.ZstdDecompressor().stream_reader(io.BytesIO(models), read_across_frames=False)
+        need(len(reader.read(limit + 1)) <= limit, "models inflate past the limit")
+        d = zstandard.ZstdDecompressor().decompressobj()
         raw = d.decompress(models)
     except zstandard.ZstdError:
         raise SpecError("models are not a zstd frame") from None
     need(d.eof and not d.unused_data, "models must be exactly one complete zstd frame")
-    header = msgpack.unpackb(raw, raw=False)
+    try:
+        header = msgpack.unpackb(raw, raw=False)
+    except Exception as e:
+        raise SpecError(f"models are not one msgpack value ({type(e).__name__})") from None
     need(isinstance(header, list) and len(header) == c, "models array length")
-    rc = RangeDecoder(list(struct.unpack(f"<{len(words) // 4}I", words)))
-    lv = levels(m)
-    cols: list[list[int]] = []
-    prev_q, prev_nb, prev_e = [0] * m, [0] * m, [0] * m
+    # 10.10: every column's specs checked, and their tables counted, before any table is built.
+    entries = 0
     for j in range(c):
         need(isinstance(header[j], list) and len(header[j]) == 2, "column entry")
         mode, specs = header[j]
         need(is_int(mode) and 0 <= mode <= (3 if j else 1), "column mode")
         need(isinstance(specs, list) and len(specs) == 15, "15 model specs")
-        specs = [check_spec(s) for s in specs]
+        entries += sum(s[2] - s[1] + 1 for s in map(check_spec, specs) if s[0] >= 2)
+    need(entries <= max(TABLE_FLOOR, TABLE_PER_BYTE * len(payload)), "model tables too large for the ECM")
+    rc = RangeDecoder(list(struct.unpack(f"<{len(words) // 4}I", words)))
+    lv = levels(m)
+    cols: list[list[int]] = []
+    prev_q, prev_nb, prev_e = [0] * m, [0] * m, [0] * m
+    for j in range(c):
+        mode, specs = header[j]
         cdfs: dict[int, list[int]] = {}
         q, nbs, es = [0] * m, [0] * m, [0] * m
         for k, level in enumerate(lv):
@@ -310,12 +330,13 @@ def decode_attributes(meta: dict, chunks: dict[str, bytes]) -> dict[str, np.ndar
     need(is_int(n) and 1 <= n <= MAX_GAUSSIANS, "Gaussian count")
     need(is_int(deg) and 0 <= deg <= 3, "SH degree")
     k = (deg + 1) ** 2 - 1
-    need(n <= GAUSSIANS_PER_BYTE * sum(len(p) for p in chunks.values()), "Gaussian count vs payload")
+    payload = sum(len(p) for p in chunks.values())  # the attribute chunks' payloads, 10.10
+    need(n <= max(GAUSSIAN_FLOOR, 8 * payload // MIN_CODED_BITS), "Gaussian count vs payload")
     grid = a["position"]
     bits, lo, step = grid["bits"], grid["lo"], grid["step"]
     need(is_int(bits) and 1 <= bits <= (17 if version == 1 else 21), "position bits")
     contracted = version >= 2
-    need(contracted == ("radius" in grid) == ("centre" in grid), "contraction keys")
+    need(contracted == ("radius" in grid) and contracted == ("centre" in grid), "contraction keys")
     need((version == 3) == ("far_count" in grid) == ("far_shift" in grid), "far set keys")
     far, shift = (grid["far_count"], grid["far_shift"]) if version == 3 else (0, 0)
     need(is_int(far) and is_int(shift), "far set integers")
@@ -327,7 +348,7 @@ def decode_attributes(meta: dict, chunks: dict[str, bytes]) -> dict[str, np.ndar
     need(len(lo) == 3 and len(step) == 3 and all(map(finite_float, lo + step)), "grid floats")
     need(all(s > 0 for s in step), "grid step")
     L, M = a["opacity_levels"], a["rotation_levels"]
-    need(is_int(L) and L >= 1 and is_int(M) and M >= 1, "levels")
+    need(is_int(L) and 1 <= L <= INT_LIMIT and is_int(M) and 1 <= M <= INT_LIMIT, "levels")
     steps = [a["scale_step"], a["dc_step"], *a["sh_steps"]]
     need(len(a["sh_steps"]) == k and all(finite_float(s) and s > 0 for s in steps), "steps")
     need(set(chunks) == {"POSN", "OPAC", "SCAL", "ROTN", "SHDC"} | ({"SHRS"} if deg else set()), "chunks")
@@ -477,9 +498,36 @@ def decode_residual(view: dict) -> np.ndarray:
     return top * (one - fy)[:, None, None] + bot * fy[:, None, None]
 
 
+def finite_number(x: object) -> bool:
+    return (is_int(x) or isinstance(x, float)) and math.isfinite(x)
+
+
+def check_meta(meta: dict) -> None:
+    """10.8: the sections of meta a decoder reads, each refused when present and malformed."""
+    need(isinstance(meta.get("attributes"), dict), "attributes section")
+    side = meta.get("side_info")
+    need(isinstance(side, dict), "side_info section")
+    need(isinstance(side.get("views", []), list), "side_info.views")
+    bg = side.get("background")
+    need(
+        isinstance(bg, list) and len(bg) == 3 and all(finite_number(v) and 0 <= v <= 1 for v in bg),
+        "background",
+    )
+    restorer = side.get("restorer", "none")
+    need(isinstance(restorer, str) and 1 <= len(restorer) <= 200, "restorer")
+    iterations = side.get("refine_iterations", 300)
+    need(is_int(iterations) and 0 <= iterations <= MAX_REFINE, "refine_iterations")
+    if "scene" in meta:
+        scene = meta["scene"]
+        need(isinstance(scene, dict), "scene section")
+        count, degree = scene.get("num_gaussians", 0), scene.get("sh_degree", 0)
+        need(is_int(count) and count >= 0 and is_int(degree) and 0 <= degree <= 3, "scene section")
+
+
 def read_scene(data: bytes) -> tuple[dict[str, np.ndarray], list[dict]]:
     """A whole file's codec layer: the attributes, and the side-information views with residual R."""
     version, meta, chunks = read_container(data)
+    check_meta(meta)
     attr = {}
     for t, index, payload in chunks:
         if t in ("POSN", "OPAC", "SCAL", "ROTN", "SHDC", "SHRS"):
@@ -501,7 +549,8 @@ def read_scene(data: bytes) -> tuple[dict[str, np.ndarray], list[dict]]:
             view = {"width": cam["width"], "height": cam["height"], "length": len(resi.get(k, b""))}
             need(all(is_int(x) and 1 <= x <= 65536 for x in (cam["width"], cam["height"])), "camera size")
             if res is not None:
-                need(finite_float(res["gain"]) and res["gain"] > 0, "gain")
+                # 10.7: the gain as binary32 (what R is divided by) finite and > 0
+                need(isinstance(res["gain"], float) and 2.0**-150 < res["gain"] < 2.0**128 - 2.0**103, "gain")
                 s = res.get("scale", 1)
                 need(list(res.get("full_shape", res["shape"])) == [cam["height"], cam["width"]], "full shape")
                 need(list(res["shape"]) == [-(-cam["height"] // s), -(-cam["width"] // s)], "shape")
@@ -511,6 +560,9 @@ def read_scene(data: bytes) -> tuple[dict[str, np.ndarray], list[dict]]:
             views.append(view)
         need(all(v["width"] * v["height"] <= MAX_VIEW_PIXELS for v in views), "view pixels")
         need(sum(v["width"] * v["height"] for v in views) <= MAX_TOTAL_PIXELS, "total pixels")
+    # 10.8: all views together within the file's pixel budget, before anything is rendered or decoded.
+    budget = min(MAX_TOTAL_PIXELS, max(PIXEL_FLOOR, PIXELS_PER_BYTE * len(data)))
+    need(sum(v["width"] * v["height"] for v in views) <= budget, "pixels beyond the file's budget")
     for v in views:
         if v["length"]:
             v["residual"] = decode_residual(v)

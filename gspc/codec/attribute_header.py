@@ -43,7 +43,7 @@ def check_attribute_header(meta: dict) -> None:
         opacity_levels, rot_levels = meta["opacity_levels"], meta["rotation_levels"]
         scale_step, dc_step = meta["scale_step"], meta["dc_step"]
         sh_steps = list(meta["sh_steps"])
-        if (version != FORMAT_VERSION) != pos.is_contracted(grid):
+        if (version != FORMAT_VERSION) != pos.is_contracted(grid) or ("centre" in grid) != ("radius" in grid):
             raise CodecError("attribute codec version and position grid disagree on contraction")
         if (version == FAR_VERSION) != ("far_count" in grid or "far_shift" in grid):
             raise CodecError("attribute codec version and position grid disagree on a far set")
@@ -63,7 +63,8 @@ def check_attribute_header(meta: dict) -> None:
     if not 1 <= n <= MAX_GAUSSIANS or not 0 <= degree <= 3 or len(sh_steps) != (degree + 1) ** 2 - 1:
         raise CodecError("attribute codec header has an impossible count, SH degree or step list")
     max_bits = pos.MAX_BITS if version == FORMAT_VERSION else pos.CONTRACTED_MAX_BITS
-    if opacity_levels < 1 or rot_levels < 1 or not 1 <= bits <= max_bits:
+    # Levels up to 2^48, as every other integer of the codec (spec 10.0): each enters binary64 exactly.
+    if not (1 <= opacity_levels <= 1 << 48 and 1 <= rot_levels <= 1 << 48) or not 1 <= bits <= max_bits:
         raise CodecError("attribute codec header has impossible quantiser levels")
     # The far set: at least one Gaussian on each curve, and a coarse grid of at least one bit.
     if far is not None and not (

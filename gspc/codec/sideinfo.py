@@ -165,7 +165,8 @@ def _check_residual_record(k: int, m: object, h: int, w: int) -> None:
         ok, gain = False, None
     if not ok:
         raise CodecError(f"side-information view {k} has a residual record that does not fit its camera")
-    if not (isinstance(gain, float) and math.isfinite(gain) and gain > 0):
+    # Checked as the binary32 value R is divided by (spec 10.7): 1e-50 would round to 0 and 1e39 to infinity.
+    if not (isinstance(gain, float) and 2.0**-150 < gain < 2.0**128 - 2.0**103):
         raise CodecError(f"side-information view {k} has gain {gain!r}, not a positive finite float")
 
 
