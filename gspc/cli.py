@@ -286,6 +286,8 @@ def info(
         d = describe(path)
         c = read(path)
         header = c.header
+        if "attributes" in header:
+            _check_attribute_section(header, c.chunks)
         views, _ = side_views(header.get("side_info", {}), c.chunks)
         summary = SceneSummary.from_dict(header)
         n, degree = max(summary.num_gaussians, 1), summary.sh_degree
@@ -324,6 +326,30 @@ def info(
     for k, v in _flatten(st):
         t.add_row(k, _fmt(v))
     out.print(t)
+
+
+def _check_attribute_section(header: dict, chunks: list) -> None:
+    """The checks decode runs on a file's header before any payload (gspc/format/header.py, spec 10.0 and
+    10.10): field by field, the attribute chunks present once each with index 0, and the Gaussian count
+    within what their payloads may declare (gspc/limits.py). CodecError naming the first problem."""
+    from gspc.errors import CodecError
+    from gspc.format.chunks import ATTRIBUTE_TYPES, SHRS
+    from gspc.format.header import FileHeader
+    from gspc.limits import max_coded_gaussians
+
+    attributes = FileHeader.from_dict(header).attributes
+    found = {ch.type: ch for ch in chunks if ch.type in ATTRIBUTE_TYPES}
+    needed = [t for t in ATTRIBUTE_TYPES if t != SHRS or attributes["sh_degree"] > 0]
+    for t in needed:
+        if t not in found:
+            raise CodecError(f"chunk {t} is missing")
+    for t, ch in found.items():
+        if ch.index != 0 or t not in needed:
+            raise CodecError(f"chunk {t} (index {ch.index}) does not belong to this file's attributes")
+    payload = sum(len(ch.payload) for ch in found.values())
+    limit = max_coded_gaussians(payload)
+    if attributes["n"] > limit:
+        raise CodecError(f"{attributes['n']} Gaussians from {payload} payload bytes (at most {limit})")
 
 
 def _flatten(d, prefix=""):

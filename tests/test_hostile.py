@@ -3,6 +3,7 @@ costs memory bounded by its size (issue 15); files at a size-bounded limit's edg
 are refused (issue 26)."""
 
 import tracemalloc
+from pathlib import Path
 
 import pytest
 from hostile import (
@@ -131,3 +132,34 @@ def test_options_are_validated_by_the_dataclasses(tmp_path):
         DecodeOptions(iterations=10**12).validate()
     EncodeOptions().validate()
     DecodeOptions().validate()
+
+
+@pytest.mark.parametrize(
+    "vector",
+    [
+        "codec_invalid_float_count",
+        "codec_invalid_count_vs_payload",
+        "codec_invalid_far_shift",
+        "codec_invalid_chunk_index",
+        "codec_invalid_shrs_in_sh0",
+    ],
+)
+def test_info_refuses_the_attribute_sections_decode_refuses(vector, tmp_path):
+    path = Path(__file__).resolve().parents[1] / "spec" / "vectors" / f"{vector}.gspc"
+    res = runner.invoke(app, ["info", str(path)])
+    assert res.exit_code == 1 and res.output.startswith("error:"), res.output
+    with pytest.raises(GspcError):
+        decode(path, tmp_path / "o.ply", DecodeOptions(restore=False, refine=False))
+    assert not (tmp_path / "o.ply").exists()
+
+
+def test_info_reads_a_file_at_the_count_limit_and_refuses_one_past(work):
+    import amplification as amp
+
+    tmp, _, base = work
+    from gspc.format import container
+
+    files = amp.count_files(container.read(base).header, tmp)
+    for name, path, ok in files[:2]:
+        res = runner.invoke(app, ["info", str(path)])
+        assert (res.exit_code == 0) == ok, (name, res.output)
