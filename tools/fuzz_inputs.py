@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import os
 import platform
+import subprocess
 import sys
 import tempfile
 import time
@@ -108,7 +109,58 @@ def sweep(tmp: Path) -> tuple[dict, list[str], dict]:
         if peak > worst["peak"]:
             worst = {"peak": peak, "name": name, "size": path.stat().st_size}
     tracemalloc.stop()
-    return tally, bad, {"slowest": slowest, "largest": largest, "memory": worst}
+    peaks = process_peaks([c for c in cases if c.category.startswith("work:")])
+    return tally, bad, {"slowest": slowest, "largest": largest, "memory": worst, "peaks": peaks}
+
+
+PROBE = """
+import sys, time
+def hwm():
+    for line in open("/proc/self/status"):
+        if line.startswith("VmHWM:"):
+            return int(line.split()[1]) * 1024
+from gspc.cli import app
+import gspc.pipeline, gspc.io  # the imports every such command makes, before the baseline
+base = hwm()
+t0 = time.perf_counter()
+try:
+    app(sys.argv[1:])
+except SystemExit as e:
+    code = e.code
+print("PROBE", code, hwm() - base, time.perf_counter() - t0)
+"""
+
+
+def process_peaks(cases: list) -> list[dict]:
+    """Each case in a fresh process: the resident-memory high-water mark it adds over the interpreter with
+    gspc imported (VmHWM, so Rust and torch allocations count too), and its wall time."""
+    out = []
+    for case in cases:
+        if case.output is not None and case.output.is_file():
+            case.output.unlink()
+        env = {**os.environ, "GSPC_THREADS": "1", "PYTHONPATH": str(ROOT)}
+        res = subprocess.run(
+            [sys.executable, "-c", PROBE, *case.args], capture_output=True, text=True, env=env, timeout=600
+        )
+        line = next((x for x in res.stdout.splitlines() if x.startswith("PROBE")), "PROBE ? 0 0")
+        _, code, peak, seconds = line.split()
+        size = next((Path(a).stat().st_size for a in case.args[1:2] if Path(a).is_file()), 0)
+        out.append({"case": case, "exit": code, "peak": int(peak), "seconds": float(seconds), "size": size})
+    return out
+
+
+def peak_table(rows: list[dict]) -> list[str]:
+    lines = [
+        "| case | file bytes | exit | added peak RSS | bound 256 MB + 64 x bytes | wall time |",
+        "|---|---:|---:|---:|---:|---:|",
+    ]
+    for r in rows:
+        bound = 256e6 + 64 * r["size"]
+        lines.append(
+            f"| {r['case'].category.removeprefix('work: ')}: {r['case'].name} | {r['size']:,} | "
+            f"{r['exit']} | {r['peak'] / 1e6:.0f} MB | {bound / 1e6:.0f} MB | {r['seconds']:.1f} s |"
+        )
+    return lines
 
 
 def report(tally: dict, bad: list[str], extra: dict, seconds: float) -> str:
@@ -149,6 +201,19 @@ def report(tally: dict, bad: list[str], extra: dict, seconds: float) -> str:
         f"at {m['peak']:,} bytes ({m['name']}, a {m['size']:,}-byte file): each is refused before what it "
         "asks for is allocated.",
     ]
+    if extra.get("peaks"):
+        lines += [
+            "",
+            "## Work asked for by files at each size-bounded limit",
+            "",
+            "Each case of the `work:` categories again, alone in a fresh process (`GSPC_THREADS=1`): the "
+            "resident memory it adds to the interpreter with gspc imported (the VmHWM high-water mark, so "
+            "the entropy coder's and torch's own allocations count), its wall time, and the issue-26 target "
+            "for its file. Cases one step past a limit exit 1 at once; the decode cases run with "
+            "`--no-restore --no-refine` except the refinement one.",
+            "",
+            *peak_table(extra["peaks"]),
+        ]
     if bad:
         lines += ["", "Not clean:", ""] + [f"- {b}" for b in bad]
     return "\n".join(lines) + "\n"
