@@ -323,6 +323,13 @@ def finite_float(x: object) -> bool:
 def decode_attributes(meta: dict, chunks: dict[str, bytes]) -> dict[str, np.ndarray]:
     """float32 arrays: means (n,3), quats (n,4), log_scales (n,3), opacities (n,), sh_dc (n,3), sh_rest
     (n,K,3)."""
+    try:
+        return _decode_attributes(meta, chunks)
+    except (KeyError, TypeError, ValueError, AttributeError) as e:  # 10.0: a missing key or another type
+        raise SpecError(f"attribute codec parameters malformed ({type(e).__name__})") from None
+
+
+def _decode_attributes(meta: dict, chunks: dict[str, bytes]) -> dict[str, np.ndarray]:
     a = meta["attributes"]
     version = a["version"]
     need(is_int(version) and version in (1, 2, 3), "codec version")
@@ -447,10 +454,9 @@ def parse_side(payload: bytes) -> list[dict]:
     views = []
     for _ in range(count):
         w, h, *intr = take("<II4f") if flags else shared
-        need(1 <= w <= 65536 and 1 <= h <= 65536, "camera size")
         pose = take("<12f")
         (length,) = take("<I")
-        need(all(math.isfinite(v) for v in (*intr, *pose)), "camera values")
+        check_camera(w, h, intr, pose)
         view = {"width": w, "height": h, "intrinsics": tuple(intr), "pose": pose, "length": length}
         if length:
             (gain,) = take("<f")
@@ -469,7 +475,10 @@ def parse_side(payload: bytes) -> list[dict]:
 def decode_residual(view: dict) -> np.ndarray:
     """10.7: R (H, W, 3) float32 at the camera's full size."""
     decode = [imagecodecs.jpegxl_decode, imagecodecs.webp_decode, imagecodecs.avif_decode][view["codec"]]
-    u = decode(view["image"])
+    try:
+        u = decode(view["image"])
+    except Exception as e:  # each image library raises its own error for a stream it cannot read
+        raise SpecError(f"residual image does not decode ({type(e).__name__})") from None
     if u.ndim == 2:
         u = np.repeat(u[:, :, None], 3, axis=2)
     s, H, W = view["scale"], view["height"], view["width"]
@@ -496,6 +505,42 @@ def decode_residual(view: dict) -> np.ndarray:
     top = r[y0][:, x0] * (one - fx)[None, :, None] + r[y0][:, x1] * fx[None, :, None]
     bot = r[y1][:, x0] * (one - fx)[None, :, None] + r[y1][:, x1] * fx[None, :, None]
     return top * (one - fy)[:, None, None] + bot * fy[:, None, None]
+
+
+def check_camera(width: object, height: object, intrinsics: tuple, pose: tuple) -> None:
+    """10.8, 10.9: sizes 1 .. 65536, every value finite, both focal lengths > 0."""
+    need(all(is_int(x) and 1 <= x <= 65536 for x in (width, height)), "camera size")
+    need(all(math.isfinite(v) for v in (*intrinsics, *pose)), "camera values")
+    need(intrinsics[0] > 0 and intrinsics[1] > 0, "focal lengths")
+
+
+def record_view(r: dict, image: bytes | None) -> dict:
+    """10.7, 10.8: one view of the 1.0 layout (a header record and its RESI payload)."""
+    cam, res = r["camera"], r.get("residual")
+    need(isinstance(cam, dict), "camera map")
+    intr, pose = cam["intrinsics"], cam["pose"]
+    need(
+        isinstance(intr, bytes) and len(intr) == 16 and isinstance(pose, bytes) and len(pose) == 48,
+        "camera bins",
+    )
+    check_camera(cam["width"], cam["height"], struct.unpack("<4f", intr), struct.unpack("<12f", pose))
+    view = {"width": cam["width"], "height": cam["height"], "length": len(image or b"")}
+    if res is not None:
+        need(isinstance(res, dict), "residual map")
+        # 10.7: the gain as binary32 (what R is divided by) finite and > 0
+        need(isinstance(res["gain"], float) and 2.0**-150 < res["gain"] < 2.0**128 - 2.0**103, "gain")
+        s = res.get("scale", 1)
+        need(is_int(s) and 1 <= s <= 16, "scale")
+        need(
+            res["codec"] in ("jxl", "webp", "avif") and res["bits"] in (8, 16) and is_int(res["bits"]),
+            "codec",
+        )
+        need(is_int(res["offset"]) and res["offset"] == 1 << (res["bits"] - 1), "offset")
+        need(list(res.get("full_shape", res["shape"])) == [cam["height"], cam["width"]], "full shape")
+        need(list(res["shape"]) == [-(-cam["height"] // s), -(-cam["width"] // s)], "shape")
+        codec = ["jxl", "webp", "avif"].index(res["codec"])
+        view.update(codec=codec, bits=res["bits"], scale=s, gain=res["gain"], image=image)
+    return view
 
 
 def finite_number(x: object) -> bool:
@@ -545,19 +590,10 @@ def read_scene(data: bytes) -> tuple[dict[str, np.ndarray], list[dict]]:
         views = []
         need(set(resi) == {k for k, r in enumerate(records) if "residual" in r}, "RESI chunks and records")
         for k, r in enumerate(records):
-            cam, res = r["camera"], r.get("residual")
-            view = {"width": cam["width"], "height": cam["height"], "length": len(resi.get(k, b""))}
-            need(all(is_int(x) and 1 <= x <= 65536 for x in (cam["width"], cam["height"])), "camera size")
-            if res is not None:
-                # 10.7: the gain as binary32 (what R is divided by) finite and > 0
-                need(isinstance(res["gain"], float) and 2.0**-150 < res["gain"] < 2.0**128 - 2.0**103, "gain")
-                s = res.get("scale", 1)
-                need(list(res.get("full_shape", res["shape"])) == [cam["height"], cam["width"]], "full shape")
-                need(list(res["shape"]) == [-(-cam["height"] // s), -(-cam["width"] // s)], "shape")
-                codec = ["jxl", "webp", "avif"].index(res["codec"])
-                view.update(codec=codec, bits=res["bits"], scale=s, gain=res["gain"], image=resi[k])
-                need(res["offset"] == 1 << (res["bits"] - 1), "offset")
-            views.append(view)
+            try:
+                views.append(record_view(r, resi.get(k)))
+            except (KeyError, TypeError, ValueError, AttributeError) as e:  # a missing key or another type
+                raise SpecError(f"1.0 view {k} malformed ({type(e).__name__})") from None
         need(all(v["width"] * v["height"] <= MAX_VIEW_PIXELS for v in views), "view pixels")
         need(sum(v["width"] * v["height"] for v in views) <= MAX_TOTAL_PIXELS, "total pixels")
     # 10.8: all views together within the file's pixel budget, before anything is rendered or decoded.

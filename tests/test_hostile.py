@@ -163,3 +163,26 @@ def test_info_reads_a_file_at_the_count_limit_and_refuses_one_past(work):
     for name, path, ok in files[:2]:
         res = runner.invoke(app, ["info", str(path)])
         assert (res.exit_code == 0) == ok, (name, res.output)
+
+
+def test_spec_reader_refuses_every_hostile_header_and_view(work):
+    """tests/spec_reader.py, written from the spec alone, refuses each file gspc refuses (issue 26: the spec
+    states every rule the decoder enforces), with its own error rather than a crash."""
+    import spec_reader
+    from hostile import header_mutations, side_mutations
+
+    from gspc.format import container
+
+    _, _, base = work
+    c = container.read(base)
+    spec_reader.read_scene(base.read_bytes())  # the base itself decodes
+    files = [(d, container.pack(m, c.chunks)) for d, m in header_mutations(c.header)]
+    files += [(d, container.pack(m, ch)) for d, m, ch in side_mutations(c.header, c.chunks)]
+    accepted = []
+    for desc, data in files:
+        try:
+            spec_reader.read_scene(data)
+            accepted.append(desc)
+        except spec_reader.SpecError:
+            pass
+    assert not accepted, accepted

@@ -1122,6 +1122,30 @@ def codec_vectors() -> list[Vector]:
         "index 1",
     )
     limit_vectors(vs, ok, bad_codec, a0, c0)
+    for key in ("opacity_levels", "rotation_levels"):
+        bad_codec(
+            f"codec_invalid_{key}_2p48",
+            f"attributes.{key} = 2^48 + 1 (the limit of every integer of the codec, spec 10.0)",
+            scene_meta(dict(a0, **{key: (1 << 48) + 1})),
+            attribute_entries(c0),
+            "levels",
+        )
+    grid = dict(a0["position"], centre=[0.0, 0.0, 0.0])
+    bad_codec(
+        "codec_invalid_centre_at_version_1",
+        "a version-1 position grid with a centre (and no radius)",
+        scene_meta(dict(a0, position=grid)),
+        attribute_entries(c0),
+        "contraction",
+    )
+    tiny = [dict(views10[0], residual=dict(views10[0]["residual"], gain=1e-50)), views10[1]]
+    bad_codec(
+        "codec_invalid_gain_rounds_to_zero",
+        "a 1.0-layout residual gain of 1e-50, positive as binary64 but 0 as binary32",
+        scene_meta(a0, {"views": tiny, "background": BACKGROUND, "restorer": "none"}),
+        [*attribute_entries(c0), (entry("RESI", image), image)],
+        "gain",
+    )
     return vs
 
 
