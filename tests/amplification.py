@@ -242,9 +242,20 @@ def sog_file(path: Path, count: int) -> Path:
     return path
 
 
+def ply_header_file(path: Path, count: int, text: bool) -> Path:
+    """A PLY whose header declares ``count`` vertices of 14 float properties, followed by 100 bytes."""
+    names = ["x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity", "scale_0", "scale_1", "scale_2"]
+    props = "".join(f"property float {p}\n" for p in [*names, "rot_0", "rot_1", "rot_2", "rot_3"])
+    form = "ascii" if text else "binary_little_endian"
+    path.write_bytes(
+        f"ply\nformat {form} 1.0\nelement vertex {count}\n{props}end_header\n".encode() + b"0 " * 50
+    )
+    return path
+
+
 def scene_files(d: Path) -> list[tuple[str, Path, bool]]:
     """(name, file, reads) of SPZ and SOG scenes at the scene rule's floor (2^19 Gaussians), one past it, and
-    past the 4-bytes-per-Gaussian term."""
+    past the 4-bytes-per-Gaussian term; PLY headers declaring more rows than the file holds."""
     floor = limits.SCENE_GAUSSIAN_FLOOR
     out = [
         ("SPZ at the floor: 2^19 Gaussians", spz_file(d / "floor.spz", floor, 1), True),
@@ -253,6 +264,10 @@ def scene_files(d: Path) -> list[tuple[str, Path, bool]]:
     big = spz_file(d / "big.spz", 1 << 20, 2)  # about 2.5 bytes per Gaussian: under 4
     assert limits.max_scene_gaussians(big.stat().st_size) < 1 << 20
     out.append((f"SPZ of 2^20 Gaussians in {big.stat().st_size / 1e6:.1f} MB", big, False))
+    for text in (False, True):
+        kind = "ASCII" if text else "binary"
+        path = ply_header_file(d / f"count_{kind}.ply", 10**9, text)
+        out.append((f"{kind} PLY declaring 10^9 vertices in 500 bytes", path, False))
     out.append(("SOG at the floor: 2^19 Gaussians", sog_file(d / "floor.sog", floor), True))
     out.append(("SOG one past the floor", sog_file(d / "past.sog", floor + 1), False))
     return out

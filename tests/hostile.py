@@ -587,7 +587,11 @@ def amplification_cases(base: Path, tmp: Path) -> Iterator[Case]:
     for name, path, ok in amp.scene_files(d):
         args = ["info", str(path)] if ok else ["convert", str(path), "-o", str(out)]
         yield Case(
-            "work: SPZ and SOG scene counts", name, args, None if ok else out, "ok" if ok else "refused"
+            "work: scene file counts (SPZ, SOG, PLY)",
+            name,
+            args,
+            None if ok else out,
+            "ok" if ok else "refused",
         )
 
 
