@@ -62,15 +62,13 @@ def constant_chunks(meta: dict, n: int, opac: bytes | None = None, pad: int = 0)
     return chunks
 
 
-def write_gspc(path: Path, header: dict, n: int, chunks: dict[str, bytes], refine: int | None = None) -> Path:
+def write_gspc(path: Path, header: dict, n: int, chunks: dict[str, bytes]) -> Path:
     """A file of the base ``header`` with attributes.n = ``n``, these attribute chunks and no side
     information."""
     meta = json.loads(json.dumps(header, default=lambda b: b.hex()))  # a deep copy (no bins in these maps)
     meta["attributes"] = dict(header["attributes"], n=n)
-    meta["scene"] = dict(meta.get("scene", {}), num_gaussians=n)
+    meta["scene"] = dict(meta.get("scene", {}), num_gaussians=n, sh_degree=header["attributes"]["sh_degree"])
     meta["side_info"] = {k: v for k, v in header["side_info"].items() if k != "views"}
-    if refine is not None:
-        meta["side_info"]["refine_iterations"] = refine
     container.write(path, meta, [container.Chunk(t, chunks[t]) for t in ATTRIBUTES if t in chunks])
     return path
 
@@ -103,6 +101,14 @@ def count_files(header: dict, d: Path) -> list[tuple[str, Path, bool]]:
         chunks = constant_chunks(a, count, pad=150_000)
         assert limits.max_coded_gaussians(payload_bytes(chunks)) == edge
         out.append((name, write_gspc(d / f"count_{count}.gspc", header, count, chunks), count == edge))
+    # The most work per byte this rule allows: SH degree 3 (the widest rows) in a 1 MB file.
+    steps = a["sh_steps"] or [a["dc_step"]]
+    sh3 = dict(header, attributes=dict(a, sh_degree=3, sh_steps=[steps[0]] * 15))
+    probe = constant_chunks(sh3["attributes"], 1 << 20, pad=1_000_000)
+    edge = limits.max_coded_gaussians(payload_bytes(probe))
+    chunks = constant_chunks(sh3["attributes"], edge, pad=1_000_000)
+    path = write_gspc(d / "count_sh3.gspc", sh3, edge, chunks)
+    out.append((f"SH 3 at 12 coded bits per Gaussian: {edge:,} in 1 MB", path, True))
     issue = constant_chunks(a, 1 << 20, pad=16_000)
     out.append(
         (

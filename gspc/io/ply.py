@@ -170,8 +170,10 @@ def scene_to_vertex_array(scene: GaussianScene) -> np.ndarray:
         columns.append((name, scene.extra[name] if name in scene.extra else np.zeros(n, np.float32)))
     dc = _f32(scene.sh_dc)
     columns += [(name, dc[:, i]) for i, name in enumerate(DC)]
-    rest = _f32(scene.sh_rest).transpose(0, 2, 1).reshape(n, 3 * k)  # coefficient-major -> channel-major
-    columns += [(name, rest[:, i]) for i, name in enumerate(rest_names(k))]
+    # Coefficient-major -> channel-major as strided views, not a copy: at SH degree 3 a copy is 180 bytes per
+    # Gaussian on top of the scene and the output rows (issue 26 measures a decode's peak memory).
+    rest = _f32(scene.sh_rest).transpose(0, 2, 1)  # (n, 3, k)
+    columns += [(name, rest[:, i // k, i % k]) for i, name in enumerate(rest_names(k))]
     columns.append((OPACITY, _f32(scene.opacities).reshape(n)))
     scales = _f32(scene.log_scales)
     columns += [(name, scales[:, i]) for i, name in enumerate(SCALES)]
