@@ -137,7 +137,18 @@ def _progress_bars():
         yield update
 
 
-def _summary(title: str, rep) -> None:
+def _console_for(output: str) -> Console:
+    """Where a command's report goes: stdout, unless its output is stdout itself (``-o /dev/stdout`` in a
+    pipe), whose bytes the report would corrupt: then stderr."""
+    try:
+        same = os.path.samestat(os.stat(output), os.fstat(sys.stdout.fileno()))
+    except Exception:  # no such path, or a stdout without a file descriptor (a test runner's)
+        same = False
+    return err if same else out
+
+
+def _summary(title: str, rep, output: str) -> None:
+    console = _console_for(output)
     t = Table(title=title, show_header=True)
     t.add_column("part")
     t.add_column("bytes", justify="right")
@@ -145,16 +156,16 @@ def _summary(title: str, rep) -> None:
     n = max(rep.num_gaussians_out, 1)
     for k, v in rep.bytes.items():
         t.add_row(k, f"{v:,}", f"{v / n:.2f}")
-    out.print(t)
+    console.print(t)
     s = Table(show_header=True)
     s.add_column("stage")
     s.add_column("seconds", justify="right")
     for k, v in rep.seconds.items():
         s.add_row(k, f"{v:.2f}")
     s.add_row("total", f"{sum(rep.seconds.values()):.2f}")
-    out.print(s)
+    console.print(s)
     facts = {"Gaussians in": rep.num_gaussians_in, "Gaussians out": rep.num_gaussians_out, **rep.info}
-    out.print("  ".join(f"{k}: {v}" for k, v in facts.items()))
+    console.print("  ".join(f"{k}: {v}" for k, v in facts.items()))
 
 
 def _option(cls: type, name: str, *flags: str):
@@ -210,7 +221,7 @@ def encode(
     )
     with _progress_bars() as cb:
         rep = run(scene, output, cameras, opts, progress=cb)
-    _summary(f"gspc encode -> {output}", rep)
+    _summary(f"gspc encode -> {output}", rep, output)
 
 
 @app.command()
@@ -243,7 +254,7 @@ def decode(
     )
     with _progress_bars() as cb:
         rep = run(source, output, opts, progress=cb)
-    _summary(f"gspc decode -> {output}", rep)
+    _summary(f"gspc decode -> {output}", rep, output)
 
 
 def _is_gspc(path: Path) -> bool:
@@ -470,7 +481,7 @@ def convert(
 
     sc = read_scene(scene)
     write_ply(sc, output)
-    out.print(f"wrote {sc.num_gaussians:,} Gaussians (SH degree {sc.sh_degree}) to {output}")
+    _console_for(output).print(f"wrote {sc.num_gaussians:,} Gaussians (SH degree {sc.sh_degree}) to {output}")
 
 
 def main() -> None:  # pragma: no cover - console script entry

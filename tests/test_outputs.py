@@ -137,3 +137,20 @@ def test_cli_runs_with_a_huge_thread_count(monkeypatch, scene_file):
         assert torch.get_num_threads() == cli.default_threads()
     finally:
         torch.set_num_threads(before)
+
+
+def test_output_to_stdout_in_a_pipe_is_only_the_file(tmp_path, scene_file):
+    """`-o /dev/stdout` in a pipe: stdout carries the PLY alone; the report goes to stderr."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    repo = Path(__file__).resolve().parents[1]
+    env = {**os.environ, "PYTHONPATH": str(repo), "GSPC_THREADS": "1"}
+    cmd = [sys.executable, "-m", "gspc.cli", "convert", str(scene_file), "-o", "/dev/stdout"]
+    res = subprocess.run(cmd, capture_output=True, env=env, timeout=300)
+    assert res.returncode == 0, res.stderr.decode()
+    copy = tmp_path / "copy.ply"
+    copy.write_bytes(res.stdout)
+    assert read_scene(copy).num_gaussians == 200
+    assert b"wrote 200 Gaussians" in res.stderr and b"wrote" not in res.stdout
