@@ -11,6 +11,7 @@ import dataclasses
 import functools
 import os
 import sys
+import warnings
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -19,6 +20,7 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
+from gspc.atomic import check_output_path
 from gspc.errors import GspcError
 from gspc.options import DecodeOptions, EncodeOptions
 from gspc.progress import ProgressLines
@@ -31,13 +33,28 @@ err = Console(stderr=True)
 RENDER_DEVICE_HELP = "cpu or cuda (where the renders run)"
 
 
+@contextmanager
+def one_line_warnings(log=None):
+    """Within: each warning (e.g. lens distortion ignored) is one ``gspc: warning: ...`` line on stderr,
+    without Python's file name and source line (issue 26). ``log`` prints a line (default: stderr)."""
+    log = log or _log_line
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        log(f"warning: {message}")
+
+    with warnings.catch_warnings():
+        warnings.showwarning = show
+        yield
+
+
 def _one_line_errors(fn):
     """Turn every failure into one line on stderr (tracebacks only with GSPC_DEBUG=1)."""
 
     @functools.wraps(fn)
     def wrapper(*args, **kwargs):
         try:
-            return fn(*args, **kwargs)
+            with one_line_warnings():
+                return fn(*args, **kwargs)
         except GspcError as e:
             msg = str(e)
         except (OSError, MemoryError) as e:
@@ -66,12 +83,26 @@ def default_threads() -> int:
         return max(1, os.cpu_count() or 1)
 
 
+def thread_count(value: str | None) -> int:
+    """The torch threads GSPC_THREADS=``value`` asks for: unset or empty means default_threads(); a whole
+    number from 1 up, clamped to default_threads() (more threads than cores only contend, and 10000 once
+    crashed libgomp); anything else is a GspcError naming the variable."""
+    cores = default_threads()
+    if value is None or not value.strip():
+        return cores
+    text = value.strip()
+    if not (text.isascii() and text.isdigit()) or not text.lstrip("0"):
+        raise GspcError(f"GSPC_THREADS={value!r}: give a whole number of threads, 1 or more, or unset it")
+    digits = text.lstrip("0")
+    return min(int(digits) if len(digits) <= 18 else cores, cores)  # int() refuses over 4300 digits
+
+
 def _use_threads() -> None:
     """Set torch's thread count (GSPC_THREADS, default the cores this process has): called by the
     commands that compute."""
     import torch
 
-    torch.set_num_threads(int(os.environ.get("GSPC_THREADS", "") or default_threads()))
+    torch.set_num_threads(thread_count(os.environ.get("GSPC_THREADS")))
 
 
 def _log_line(line: str) -> None:
@@ -106,7 +137,18 @@ def _progress_bars():
         yield update
 
 
-def _summary(title: str, rep) -> None:
+def _console_for(output: str) -> Console:
+    """Where a command's report goes: stdout, unless its output is stdout itself (``-o /dev/stdout`` in a
+    pipe), whose bytes the report would corrupt: then stderr."""
+    try:
+        same = os.path.samestat(os.stat(output), os.fstat(sys.stdout.fileno()))
+    except Exception:  # no such path, or a stdout without a file descriptor (a test runner's)
+        same = False
+    return err if same else out
+
+
+def _summary(title: str, rep, output: str) -> None:
+    console = _console_for(output)
     t = Table(title=title, show_header=True)
     t.add_column("part")
     t.add_column("bytes", justify="right")
@@ -114,16 +156,16 @@ def _summary(title: str, rep) -> None:
     n = max(rep.num_gaussians_out, 1)
     for k, v in rep.bytes.items():
         t.add_row(k, f"{v:,}", f"{v / n:.2f}")
-    out.print(t)
+    console.print(t)
     s = Table(show_header=True)
     s.add_column("stage")
     s.add_column("seconds", justify="right")
     for k, v in rep.seconds.items():
         s.add_row(k, f"{v:.2f}")
     s.add_row("total", f"{sum(rep.seconds.values()):.2f}")
-    out.print(s)
+    console.print(s)
     facts = {"Gaussians in": rep.num_gaussians_in, "Gaussians out": rep.num_gaussians_out, **rep.info}
-    out.print("  ".join(f"{k}: {v}" for k, v in facts.items()))
+    console.print("  ".join(f"{k}: {v}" for k, v in facts.items()))
 
 
 def _option(cls: type, name: str, *flags: str):
@@ -140,7 +182,7 @@ def _option(cls: type, name: str, *flags: str):
 @_one_line_errors
 def encode(
     scene: Path = typer.Argument(..., help="input scene: INRIA PLY, PlayCanvas SOG or compressed PLY, SPZ"),
-    output: Path = typer.Option(..., "-o", "--output", help="output .gspc file"),
+    output: str = typer.Option(..., "-o", "--output", help="output .gspc file"),
     cameras: Path | None = typer.Option(None, help="cameras.json, transforms.json or COLMAP sparse folder"),
     quality: str = _option(EncodeOptions, "quality"),
     lam: float | None = _option(EncodeOptions, "lam"),
@@ -157,6 +199,7 @@ def encode(
     time_budget: float | None = _option(EncodeOptions, "time_budget"),
 ) -> None:
     """Compress a 3DGS scene into a .gspc file."""
+    check_output_path(output)  # the text as typed: a Path would drop a trailing slash
     from gspc.pipeline import encode as run
 
     _use_threads()
@@ -178,14 +221,14 @@ def encode(
     )
     with _progress_bars() as cb:
         rep = run(scene, output, cameras, opts, progress=cb)
-    _summary(f"gspc encode -> {output}", rep)
+    _summary(f"gspc encode -> {output}", rep, output)
 
 
 @app.command()
 @_one_line_errors
 def decode(
     source: Path = typer.Argument(..., help="input .gspc file"),
-    output: Path = typer.Option(..., "-o", "--output", help="output PLY (INRIA layout)"),
+    output: str = typer.Option(..., "-o", "--output", help="output PLY (INRIA layout)"),
     iterations: int | None = _option(DecodeOptions, "iterations"),
     restore: bool = _option(DecodeOptions, "restore"),
     refine: bool = _option(DecodeOptions, "refine"),
@@ -195,6 +238,7 @@ def decode(
     time_budget: float | None = _option(DecodeOptions, "time_budget"),
 ) -> None:
     """Decode a .gspc file into a standard 3DGS PLY."""
+    check_output_path(output)
     from gspc.pipeline import decode as run
 
     _use_threads()
@@ -210,7 +254,7 @@ def decode(
     )
     with _progress_bars() as cb:
         rep = run(source, output, opts, progress=cb)
-    _summary(f"gspc decode -> {output}", rep)
+    _summary(f"gspc decode -> {output}", rep, output)
 
 
 def _is_gspc(path: Path) -> bool:
@@ -242,6 +286,7 @@ def info(
     if not path.exists():
         raise GspcError(f"{path}: no such file")
     if _is_gspc(path):
+        from gspc.format.attribute_section import attribute_chunks, check_attribute_chunks
         from gspc.format.container import describe, read
         from gspc.format.header import FileHeader, SceneSummary
         from gspc.format.side_chunk import read_side_views
@@ -250,6 +295,7 @@ def info(
         c = read(path)
         header = c.header
         fields = FileHeader.from_dict(header)  # checked as a decode checks it
+        check_attribute_chunks(attribute_chunks(c.chunks), fields.attributes)
         views = read_side_views(fields.side_info.legacy_views, c.chunks, d["file_size"]).views
         summary = SceneSummary.from_dict(header)
         n, degree = max(summary.num_gaussians, 1), summary.sh_degree
@@ -286,6 +332,7 @@ def info(
     for k, v in _flatten(st):
         t.add_row(k, _fmt(v))
     out.print(t)
+
 
 
 def _flatten(d, prefix=""):
@@ -394,18 +441,19 @@ def evaluate(
 @_one_line_errors
 def convert(
     scene: Path = typer.Argument(..., help="scene file (PLY/SOG/compressed PLY/SPZ)"),
-    output: Path = typer.Option(..., "-o", "--output", help="output PLY (INRIA layout)"),
+    output: str = typer.Option(..., "-o", "--output", help="output PLY (INRIA layout)"),
 ) -> None:
     """Convert any readable scene to a standard INRIA 3DGS PLY."""
     from gspc.paths import refuse_output_over_input
 
+    check_output_path(output)
     refuse_output_over_input(output, scene)
     _use_threads()
     from gspc.io import read_scene, write_ply
 
     sc = read_scene(scene)
     write_ply(sc, output)
-    out.print(f"wrote {sc.num_gaussians:,} Gaussians (SH degree {sc.sh_degree}) to {output}")
+    _console_for(output).print(f"wrote {sc.num_gaussians:,} Gaussians (SH degree {sc.sh_degree}) to {output}")
 
 
 def main() -> None:  # pragma: no cover - console script entry

@@ -14,6 +14,72 @@ from __future__ import annotations
 # anything (3000: +0.2 dB over 1000).
 MAX_REFINE_ITERATIONS = 100_000
 
+# The header's refine_iterations is the decoder's DEFAULT refinement (no --iterations given), and a file may
+# not make that default longer than its Gaussians warrant: at most max(REFINE_DEFAULT_FLOOR, n) iterations
+# for n coded Gaussians (one per Gaussian beyond the high preset's 1000). An iteration costs a few ms plus
+# time in proportion to n (bench/scale.md): a 1,000-Gaussian file naming 100,000 iterations ran about 10
+# minutes (issue 26, 6 ms each); under this rule it runs 1000 (about 6 s). The encoder's own choices (the
+# presets' 300 and 1000, scaled down for large scenes by gspc/presets.py) are always within it. A decoder
+# runs the smaller of the file's number and this bound; --iterations asks for any length up to
+# MAX_REFINE_ITERATIONS.
+REFINE_DEFAULT_FLOOR = 1000
+
+
+def default_refine_iterations(file_iterations: int, num_gaussians: int) -> int:
+    """The refinement a decode runs without --iterations: the file's number, bounded by its Gaussians."""
+    return min(file_iterations, max(REFINE_DEFAULT_FLOOR, num_gaussians), MAX_REFINE_ITERATIONS)
+
+
+# Gaussians a .gspc file may declare for its attribute payload bytes P (POSN, OPAC, SCAL, ROTN, SHDC and
+# SHRS chunk payloads together): at most max(GAUSSIAN_FLOOR, floor(8 P / MIN_CODED_BITS_PER_GAUSSIAN)). A
+# Gaussian whose every symbol has a one-value model costs no bits, so without this rule a tiny file could
+# ask for any allocation; decoding costs about 1 KB and 20 us per Gaussian (issue 26: 2^20 Gaussians from
+# 17 KB took 1.13 GB and 20 s under the old rule of 64 per byte). Real files code 23 or more bits per
+# Gaussian even at lambda 1000 (donut 3.3 B/G, the lego fit 2.9: positions alone 2 B/G at the coarsest
+# default grid), twice this minimum; the floor keeps any scene of up to 65,536 Gaussians codable however
+# regular (a lattice of identical Gaussians codes in almost no bits), at about 70 MB.
+GAUSSIAN_FLOOR = 1 << 16
+MIN_CODED_BITS_PER_GAUSSIAN = 12
+
+
+def max_coded_gaussians(payload_bytes: int) -> int:
+    """The most Gaussians attribute payloads of ``payload_bytes`` bytes in all may declare."""
+    return max(GAUSSIAN_FLOOR, 8 * payload_bytes // MIN_CODED_BITS_PER_GAUSSIAN)
+
+
+# Entries of the probability tables one entropy-coded matrix's models build (spec 10.0: a kind-2 or kind-3
+# model over lo..hi builds hi - lo + 1), summed over all its models, for a matrix payload of P bytes: at most
+# max(MODEL_TABLE_FLOOR, MODEL_ENTRIES_PER_BYTE * P). A six-integer geometric model may span 2^22 symbols, so
+# without this rule a 6 KB file built tables for 86 s (issue 26). Building costs about 0.17 us and 30
+# transient bytes per entry (measured on this project's loaded 2-vCPU machine). The floor is one model of the
+# widest window (gspc/codec/entropy.py MAX_WINDOW), about 0.7 s, and a file holds at most 8 matrices. Real
+# matrices need under 1 entry per payload byte at lambda 0.1 and above; tables grow as 1/lambda, to 34 per
+# byte at lambda 1e-3 (donut's DC), so this rule stops the finest lambdas on real scenes, where the encoder
+# refuses with a ValueRangeError (a larger lambda codes it) rather than write a file the decoder refuses.
+MODEL_TABLE_FLOOR = 1 << 22
+MODEL_ENTRIES_PER_BYTE = 16
+
+
+def max_model_entries(payload_bytes: int) -> int:
+    """The most probability-table entries the models of one matrix payload of ``payload_bytes`` may build."""
+    return max(MODEL_TABLE_FLOOR, MODEL_ENTRIES_PER_BYTE * payload_bytes)
+
+
+# Decompressed bytes of one matrix's model list (a zstd frame of msgpack) for a frame of P bytes: at most
+# max(MODEL_LIST_FLOOR, MODEL_LIST_RATIO * P), and never beyond MAX_MODELS_BYTES. Real model lists compress
+# 1.0-3.8 times (the lego fit and donut at lambda 1e-3..1000); zstd can expand a frame thousands of times,
+# and every decompressed byte is parsed and checked in Python (the old cap alone let a 3.6 KB file take
+# 17.7 s and 1.07 GB, issue 26).
+MODEL_LIST_FLOOR = 1 << 16
+MODEL_LIST_RATIO = 32
+MAX_MODELS_BYTES = 1 << 26
+
+
+def max_model_list_bytes(frame_bytes: int) -> int:
+    """The most bytes a model list's zstd frame of ``frame_bytes`` bytes may decompress to."""
+    return min(MAX_MODELS_BYTES, max(MODEL_LIST_FLOOR, MODEL_LIST_RATIO * frame_bytes))
+
+
 # Width and height of any camera, in pixels: the SIDE chunk's per-side limit (gspc/format/side_chunk.py,
 # 1..65536), and far beyond any sensor; a camera file's larger sizes are refused rather than scaled.
 MAX_CAMERA_SIDE = 1 << 16
@@ -39,6 +105,23 @@ PIXELS_PER_FILE_BYTE = 1024
 def view_pixel_budget(file_size: int) -> int:
     """The most pixels a .gspc file of ``file_size`` bytes may ask the decoder to render over all views."""
     return min(MAX_TOTAL_PIXELS, max(PIXEL_FLOOR, PIXELS_PER_FILE_BYTE * file_size))
+
+
+# --- input scenes (gspc/io/) -------------------------------------------------------------------------------
+
+# Gaussians a compressed scene file (SPZ, SOG) of F bytes may declare: at most max(SCENE_GAUSSIAN_FLOOR,
+# F // MIN_SCENE_BYTES_PER_GAUSSIAN), checked before anything of that size is inflated or allocated. Reading
+# costs about 250 bytes per Gaussian (float64 arrays, then the float32 scene), so an SPZ of 0.95 MB declaring
+# 50 million Gaussians (what its gzip expansion allowed) reached 6.5 GB before failing (issue 26). Real files
+# hold 12 bytes or more per Gaussian (the SPZ fixtures 16-64, the statues' SOG 13); the floor, about 130 MB,
+# admits any scene of up to 2^19 Gaussians however well it compresses.
+SCENE_GAUSSIAN_FLOOR = 1 << 19
+MIN_SCENE_BYTES_PER_GAUSSIAN = 4
+
+
+def max_scene_gaussians(file_bytes: int) -> int:
+    """The most Gaussians a compressed scene file of ``file_bytes`` bytes may declare."""
+    return max(SCENE_GAUSSIAN_FLOOR, file_bytes // MIN_SCENE_BYTES_PER_GAUSSIAN)
 
 
 # --- SOG archives (gspc/io/sog.py) -------------------------------------------------------------------------

@@ -19,7 +19,7 @@ from pathlib import Path
 from gspc import __version__
 from gspc.atomic import atomic_write_bytes
 from gspc.cameras import Camera
-from gspc.codec.attributes import EncodedAttributes, attribute_chunks, decode_attributes
+from gspc.codec.attributes import EncodedAttributes, decode_attributes
 from gspc.device import check_device, renderer_info, synchronize
 from gspc.encoder.policy import CheckInputs, SideInfoDecision, check_cameras, check_side_info
 from gspc.encoder.side import SideCandidate, view_residuals
@@ -34,12 +34,14 @@ from gspc.encoder.stages import (
 )
 from gspc.errors import CodecError, InputError
 from gspc.format import container
+from gspc.format.attribute_section import attribute_chunks
 from gspc.format.chunks import ATTRIBUTE_TYPES, SIDE
 from gspc.format.header import FileHeader, SceneSummary, SideInfoHeader
 from gspc.format.side_chunk import SideViews, read_side_views
 from gspc.format.view_records import check_view_pixels
 from gspc.io import read_scene, write_ply
 from gspc.io.camera_files import load_cameras
+from gspc.limits import default_refine_iterations
 from gspc.options import DecodeOptions, EncodeOptions
 from gspc.paths import refuse_output_over_input
 from gspc.progress import Progress
@@ -332,7 +334,9 @@ def _restore_and_refine(
     # With no residual anywhere every target equals the render: the gradients are only round-off, and
     # Adam would turn them into full-size steps (measured: 50.7 -> 41.7 dB on a statue), so skip.
     has_residual = bool(side.images) and opts.restore
-    iterations = opts.iterations if opts.iterations is not None else header.side_info.refine_iterations
+    # The file's number is a default, bounded by the Gaussians it codes (gspc/limits.py).
+    file_default = default_refine_iterations(header.side_info.refine_iterations, scene.num_gaussians)
+    iterations = opts.iterations if opts.iterations is not None else file_default
     if not (opts.refine and iterations > 0):
         return scene
     if not has_residual:

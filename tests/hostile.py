@@ -32,7 +32,53 @@ class Case:
     category: str  # for bench/robustness.md
     name: str
     args: list[str]  # CLI arguments
-    output: Path | None  # must not exist afterwards (None: the command writes nothing / it is an input)
+    # "refused": exit 1, one error line, ``output`` not written; "ok": exit 0 and ``output`` written (a file
+    # crafted at a limit's edge, or input gspc now reads). Either way no other file changes.
+    output: Path | None  # None: the command writes nothing / it is an input
+    expect: str = "refused"
+    env: dict[str, str] | None = None  # environment for the run (GSPC_THREADS)
+
+
+def outcome(case: Case, exit_code: int, text: str) -> str:
+    """How a run ended: "refused" or "ok" when clean, else what went wrong."""
+    lines = text.strip().splitlines() or [""]
+    if "Traceback" in text or "internal error" in text:
+        return "internal error"
+    if exit_code == 0:
+        if case.expect == "ok" and (case.output is None or case.output.exists()):
+            return "ok"
+        return "accepted" if case.expect == "refused" else "output missing"
+    if any("warning" in x for x in lines):
+        return "warnings before the error"  # e.g. numpy's, on values a check should have refused first
+    if (
+        exit_code != 1
+        or not lines[-1].startswith("error:")
+        or not all(x.startswith("gspc: ") for x in lines[:-1])
+    ):
+        return "not one error line"
+    if case.output is not None and case.output.exists():
+        return "output left behind"
+    return "refused"
+
+
+def snapshot(folder: Path) -> dict[Path, tuple[int, int, int]]:
+    """Every file under ``folder`` with its mode, size and modification time: what a run must not touch."""
+    out = {}
+    for p in folder.rglob("*"):
+        try:
+            st = p.lstat()
+        except FileNotFoundError:
+            continue
+        out[p] = (st.st_mode, st.st_size, st.st_mtime_ns)
+    return out
+
+
+def touched(before: dict, after: dict, allowed: Path | None) -> list[str]:
+    """Files created, changed or removed between two snapshots, other than ``allowed`` (and inside it)."""
+    changed = {p for p in before.keys() | after.keys() if before.get(p) != after.get(p)}
+    if allowed is not None:
+        changed = {p for p in changed if p != allowed and allowed not in p.parents}
+    return sorted(str(p) for p in changed)
 
 
 # --------------------------------------------------------------------------------------------- options
@@ -494,6 +540,9 @@ def sog_cases(tmp: Path, make_sog) -> Iterator[Case]:
     lie2 = tmp / "lie_map.sog"
     _zip_with_claimed_size(good, lie2, "quats.webp", (1 << 32) - 1)
     yield Case("SOG archives", "map claims 4 GiB", ["convert", str(lie2), "-o", str(out)], out)
+    bounds = tmp / "bounds.sog"
+    make_sog(bounds, meta_override=lambda m: m["means"].update(mins=[-1e308] * 3, maxs=[1e308] * 3))
+    yield Case("SOG archives", "position bounds +-1e308", ["info", str(bounds)], None)
     huge = tmp / "huge_map.sog"
     flat = imagecodecs.webp_encode(np.zeros((4096, 4096, 4), np.uint8), lossless=True)
     with zipfile.ZipFile(good) as z, zipfile.ZipFile(huge, "w", zipfile.ZIP_STORED) as w:
@@ -509,3 +558,119 @@ def unneeded_bomb(tmp: Path, make_sog) -> Path:
     with zipfile.ZipFile(p, "a", zipfile.ZIP_DEFLATED) as z:
         z.writestr("junk.bin", bytes(64 << 20))
     return p
+
+
+# ----------------------------------------------------------------------------- work out of proportion
+
+
+def amplification_cases(base: Path, tmp: Path) -> Iterator[Case]:
+    """Files at each size-bounded limit and just past it (tests/amplification.py), and the base file naming a
+    refinement of 100,000 iterations for its 300 Gaussians (the decoder runs at most max(1000, n))."""
+    import amplification as amp
+
+    header = container.read(base).header
+    d = tmp / "amplification"
+    d.mkdir(exist_ok=True)
+    out = tmp / "amp_out.ply"
+    for category, make in (
+        ("work: Gaussians per coded bit", amp.count_files),
+        ("work: entropy-model tables", amp.table_files),
+        ("work: entropy-model lists", amp.model_list_files),
+    ):
+        for name, path, ok in make(header, d):
+            args = ["decode", str(path), "-o", str(out), "--no-restore", "--no-refine"]
+            yield Case(category, name, args, out, "ok" if ok else "refused")
+    c = container.read(base)
+    long = d / "refine_100000.gspc"
+    meta = copy.deepcopy(c.header)
+    meta["side_info"]["refine_iterations"] = 100_000
+    container.write(long, meta, c.chunks)
+    name = "300 Gaussians naming 100,000 refinement iterations (runs 1000)"
+    yield Case("work: default refinement", name, ["decode", str(long), "-o", str(out)], out, "ok")
+    for name, path, ok in amp.scene_files(d):
+        args = ["info", str(path)] if ok else ["convert", str(path), "-o", str(out)]
+        yield Case(
+            "work: scene file counts (SPZ, SOG, PLY)",
+            name,
+            args,
+            None if ok else out,
+            "ok" if ok else "refused",
+        )
+
+
+# ------------------------------------------------------------------------------------------ outputs
+
+
+def output_cases(scene: Path, gspc_file: Path, tmp: Path) -> Iterator[Case]:
+    """-o naming a character device (written as a stream), a folder, a path ending in '/', a socket."""
+    import socket
+
+    folder = tmp / "an_output_folder"
+    folder.mkdir(exist_ok=True)
+    sock = tmp / "a.sock"
+    if not sock.exists():
+        with socket.socket(socket.AF_UNIX) as s:
+            s.bind(str(sock))  # the node stays after the socket closes
+    yield Case("outputs", "convert -o /dev/null", ["convert", str(scene), "-o", os.devnull], None, "ok")
+    yield Case(
+        "outputs",
+        "decode -o /dev/null",
+        ["decode", str(gspc_file), "-o", os.devnull, "--iterations", "1"],
+        None,
+        "ok",
+    )
+    for command, src in (("convert", scene), ("encode", scene), ("decode", gspc_file)):
+        yield Case(
+            "outputs",
+            f"{command} -o DIR/name/",
+            [command, str(src), "-o", f"{tmp}/slash_out/"],
+            tmp / "slash_out",
+        )
+        yield Case(
+            "outputs", f"{command} -o an existing folder", [command, str(src), "-o", str(folder)], None
+        )
+        yield Case("outputs", f"{command} -o a socket", [command, str(src), "-o", str(sock)], None)
+
+
+# -------------------------------------------------------------------------------- environment, cameras
+
+
+def environment_cases(scene: Path) -> Iterator[Case]:
+    """GSPC_THREADS values: refused in one line, or (beyond the cores) clamped to them."""
+    for value in ("0", "-1", "text", "1.5", "", "1e3"):
+        expect = "ok" if value == "" else "refused"
+        yield Case(
+            "environment: GSPC_THREADS",
+            repr(value),
+            ["info", str(scene)],
+            None,
+            expect,
+            {"GSPC_THREADS": value},
+        )
+    for value in (str(2**40), "10000"):
+        yield Case(
+            "environment: GSPC_THREADS", value, ["info", str(scene)], None, "ok", {"GSPC_THREADS": value}
+        )
+
+
+def camera_input_cases(scene: Path, tmp: Path) -> Iterator[Case]:
+    """COLMAP quaternions huge (rotations, normalised without overflow), non-finite or zero (refused), and a
+    camera with lens distortion (one warning line)."""
+    d = tmp / "colmap_q"
+    for i, (name, q, ok) in enumerate(
+        (
+            ("quaternion (1e300, 1e300, 0, 0)", "1e300 1e300 0 0", True),
+            ("quaternion (inf, 0, 0, 0)", "inf 0 0 0", False),
+            ("quaternion (nan, 1, 0, 0)", "nan 1 0 0", False),
+            ("quaternion (0, 0, 0, 0)", "0 0 0 0", False),
+            ("OPENCV camera with distortion", "1 0 0 0", True),
+        )
+    ):
+        sub = d / f"m{i}"
+        sub.mkdir(parents=True, exist_ok=True)
+        model = "OPENCV 32 24 30 30 16 12 0.1 0 0 0" if "OPENCV" in name else "PINHOLE 32 24 30 30 16 12"
+        (sub / "cameras.txt").write_text(f"1 {model}\n")
+        (sub / "images.txt").write_text(f"1 {q} 0 0 3 1 a.png\n\n")
+        rdir = tmp / f"cam_q_{i}"
+        args = ["render", str(scene), "-o", str(rdir), "--cameras", str(sub), "--max-side", "16"]
+        yield Case("camera input: COLMAP poses", name, args, rdir, "ok" if ok else "refused")

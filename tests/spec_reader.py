@@ -11,6 +11,7 @@ Slow (one Python call per symbol): meant for the small files of spec/vectors/ an
 from __future__ import annotations
 
 import bisect
+import io
 import math
 import struct
 import zlib
@@ -26,9 +27,15 @@ PRECISION = 24
 INT_LIMIT = 1 << 48  # 10.0: matrix entries and model integers lie in -2^48 .. 2^48
 MAX_SYMBOLS = 1 << 22
 MAX_GAUSSIANS = 1 << 26
-GAUSSIANS_PER_BYTE = 64
+GAUSSIAN_FLOOR = 1 << 16  # 10.10: N <= max(2^16, floor(8 P / 12))
+MIN_CODED_BITS = 12
+MAX_MODELS_BYTES = 1 << 26  # 10.10: models content <= min(2^26, max(2^16, 32 x frame bytes))
+MODELS_FLOOR, MODELS_RATIO = 1 << 16, 32
+TABLE_FLOOR, TABLE_PER_BYTE = 1 << 22, 16  # 10.10: table entries <= max(2^22, 16 x ECM bytes)
 MAX_VIEW_PIXELS = 1 << 24
 MAX_TOTAL_PIXELS = 1 << 28
+PIXEL_FLOOR, PIXELS_PER_BYTE = 1 << 22, 1024  # 10.8: all views <= min(2^28, max(2^22, 1024 x file bytes))
+MAX_REFINE = 100_000
 SQRT_HALF = 0.7071067811865476
 LN2 = 0.6931471805599453
 BOOSTS = [1, 2, 3, 4, 6, 8, 11, 16, 23, 32, 45, 64, 91, 128, 181, 256, 362, 512, 724, 1024, 1448, 2048]
@@ -202,24 +209,37 @@ def decode_ecm(payload: bytes, m_expected: int, c_expected: int) -> list[list[in
         need(models == b"" and words == b"", "an empty ECM has empty models and words")
         return [[] for _ in range(c)]
     need(len(words) % 4 == 0, "words length")
-    d = zstandard.ZstdDecompressor().decompressobj()
+    limit = min(MAX_MODELS_BYTES, max(MODELS_FLOOR, MODELS_RATIO * len(models)))
     try:
+        need(zstandard.frame_content_size(models) <= limit, "models declare more bytes than allowed")
+        # At most limit + 1 bytes are ever inflated, with or without a declared size.
+        reader = zstandard.ZstdDecompressor().stream_reader(io.BytesIO(models), read_across_frames=False)
+        need(len(reader.read(limit + 1)) <= limit, "models inflate past the limit")
+        d = zstandard.ZstdDecompressor().decompressobj()
         raw = d.decompress(models)
     except zstandard.ZstdError:
         raise SpecError("models are not a zstd frame") from None
     need(d.eof and not d.unused_data, "models must be exactly one complete zstd frame")
-    header = msgpack.unpackb(raw, raw=False)
+    try:
+        header = msgpack.unpackb(raw, raw=False)
+    except Exception as e:
+        raise SpecError(f"models are not one msgpack value ({type(e).__name__})") from None
     need(isinstance(header, list) and len(header) == c, "models array length")
-    rc = RangeDecoder(list(struct.unpack(f"<{len(words) // 4}I", words)))
-    lv = levels(m)
-    cols: list[list[int]] = []
-    prev_q, prev_nb, prev_e = [0] * m, [0] * m, [0] * m
+    # 10.10: every column's specs checked, and their tables counted, before any table is built.
+    entries = 0
     for j in range(c):
         need(isinstance(header[j], list) and len(header[j]) == 2, "column entry")
         mode, specs = header[j]
         need(is_int(mode) and 0 <= mode <= (3 if j else 1), "column mode")
         need(isinstance(specs, list) and len(specs) == 15, "15 model specs")
-        specs = [check_spec(s) for s in specs]
+        entries += sum(s[2] - s[1] + 1 for s in map(check_spec, specs) if s[0] >= 2)
+    need(entries <= max(TABLE_FLOOR, TABLE_PER_BYTE * len(payload)), "model tables too large for the ECM")
+    rc = RangeDecoder(list(struct.unpack(f"<{len(words) // 4}I", words)))
+    lv = levels(m)
+    cols: list[list[int]] = []
+    prev_q, prev_nb, prev_e = [0] * m, [0] * m, [0] * m
+    for j in range(c):
+        mode, specs = header[j]
         cdfs: dict[int, list[int]] = {}
         q, nbs, es = [0] * m, [0] * m, [0] * m
         for k, level in enumerate(lv):
@@ -303,6 +323,13 @@ def finite_float(x: object) -> bool:
 def decode_attributes(meta: dict, chunks: dict[str, bytes]) -> dict[str, np.ndarray]:
     """float32 arrays: means (n,3), quats (n,4), log_scales (n,3), opacities (n,), sh_dc (n,3), sh_rest
     (n,K,3)."""
+    try:
+        return _decode_attributes(meta, chunks)
+    except (KeyError, TypeError, ValueError, AttributeError) as e:  # 10.0: a missing key or another type
+        raise SpecError(f"attribute codec parameters malformed ({type(e).__name__})") from None
+
+
+def _decode_attributes(meta: dict, chunks: dict[str, bytes]) -> dict[str, np.ndarray]:
     a = meta["attributes"]
     version = a["version"]
     need(is_int(version) and version in (1, 2, 3), "codec version")
@@ -310,12 +337,13 @@ def decode_attributes(meta: dict, chunks: dict[str, bytes]) -> dict[str, np.ndar
     need(is_int(n) and 1 <= n <= MAX_GAUSSIANS, "Gaussian count")
     need(is_int(deg) and 0 <= deg <= 3, "SH degree")
     k = (deg + 1) ** 2 - 1
-    need(n <= GAUSSIANS_PER_BYTE * sum(len(p) for p in chunks.values()), "Gaussian count vs payload")
+    payload = sum(len(p) for p in chunks.values())  # the attribute chunks' payloads, 10.10
+    need(n <= max(GAUSSIAN_FLOOR, 8 * payload // MIN_CODED_BITS), "Gaussian count vs payload")
     grid = a["position"]
     bits, lo, step = grid["bits"], grid["lo"], grid["step"]
     need(is_int(bits) and 1 <= bits <= (17 if version == 1 else 21), "position bits")
     contracted = version >= 2
-    need(contracted == ("radius" in grid) == ("centre" in grid), "contraction keys")
+    need(contracted == ("radius" in grid) and contracted == ("centre" in grid), "contraction keys")
     need((version == 3) == ("far_count" in grid) == ("far_shift" in grid), "far set keys")
     far, shift = (grid["far_count"], grid["far_shift"]) if version == 3 else (0, 0)
     need(is_int(far) and is_int(shift), "far set integers")
@@ -333,7 +361,7 @@ def decode_attributes(meta: dict, chunks: dict[str, bytes]) -> dict[str, np.ndar
     if contracted:
         need(all(abs(c) <= 2.0**64 for c in centre) and radius <= 2.0**64, "centre, radius bounds")
     L, M = a["opacity_levels"], a["rotation_levels"]
-    need(is_int(L) and L >= 1 and is_int(M) and M >= 1, "levels")
+    need(is_int(L) and 1 <= L <= INT_LIMIT and is_int(M) and 1 <= M <= INT_LIMIT, "levels")
     steps = [a["scale_step"], a["dc_step"], *a["sh_steps"]]
     need(len(a["sh_steps"]) == k and all(finite_float(s) and s > 0 for s in steps), "steps")
     need(set(chunks) == {"POSN", "OPAC", "SCAL", "ROTN", "SHDC"} | ({"SHRS"} if deg else set()), "chunks")
@@ -432,10 +460,9 @@ def parse_side(payload: bytes) -> list[dict]:
     views = []
     for _ in range(count):
         w, h, *intr = take("<II4f") if flags else shared
-        need(1 <= w <= 65536 and 1 <= h <= 65536, "camera size")
         pose = take("<12f")
         (length,) = take("<I")
-        need(all(math.isfinite(v) for v in (*intr, *pose)), "camera values")
+        check_camera(w, h, intr, pose)
         view = {"width": w, "height": h, "intrinsics": tuple(intr), "pose": pose, "length": length}
         if length:
             (gain,) = take("<f")
@@ -454,7 +481,10 @@ def parse_side(payload: bytes) -> list[dict]:
 def decode_residual(view: dict) -> np.ndarray:
     """10.7: R (H, W, 3) float32 at the camera's full size."""
     decode = [imagecodecs.jpegxl_decode, imagecodecs.webp_decode, imagecodecs.avif_decode][view["codec"]]
-    u = decode(view["image"])
+    try:
+        u = decode(view["image"])
+    except Exception as e:  # each image library raises its own error for a stream it cannot read
+        raise SpecError(f"residual image does not decode ({type(e).__name__})") from None
     if u.ndim == 2:
         u = np.repeat(u[:, :, None], 3, axis=2)
     s, H, W = view["scale"], view["height"], view["width"]
@@ -483,9 +513,72 @@ def decode_residual(view: dict) -> np.ndarray:
     return top * (one - fy)[:, None, None] + bot * fy[:, None, None]
 
 
+def check_camera(width: object, height: object, intrinsics: tuple, pose: tuple) -> None:
+    """10.8, 10.9: sizes 1 .. 65536, every value finite, both focal lengths > 0."""
+    need(all(is_int(x) and 1 <= x <= 65536 for x in (width, height)), "camera size")
+    need(all(math.isfinite(v) for v in (*intrinsics, *pose)), "camera values")
+    need(intrinsics[0] > 0 and intrinsics[1] > 0, "focal lengths")
+
+
+def record_view(r: dict, image: bytes | None) -> dict:
+    """10.7, 10.8: one view of the 1.0 layout (a header record and its RESI payload)."""
+    cam, res = r["camera"], r.get("residual")
+    need(isinstance(cam, dict), "camera map")
+    intr, pose = cam["intrinsics"], cam["pose"]
+    need(
+        isinstance(intr, bytes) and len(intr) == 16 and isinstance(pose, bytes) and len(pose) == 48,
+        "camera bins",
+    )
+    check_camera(cam["width"], cam["height"], struct.unpack("<4f", intr), struct.unpack("<12f", pose))
+    view = {"width": cam["width"], "height": cam["height"], "length": len(image or b"")}
+    if res is not None:
+        need(isinstance(res, dict), "residual map")
+        # 10.7: the gain as binary32 (what R is divided by) finite and > 0
+        need(isinstance(res["gain"], float) and 2.0**-150 < res["gain"] < 2.0**128 - 2.0**103, "gain")
+        s = res.get("scale", 1)
+        need(is_int(s) and 1 <= s <= 16, "scale")
+        need(
+            res["codec"] in ("jxl", "webp", "avif") and res["bits"] in (8, 16) and is_int(res["bits"]),
+            "codec",
+        )
+        need(is_int(res["offset"]) and res["offset"] == 1 << (res["bits"] - 1), "offset")
+        need(list(res.get("full_shape", res["shape"])) == [cam["height"], cam["width"]], "full shape")
+        need(list(res["shape"]) == [-(-cam["height"] // s), -(-cam["width"] // s)], "shape")
+        codec = ["jxl", "webp", "avif"].index(res["codec"])
+        view.update(codec=codec, bits=res["bits"], scale=s, gain=res["gain"], image=image)
+    return view
+
+
+def finite_number(x: object) -> bool:
+    return (is_int(x) or isinstance(x, float)) and math.isfinite(x)
+
+
+def check_meta(meta: dict) -> None:
+    """10.8: the sections of meta a decoder reads, each refused when present and malformed."""
+    need(isinstance(meta.get("attributes"), dict), "attributes section")
+    side = meta.get("side_info")
+    need(isinstance(side, dict), "side_info section")
+    need(isinstance(side.get("views", []), list), "side_info.views")
+    bg = side.get("background")
+    need(
+        isinstance(bg, list) and len(bg) == 3 and all(finite_number(v) and 0 <= v <= 1 for v in bg),
+        "background",
+    )
+    restorer = side.get("restorer", "none")
+    need(isinstance(restorer, str) and 1 <= len(restorer) <= 200, "restorer")
+    iterations = side.get("refine_iterations", 300)
+    need(is_int(iterations) and 0 <= iterations <= MAX_REFINE, "refine_iterations")
+    if "scene" in meta:
+        scene = meta["scene"]
+        need(isinstance(scene, dict), "scene section")
+        count, degree = scene.get("num_gaussians", 0), scene.get("sh_degree", 0)
+        need(is_int(count) and count >= 0 and is_int(degree) and 0 <= degree <= 3, "scene section")
+
+
 def read_scene(data: bytes) -> tuple[dict[str, np.ndarray], list[dict]]:
     """A whole file's codec layer: the attributes, and the side-information views with residual R."""
     version, meta, chunks = read_container(data)
+    check_meta(meta)
     attr = {}
     for t, index, payload in chunks:
         if t in ("POSN", "OPAC", "SCAL", "ROTN", "SHDC", "SHRS"):
@@ -503,20 +596,15 @@ def read_scene(data: bytes) -> tuple[dict[str, np.ndarray], list[dict]]:
         views = []
         need(set(resi) == {k for k, r in enumerate(records) if "residual" in r}, "RESI chunks and records")
         for k, r in enumerate(records):
-            cam, res = r["camera"], r.get("residual")
-            view = {"width": cam["width"], "height": cam["height"], "length": len(resi.get(k, b""))}
-            need(all(is_int(x) and 1 <= x <= 65536 for x in (cam["width"], cam["height"])), "camera size")
-            if res is not None:
-                need(finite_float(res["gain"]) and res["gain"] > 0, "gain")
-                s = res.get("scale", 1)
-                need(list(res.get("full_shape", res["shape"])) == [cam["height"], cam["width"]], "full shape")
-                need(list(res["shape"]) == [-(-cam["height"] // s), -(-cam["width"] // s)], "shape")
-                codec = ["jxl", "webp", "avif"].index(res["codec"])
-                view.update(codec=codec, bits=res["bits"], scale=s, gain=res["gain"], image=resi[k])
-                need(res["offset"] == 1 << (res["bits"] - 1), "offset")
-            views.append(view)
+            try:
+                views.append(record_view(r, resi.get(k)))
+            except (KeyError, TypeError, ValueError, AttributeError) as e:  # a missing key or another type
+                raise SpecError(f"1.0 view {k} malformed ({type(e).__name__})") from None
         need(all(v["width"] * v["height"] <= MAX_VIEW_PIXELS for v in views), "view pixels")
         need(sum(v["width"] * v["height"] for v in views) <= MAX_TOTAL_PIXELS, "total pixels")
+    # 10.8: all views together within the file's pixel budget, before anything is rendered or decoded.
+    budget = min(MAX_TOTAL_PIXELS, max(PIXEL_FLOOR, PIXELS_PER_BYTE * len(data)))
+    need(sum(v["width"] * v["height"] for v in views) <= budget, "pixels beyond the file's budget")
     for v in views:
         if v["length"]:
             v["residual"] = decode_residual(v)

@@ -28,10 +28,11 @@ import gspc.pipeline as pipeline
 import gspc.render.api as api
 import gspc.render.gsplat_backend as gb
 from gspc.cameras import Camera
-from gspc.codec.attributes import attribute_chunks, decode_attributes, encode_attributes
+from gspc.codec.attributes import decode_attributes, encode_attributes
 from gspc.device import check_device, float32_math, renderer_info, synchronize
 from gspc.errors import DeviceError
 from gspc.format import container
+from gspc.format.attribute_section import attribute_chunks
 from gspc.io import read_scene, write_ply
 from gspc.metrics import ssim
 from gspc.pipeline import DecodeOptions, EncodeOptions, decode_bytes, encode, encode_scene

@@ -1,17 +1,26 @@
 """Hostile inputs through the CLI (tests/hostile.py): each is refused in one typed line, leaves no output, and
-costs memory bounded by its size (issue 15)."""
+costs memory bounded by its size (issue 15); files at a size-bounded limit's edge decode, one step past it
+are refused (issue 26)."""
 
 import tracemalloc
+from pathlib import Path
 
 import pytest
 from hostile import (
     Case,
+    amplification_cases,
     camera_cases,
+    camera_input_cases,
+    environment_cases,
     gspc_cases,
     gspc_files,
     option_cases,
+    outcome,
+    output_cases,
     scene_value_cases,
+    snapshot,
     sog_cases,
+    touched,
     unneeded_bomb,
 )
 from scenes import random_scene
@@ -37,44 +46,46 @@ def work(tmp_path_factory):
     return tmp, scene, base
 
 
-def refusal_problem(case: Case, res) -> str | None:
-    """Why the run is not a clean refusal (exit 1, one last ``error:`` line, no output), or None."""
-    text = res.output
-    lines = text.strip().splitlines() or [""]
-    if res.exit_code != 1:
-        return f"exit {res.exit_code}"
-    if "Traceback" in text or "internal error" in text:
-        return "internal error"
-    if not lines[-1].startswith("error:") or not all(x.startswith("gspc: ") for x in lines[:-1]):
-        return "not one error line"
-    if case.output is not None and case.output.exists():
-        return "output left behind"
-    return None
-
-
-@pytest.mark.slow
-def test_hostile_inputs_are_refused_in_one_line(work):
-    tmp, scene, base = work
-    scene_bytes, base_bytes = scene.read_bytes(), base.read_bytes()
-    # Control: the file every hostile one is made from decodes.
-    ok = runner.invoke(app, ["decode", str(base), "-o", str(tmp / "ok.ply"), "--iterations", "2"])
-    assert ok.exit_code == 0, ok.output
-    cases = [
+def all_cases(tmp, scene, base) -> list[Case]:
+    return [
         *option_cases(scene, base, tmp),
         *camera_cases(scene, tmp),
         *scene_value_cases(scene, tmp),
         *gspc_cases(base, tmp),
         *sog_cases(tmp, make_sog),
+        *amplification_cases(base, tmp),
+        *output_cases(scene, base, tmp),
+        *environment_cases(scene),
+        *camera_input_cases(scene, tmp),
     ]
+
+
+def run_case(case: Case, tmp) -> str | None:
+    """Why the run is not clean (the outcome it expects, no file touched but its output), or None."""
+    if case.output is not None and case.output.is_file():
+        case.output.unlink()  # left by a case that wrongly succeeded: reported once, not again
+    before = snapshot(tmp)
+    res = runner.invoke(app, case.args, env=case.env)
+    got = outcome(case, res.exit_code, res.output)
+    extra = touched(before, snapshot(tmp), case.output)
+    if got != case.expect:
+        return f"{got}: {res.output.strip()[-200:]!r}"
+    if extra:
+        return f"touched {extra[:3]}"
+    return None
+
+
+@pytest.mark.slow
+def test_hostile_inputs_end_as_expected(work):
+    """Every case is refused in one line, or (at a limit's edge) succeeds; no other file is touched."""
+    tmp, scene, base = work
+    scene_bytes, base_bytes = scene.read_bytes(), base.read_bytes()
+    # Control: the file every hostile one is made from decodes.
+    ok = runner.invoke(app, ["decode", str(base), "-o", str(tmp / "ok.ply"), "--iterations", "2"])
+    assert ok.exit_code == 0, ok.output
+    cases = all_cases(tmp, scene, base)
     assert len(cases) > 300
-    problems = []
-    for case in cases:
-        if case.output is not None and case.output.is_file():
-            case.output.unlink()  # left by a case that wrongly succeeded: reported once, not again
-        res = runner.invoke(app, case.args)
-        why = refusal_problem(case, res)
-        if why:
-            problems.append(f"{case.category}: {case.name}: {why}: {res.output.strip()[-200:]!r}")
+    problems = [f"{c.category}: {c.name}: {why}" for c in cases if (why := run_case(c, tmp))]
     assert not problems, "\n".join(problems)
     # Outputs named as inputs were refused, not written over the inputs.
     assert scene.read_bytes() == scene_bytes and base.read_bytes() == base_bytes
@@ -121,3 +132,57 @@ def test_options_are_validated_by_the_dataclasses(tmp_path):
         DecodeOptions(iterations=10**12).validate()
     EncodeOptions().validate()
     DecodeOptions().validate()
+
+
+@pytest.mark.parametrize(
+    "vector",
+    [
+        "codec_invalid_float_count",
+        "codec_invalid_count_vs_payload",
+        "codec_invalid_far_shift",
+        "codec_invalid_chunk_index",
+        "codec_invalid_shrs_in_sh0",
+    ],
+)
+def test_info_refuses_the_attribute_sections_decode_refuses(vector, tmp_path):
+    path = Path(__file__).resolve().parents[1] / "spec" / "vectors" / f"{vector}.gspc"
+    res = runner.invoke(app, ["info", str(path)])
+    assert res.exit_code == 1 and res.output.startswith("error:"), res.output
+    with pytest.raises(GspcError):
+        decode(path, tmp_path / "o.ply", DecodeOptions(restore=False, refine=False))
+    assert not (tmp_path / "o.ply").exists()
+
+
+def test_info_reads_a_file_at_the_count_limit_and_refuses_one_past(work):
+    import amplification as amp
+
+    tmp, _, base = work
+    from gspc.format import container
+
+    files = amp.count_files(container.read(base).header, tmp)
+    for name, path, ok in files[:2]:
+        res = runner.invoke(app, ["info", str(path)])
+        assert (res.exit_code == 0) == ok, (name, res.output)
+
+
+def test_spec_reader_refuses_every_hostile_header_and_view(work):
+    """tests/spec_reader.py, written from the spec alone, refuses each file gspc refuses (issue 26: the spec
+    states every rule the decoder enforces), with its own error rather than a crash."""
+    import spec_reader
+    from hostile import header_mutations, side_mutations
+
+    from gspc.format import container
+
+    _, _, base = work
+    c = container.read(base)
+    spec_reader.read_scene(base.read_bytes())  # the base itself decodes
+    files = [(d, container.pack(m, c.chunks)) for d, m in header_mutations(c.header)]
+    files += [(d, container.pack(m, ch)) for d, m, ch in side_mutations(c.header, c.chunks)]
+    accepted = []
+    for desc, data in files:
+        try:
+            spec_reader.read_scene(data)
+            accepted.append(desc)
+        except spec_reader.SpecError:
+            pass
+    assert not accepted, accepted

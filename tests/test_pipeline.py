@@ -229,7 +229,8 @@ def test_encode_time_budget_writes_the_iterations_it_checked(tmp_path):
 
 def test_bytes_spent_on_attributes_are_the_rivals(tmp_path):
     """A margin side information cannot meet: the file holds the rival's finer attributes."""
-    from gspc.codec.attributes import attribute_chunks, decode_attributes
+    from gspc.codec.attributes import decode_attributes
+    from gspc.format.attribute_section import attribute_chunks
 
     src = tmp_path / "in.ply"
     write_ply(scene(seed=2), src)

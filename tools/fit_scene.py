@@ -36,6 +36,8 @@ import torch.nn.functional as F
 import typer
 
 from gspc.cameras import Camera
+from gspc.cli import one_line_warnings
+from gspc.errors import GspcError
 from gspc.io import write_ply
 from gspc.io.camera_files import load_cameras
 from gspc.io.cameras_json import save_cameras_json
@@ -405,7 +407,12 @@ def main(
     seed: int = typer.Option(0),
 ) -> None:
     torch.set_num_threads(1)
-    rep = fit(source, out, resolution, gaussians, iterations, sh_degree, background, seed, downscale)
+    # Bad input (a photo that does not decode, a malformed points3D.bin) ends as one line, as in gspc's CLI.
+    try:
+        with one_line_warnings(lambda line: print(f"fit_scene: {line}", file=sys.stderr)):
+            rep = fit(source, out, resolution, gaussians, iterations, sh_degree, background, seed, downscale)
+    except (GspcError, OSError, RuntimeError, ValueError) as e:  # imagecodecs' errors are RuntimeErrors
+        raise SystemExit(f"fit_scene: error: {e}") from None
     print(json.dumps({k: v for k, v in rep.items() if k != "test_names"}, indent=1))
 
 

@@ -787,11 +787,11 @@ def digest(a: np.ndarray) -> dict:
 
 def reference_decode(data: bytes) -> tuple[dict[str, np.ndarray], list[dict]]:
     """gspc's decoder up to the decoded attributes and residuals (what gspc decode does before rendering)."""
-    from gspc.codec.attributes import attribute_chunks, decode_attributes
+    from gspc.codec.attributes import decode_attributes
     from gspc.codec.residuals import decode_residual
     from gspc.errors import CodecError
     from gspc.format import container
-    from gspc.format.attribute_section import AttributeSection
+    from gspc.format.attribute_section import AttributeSection, attribute_chunks
     from gspc.format.side_chunk import legacy_views, read_side_views
 
     c = container.unpack(data)
@@ -1130,7 +1130,7 @@ def codec_vectors() -> list[Vector]:
         "300000 Gaussians declared in a file of about 2 KB",
         scene_meta(dict(a0, n=300000)),
         attribute_entries(c0),
-        "per byte",
+        "payload bytes",
     )
     head = struct.calcsize("<IBBBB") + struct.calcsize("<II16s")
     first_gain = head + struct.calcsize("<48sI")  # view 0 has no image
@@ -1160,6 +1160,31 @@ def codec_vectors() -> list[Vector]:
         [*attribute_entries(c2), (entry("SIDE", side, index=1), side)],
         "index 1",
     )
+    limit_vectors(vs, ok, bad_codec, a0, c0)
+    for key in ("opacity_levels", "rotation_levels"):
+        bad_codec(
+            f"codec_invalid_{key}_2p48",
+            f"attributes.{key} = 2^48 + 1 (the limit of every integer of the codec, spec 10.0)",
+            scene_meta(dict(a0, **{key: (1 << 48) + 1})),
+            attribute_entries(c0),
+            "levels",
+        )
+    grid = dict(a0["position"], centre=[0.0, 0.0, 0.0])
+    bad_codec(
+        "codec_invalid_centre_at_version_1",
+        "a version-1 position grid with a centre (and no radius)",
+        scene_meta(dict(a0, position=grid)),
+        attribute_entries(c0),
+        "contraction",
+    )
+    tiny = [dict(views10[0], residual=dict(views10[0]["residual"], gain=1e-50)), views10[1]]
+    bad_codec(
+        "codec_invalid_gain_rounds_to_zero",
+        "a 1.0-layout residual gain of 1e-50, positive as binary64 but 0 as binary32",
+        scene_meta(a0, {"views": tiny, "background": BACKGROUND, "restorer": "none"}),
+        [*attribute_entries(c0), (entry("RESI", image), image)],
+        "gain",
+    )
     return vs
 
 
@@ -1168,6 +1193,90 @@ def all_vectors() -> list[Vector]:
     names = [v.name for v in vs]
     assert len(names) == len(set(names)), "vector names must be unique"
     return vs
+
+
+ONE_VALUE = [[1, 0]] * 15  # a column's 15 specs when every value is 0 (spec 10.0, kind 1)
+
+
+def constant_chunks(attributes: dict, n: int) -> dict[str, bytes]:
+    """Payloads of ``n`` identical Gaussians at SH degree 0: every column one-value, no range-coder words."""
+    half = attributes["rotation_levels"] // 2
+    return {
+        "POSN": msgpack.packb([ecm(n, 1, [[0, ONE_VALUE]], b""), b""], use_bin_type=True),
+        "OPAC": ecm(n, 1, [[0, ONE_VALUE]], b""),
+        "SCAL": ecm(n, 3, [[0, ONE_VALUE]] * 3, b""),
+        "ROTN": ecm(n, 4, [[0, ONE_VALUE], *[[0, [[1, half]] * 15]] * 3], b""),
+        "SHDC": ecm(n, 3, [[0, ONE_VALUE]] * 3, b""),
+    }
+
+
+def table_entries(models: list) -> int:
+    return sum(s[2] - s[1] + 1 for _, specs in models for s in specs if s[0] >= 2)
+
+
+def sized_spec(models: list, size: int) -> list:
+    """A kind-3 spec for column 0, bucket 14 (no row of column 0 uses it: its intra class is always 0) that
+    makes the msgpack of ``models`` exactly ``size`` bytes: weights of 1 take one byte, of 128 two."""
+
+    def packed(count: int, twos: int) -> int:
+        spec = [3, 0, count - 1, *([128] * twos), *([1] * (count - twos))]
+        return len(msgpack.packb([[models[0][0], [*models[0][1][:14], spec]], *models[1:]]))
+
+    count = 2
+    for _ in range(5):  # the array's length prefix grows with it: settle
+        count += size - packed(count, 0)
+    twos = size - packed(count, 0)
+    assert 0 <= twos <= count and packed(count, twos) == size
+    return [3, 0, count - 1, *([128] * twos), *([1] * (count - twos))]
+
+
+def limit_vectors(vs: list, ok, bad_codec, a0: dict, c0: dict) -> None:
+    """Files at the size-bounded limits of spec 10.10 (decoded) and one step past each (refused)."""
+    floor = 1 << 16
+    for n, good in ((floor, True), (floor + 1, False)):
+        a = dict(a0, n=n)
+        chunks = attribute_entries(constant_chunks(a, n))
+        if good:
+            ok(
+                "codec_count_floor",
+                f"{n} identical Gaussians in about 1 KB: the count floor of 10.10",
+                scene_meta(a),
+                chunks,
+            )
+        else:
+            bad_codec(
+                "codec_invalid_count_past_floor",
+                f"{n} identical Gaussians in about 1 KB",
+                scene_meta(a),
+                chunks,
+                "payload bytes",
+            )
+    m, c, models, words = ecm_parts(c0["OPAC"])
+    others = table_entries([[models[0][0], models[0][1][:14]], *models[1:]])
+    for extra, good in ((0, True), (1, False)):
+        wide = [2, 0, (1 << 22) - others + extra - 1, 0, 0, 0]
+        opac = ecm(m, c, [[models[0][0], [*models[0][1][:14], wide]], *models[1:]], words)
+        chunks = attribute_entries({**c0, "OPAC": opac})
+        desc = (
+            f"OPAC models whose tables sum to 2^22{' + 1' if extra else ''} entries (an unused model of "
+            f"{wide[2] + 1} symbols)"
+        )
+        if good:
+            ok("codec_tables_floor", desc, scene_meta(a0), chunks)
+        else:
+            bad_codec("codec_invalid_tables_past_floor", desc, scene_meta(a0), chunks, "table entries")
+    for size, good in ((floor, True), (floor + 1, False)):
+        spec = sized_spec(models, size)
+        opac = ecm(m, c, [[models[0][0], [*models[0][1][:14], spec]], *models[1:]], words)
+        chunks = attribute_entries({**c0, "OPAC": opac})
+        desc = (
+            f"OPAC models of {size} bytes from a small zstd frame (an unused explicit model of {spec[2] + 1} "
+            "weights)"
+        )
+        if good:
+            ok("codec_models_floor", desc, scene_meta(a0), chunks)
+        else:
+            bad_codec("codec_invalid_models_past_floor", desc, scene_meta(a0), chunks, "declare")
 
 
 def manifest(vs: list[Vector]) -> dict:

@@ -35,8 +35,8 @@ from gspc.codec.quantisers import (
     out_of_range,
 )
 from gspc.errors import CodecError, InputError, ValueRangeError
-from gspc.format.attribute_section import GAUSSIANS_PER_BYTE, AttributeSection
-from gspc.format.chunks import ATTRIBUTE_TYPES, OPAC, POSN, ROTN, SCAL, SHDC, SHRS
+from gspc.format.attribute_section import AttributeSection, check_attribute_chunks
+from gspc.format.chunks import OPAC, POSN, ROTN, SCAL, SHDC, SHRS
 from gspc.scene import GaussianScene, num_sh_rest
 
 
@@ -173,20 +173,7 @@ def _check_range(name: str, values: np.ndarray, steps, lam: float, rows: np.ndar
         )
 
 
-def attribute_chunks(chunks: list) -> dict[str, bytes]:
-    """The attribute payloads of a container's chunks by type; each type occurs once, with index 0."""
-    out = {}
-    for ch in chunks:
-        if ch.type in ATTRIBUTE_TYPES:
-            if ch.index != 0:
-                raise CodecError(f"chunk {ch.type} has index {ch.index}; attribute chunks have index 0")
-            out[ch.type] = ch.payload
-    return out
-
-
 def _matrix(chunks: dict[str, bytes], name: str, n: int, c: int) -> np.ndarray:
-    if name not in chunks:
-        raise CodecError(f"chunk {name} is missing")
     return decode_matrix(chunks[name], (n, c))
 
 
@@ -194,15 +181,7 @@ def decode_attributes(chunks: dict[str, bytes], section: AttributeSection) -> Ga
     """Decode chunks to a float32 scene in curve order; identical on every machine. The header ``section``
     was checked where it was read (gspc/format/attribute_section.py); the payloads are checked here."""
     n, degree, grid = section.n, section.sh_degree, section.position
-    if degree == 0 and SHRS in chunks:
-        raise CodecError("chunk SHRS in a file of SH degree 0")
-    payload_bytes = sum(len(chunks.get(t, b"")) for t in ATTRIBUTE_TYPES)
-    if n > GAUSSIANS_PER_BYTE * payload_bytes:
-        raise CodecError(
-            f"{n} Gaussians from {payload_bytes} payload bytes (at most {GAUSSIANS_PER_BYTE} per byte)"
-        )
-    if POSN not in chunks:
-        raise CodecError("chunk POSN is missing")
+    check_attribute_chunks(chunks, section)
     voxels = pos.decode_positions(chunks[POSN], grid, n)
     means = pos.positions(voxels, grid)
     quant = AttributeQuantisers.from_section(section)
@@ -213,8 +192,6 @@ def decode_attributes(chunks: dict[str, bytes], section: AttributeSection) -> Ga
     k = num_sh_rest(degree)
     rest = np.zeros((n, k, 3), np.float32)
     if degree > 0:
-        if SHRS not in chunks:
-            raise CodecError("chunk SHRS is missing")
         try:
             flag_payload, rest_payload = msgpack.unpackb(chunks[SHRS], raw=False)
         except Exception:

@@ -28,7 +28,8 @@ import msgpack
 import numpy as np
 import zstandard
 
-from gspc.errors import CodecError
+from gspc.errors import CodecError, ValueRangeError
+from gspc.limits import max_model_entries, max_model_list_bytes
 
 BASE_STRIDE = 64
 _NUM_SPATIAL = 5  # |a-b| bit length 0, 1, 2, >=3, and "no neighbours" (base rows)
@@ -46,7 +47,6 @@ INT_LIMIT = 1 << 48
 # The largest |symbol| encode_matrix takes: mode 0 (no prediction) then codes any column within MAX_WINDOW;
 # predicting modes whose residuals would need a wider window are not chosen.
 SYMBOL_LIMIT = (MAX_WINDOW >> 1) - 1
-MAX_MODELS_BYTES = 1 << 26  # decompressed size of an ECM's model list (spec 10.0)
 
 
 def _thetas() -> np.ndarray:
@@ -163,6 +163,41 @@ def check_spec(spec: object) -> None:
             raise CodecError(f"geometric model centre {c}, ratio {u} or boost {b} out of range")
     elif len(spec) != 3 + hi - lo + 1:
         raise CodecError(f"explicit model over {hi - lo + 1} symbols lists {len(spec) - 3} weights")
+
+
+def table_entries(spec: list[int]) -> int:
+    """Entries of the probability table a checked spec builds: its window for kinds 2 and 3, else none."""
+    return spec[2] - spec[1] + 1 if spec[0] >= 2 else 0
+
+
+def check_models(header: object, nc: int, payload_bytes: int) -> list:
+    """CodecError unless ``header`` is the model list of an ``nc``-column matrix (spec 10.0) whose tables
+    together stay within gspc/limits.py's bound for a ``payload_bytes``-byte matrix: every spec is checked
+    and the tables counted before any table is built."""
+    if not isinstance(header, list) or len(header) != nc:
+        count = len(header) if isinstance(header, list) else "no"
+        raise CodecError(f"entropy models list {count} columns, the matrix has {nc}")
+    entries = 0
+    for ch, column in enumerate(header):
+        if not (isinstance(column, list) and len(column) == 2):
+            raise CodecError(f"column {ch}'s models are not a [mode, models] pair")
+        mode, specs = column
+        # Column 0 has no previous column: modes 2 and 3 would predict from zeros (spec 10.0).
+        if not _is_int(mode) or not 0 <= mode < (NUM_MODES if ch > 0 else 2):
+            raise CodecError(f"column {ch} has prediction mode {mode!r}")
+        if not isinstance(specs, list) or len(specs) != NUM_BUCKETS:
+            count = len(specs) if isinstance(specs, list) else "no"
+            raise CodecError(f"column {ch} lists {count} models, not {NUM_BUCKETS}")
+        for spec in specs:
+            check_spec(spec)
+            entries += table_entries(spec)
+    limit = max_model_entries(payload_bytes)
+    if entries > limit:
+        raise CodecError(
+            f"entropy models build {entries:,} table entries from a {payload_bytes:,}-byte matrix "
+            f"(limit {limit:,})"
+        )
+    return header
 
 
 def fixed_point_table(spec: list[int]) -> np.ndarray:
@@ -305,19 +340,31 @@ def encode_matrix(q: np.ndarray) -> bytes:
         prev_q, prev_nb, prev_res = col, nb, res
     words = enc.get_compressed().astype("<u4").tobytes()
     # Model specs are small ints with much repetition: zstd halves them or better.
-    packed = zstandard.ZstdCompressor(level=19).compress(msgpack.packb(header, use_bin_type=True))
-    return msgpack.packb([m, nc, packed, words], use_bin_type=True)
+    raw = msgpack.packb(header, use_bin_type=True)
+    packed = zstandard.ZstdCompressor(level=19).compress(raw)
+    payload = msgpack.packb([m, nc, packed, words], use_bin_type=True)
+    # Never write what the decoder refuses (gspc/limits.py): tables wider than the payload warrants come from
+    # steps far finer than the values' spread, which a larger lambda codes.
+    entries = sum(table_entries(spec) for _, specs in header for spec in specs)
+    if entries > max_model_entries(len(payload)) or len(raw) > max_model_list_bytes(len(packed)):
+        raise ValueRangeError(
+            f"a coded matrix's models need {entries:,} table entries for {len(payload):,} bytes, more than "
+            "a decoder accepts; a larger lambda codes it"
+        )
+    return payload
 
 
 def _unpack_models(packed: bytes) -> list:
     # One zstd frame, nothing after it; a frame that declares more than the limit is refused before
     # zstandard allocates the declared size (it ignores max_output_size for declared sizes).
+    # The limit grows with the frame (gspc/limits.py): every decompressed byte is parsed and checked.
+    limit = max_model_list_bytes(len(packed))
     size = zstandard.frame_content_size(packed)
-    if size > MAX_MODELS_BYTES:
-        raise CodecError(f"entropy models declare {size} bytes (limit {MAX_MODELS_BYTES})")
-    raw = zstandard.ZstdDecompressor().decompress(
-        packed, max_output_size=MAX_MODELS_BYTES, allow_extra_data=False
-    )
+    if size > limit:
+        raise CodecError(
+            f"entropy models declare {size} bytes from a {len(packed)}-byte frame (at most {limit})"
+        )
+    raw = zstandard.ZstdDecompressor().decompress(packed, max_output_size=limit, allow_extra_data=False)
     return msgpack.unpackb(raw, raw=False)
 
 
@@ -342,9 +389,7 @@ def decode_matrix(payload: bytes, shape: tuple[int, int] | None = None) -> np.nd
         if len(words) % 4:
             raise CodecError(f"range coder words take {len(words)} bytes, not a multiple of 4")
         dec = constriction.stream.queue.RangeDecoder(np.frombuffer(words, dtype="<u4").copy())
-        header = _unpack_models(packed)
-        if not isinstance(header, list) or len(header) != nc:
-            raise CodecError(f"entropy models list {len(header)} columns, the matrix has {nc}")
+        header = check_models(_unpack_models(packed), nc, len(payload))
         levels = hierarchy(m)
         q = np.zeros((m, nc), np.int64)
         prev_q = np.zeros(m, np.int64)
@@ -352,13 +397,6 @@ def decode_matrix(payload: bytes, shape: tuple[int, int] | None = None) -> np.nd
         prev_res = np.zeros(m, np.int64)
         for ch in range(nc):
             mode, specs = header[ch]
-            # Column 0 has no previous column: modes 2 and 3 would predict from zeros (spec 10.0).
-            if not _is_int(mode) or not 0 <= mode < (NUM_MODES if ch > 0 else 2):
-                raise CodecError(f"column {ch} has prediction mode {mode!r}")
-            if not isinstance(specs, list) or len(specs) != NUM_BUCKETS:
-                raise CodecError(f"column {ch} lists {len(specs)} models, not {NUM_BUCKETS}")
-            for s in specs:
-                check_spec(s)
             models = [_categorical(s) if s[0] >= 2 else None for s in specs]
             col = np.zeros(m, np.int64)
             nb_all = np.zeros(m, np.int64)

@@ -14,6 +14,8 @@ import math
 from dataclasses import dataclass
 
 from gspc.errors import CodecError
+from gspc.format.chunks import ATTRIBUTE_TYPES, SHRS
+from gspc.limits import max_coded_gaussians
 
 FORMAT_VERSION = 1
 # Version 2: the position grid may lie in contracted space (gspc/codec/positions.py, spec 10.1); written only
@@ -23,9 +25,8 @@ CONTRACTED_VERSION = 2
 FAR_VERSION = 3
 VERSIONS = (FORMAT_VERSION, CONTRACTED_VERSION, FAR_VERSION)
 MAX_GAUSSIANS = 1 << 26
-# A Gaussian whose every symbol has a one-value model costs no bits, so the count alone could ask for any
-# allocation from a tiny file; spec 10.0 caps it at 64 per payload byte (real files: under 1 per byte).
-GAUSSIANS_PER_BYTE = 64
+# The count is also bounded by the attribute payloads' bytes (gspc/limits.py max_coded_gaussians), checked
+# where the payloads are (gspc/codec/attributes.py decode_attributes).
 MAX_SH_DEGREE = 3
 
 MAX_BITS = 17  # plain grid (version 1): 3 * 17 = 51 bits per code
@@ -231,7 +232,8 @@ class AttributeSection:
                 f"attribute codec header has {len(self.sh_steps)} sh_steps for SH degree {self.sh_degree} "
                 f"(needs {k})"
             )
-        if self.opacity_levels < 1 or self.rotation_levels < 1:
+        # Levels up to 2^48, as every other integer of the codec (spec 10.0): each enters binary64 exactly.
+        if not (1 <= self.opacity_levels <= 1 << 48 and 1 <= self.rotation_levels <= 1 << 48):
             raise CodecError(
                 f"attribute codec header has impossible quantiser levels ({self.opacity_levels}, "
                 f"{self.rotation_levels})"
@@ -284,3 +286,30 @@ class AttributeSection:
             raise _fail("sh_steps", sh_steps, "an array of floats")
         sh = _floats(meta, "sh_steps", "sh_steps", len(sh_steps))
         return cls(n, degree, grid, opacity_levels, scale_step, rotation_levels, dc_step, sh)
+
+
+def attribute_chunks(chunks: list) -> dict[str, bytes]:
+    """The attribute payloads of a container's chunks by type; each type occurs once, with index 0."""
+    out = {}
+    for ch in chunks:
+        if ch.type in ATTRIBUTE_TYPES:
+            if ch.index != 0:
+                raise CodecError(f"chunk {ch.type} has index {ch.index}; attribute chunks have index 0")
+            out[ch.type] = ch.payload
+    return out
+
+
+def check_attribute_chunks(chunks: dict[str, bytes], section: AttributeSection) -> None:
+    """What can be checked of the attribute payloads before decoding them (``gspc info`` runs it too): each
+    chunk the section needs is present, no other, and the count is within what their bytes may declare."""
+    n, degree = section.n, section.sh_degree
+    if degree == 0 and SHRS in chunks:
+        raise CodecError("chunk SHRS in a file of SH degree 0")
+    for t in ATTRIBUTE_TYPES:
+        if t not in chunks and (t != SHRS or degree > 0):
+            raise CodecError(f"chunk {t} is missing")
+    payload_bytes = sum(len(chunks[t]) for t in chunks)
+    if n > max_coded_gaussians(payload_bytes):  # gspc/limits.py: a minimum of coded bits per Gaussian
+        raise CodecError(
+            f"{n} Gaussians from {payload_bytes} payload bytes (at most {max_coded_gaussians(payload_bytes)})"
+        )

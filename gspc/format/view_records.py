@@ -132,7 +132,8 @@ class ResidualRecord:
             raise CodecError(
                 f"residual scale {_show(self.scale)} is not an integer in 1..{MAX_RESIDUAL_SCALE}"
             )
-        if not (type(self.gain) is float and math.isfinite(self.gain) and self.gain > 0):
+        # Checked as the binary32 value R is divided by (spec 10.7): 1e-50 would round to 0, 1e39 to infinity.
+        if not (type(self.gain) is float and 2.0**-150 < self.gain < 2.0**128 - 2.0**103):
             raise CodecError(f"residual gain {_show(self.gain)} is not a positive finite float")
 
     @property

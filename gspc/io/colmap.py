@@ -67,11 +67,8 @@ def load_colmap(d: Path) -> list[Camera]:
             raise InputError(f"COLMAP camera model {model} is not supported (pinhole-like models only)")
         if any(v != 0.0 for v in rest):
             distorted.add(model)
-        q = np.asarray(q, dtype=np.float64)
-        if not np.linalg.norm(q) > 0:
-            raise InputError(f"COLMAP image {name!r} has a zero quaternion")
         w2c = np.eye(4)
-        w2c[:3, :3] = _quat_to_rot(q / np.linalg.norm(q))
+        w2c[:3, :3] = _quat_to_rot(_unit_quaternion(q, name))
         w2c[:3, 3] = t
         cams.append((name, Camera(w2c, intrinsics_matrix(fx, fy, cx, cy), w, h, name)))
     if not cams:
@@ -95,6 +92,19 @@ def _names_from_paths(named: list[tuple[str, Camera]]) -> list[Camera]:
     for s, (_, cam) in zip(stems, named, strict=True):
         cam.name = s
     return [cam for _, cam in named]
+
+
+def _unit_quaternion(q, name: str) -> np.ndarray:
+    """``q`` scaled to unit length; InputError for a zero or non-finite one. Scaled by its largest component
+    first, so huge components (1e300, whose squares overflow) normalise without overflow or warnings."""
+    q = np.asarray(q, dtype=np.float64)
+    if not np.isfinite(q).all():
+        raise InputError(f"COLMAP image {name!r} has a non-finite quaternion {q.tolist()}")
+    big = np.abs(q).max()
+    if not big > 0:
+        raise InputError(f"COLMAP image {name!r} has a zero quaternion")
+    q = q / big
+    return q / np.linalg.norm(q)
 
 
 def _quat_to_rot(q: np.ndarray) -> np.ndarray:
@@ -186,10 +196,14 @@ def load_colmap_points(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
             if f.is_file():
                 try:
                     if ext == ".bin":
-                        return _colmap_points_bin(f.read_bytes())
-                    return _colmap_points_txt(f.read_text(encoding="utf-8"))
-                except (struct.error, ValueError, IndexError, UnicodeDecodeError) as e:
+                        xyz, rgb = _colmap_points_bin(f.read_bytes())
+                    else:
+                        xyz, rgb = _colmap_points_txt(f.read_text(encoding="utf-8"))
+                except (struct.error, ValueError, IndexError, OverflowError, UnicodeDecodeError) as e:
                     raise InputError(f"COLMAP points in {f} do not parse: {e}") from None
+                if not np.isfinite(xyz).all():
+                    raise InputError(f"COLMAP points in {f} hold a non-finite position")
+                return xyz, rgb
     raise InputError(f"{path} holds no COLMAP points3D.bin or points3D.txt")
 
 

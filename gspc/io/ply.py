@@ -43,6 +43,38 @@ def _one_line(err: BaseException) -> str:
     return " ".join(str(err).split()) or type(err).__name__
 
 
+MAX_HEADER_BYTES = 1 << 20  # a PLY header lists elements and properties: kilobytes
+_SCALAR_BYTES = {
+    **dict.fromkeys(("char", "uchar", "int8", "uint8"), 1),
+    **dict.fromkeys(("short", "ushort", "int16", "uint16"), 2),
+    **dict.fromkeys(("int", "uint", "float", "int32", "uint32", "float32"), 4),
+    **dict.fromkeys(("double", "float64"), 8),
+}
+
+
+def _check_counts(path: Path, head: bytes, size: int) -> None:
+    """InputError when the header's element counts need more bytes than the file has, checked before the
+    parser allocates arrays of those counts (an ASCII header declaring 10^9 vertices asked numpy for 52 GiB):
+    a binary row takes at least the bytes of its properties (a list at least its count), an ASCII row at
+    least two characters per property (a digit and a separator)."""
+    end = head.find(b"end_header")
+    if end < 0:
+        return  # the parser reports a missing or oversized header itself
+    lines = head[:end].decode("ascii", "replace").splitlines()
+    ascii_body = any(ln.split()[:2] == ["format", "ascii"] for ln in lines if ln.strip())
+    need, count, row = 0, 0, 0
+    for words in (ln.split() for ln in lines):
+        if words[:1] == ["element"] and len(words) == 3 and words[2].isdigit():
+            need += count * row
+            count, row = int(words[2]), 0
+        elif words[:1] == ["property"] and len(words) >= 3:
+            kind = words[2] if words[1] == "list" else words[1]
+            row += 2 if ascii_body else _SCALAR_BYTES.get(kind, 1)
+    need += count * row
+    if need > size - end:
+        raise InputError(f"{path}: the PLY header declares rows of {need:,} bytes; the file has {size:,}")
+
+
 def load_plydata(path: str | os.PathLike) -> PlyData:
     """Parse a PLY file fully (no memory map, so truncation is caught here); InputError otherwise."""
     path = Path(path)
@@ -53,6 +85,8 @@ def load_plydata(path: str | os.PathLike) -> PlyData:
     with open(path, "rb") as f:
         if f.read(4) not in (b"ply\n", b"ply\r"):
             raise InputError(f"{path}: not a PLY file (no 'ply' magic line)")
+        f.seek(0)
+        _check_counts(path, f.read(MAX_HEADER_BYTES), path.stat().st_size)
         f.seek(0)
         try:
             return PlyData.read(f)
@@ -136,8 +170,10 @@ def scene_to_vertex_array(scene: GaussianScene) -> np.ndarray:
         columns.append((name, scene.extra[name] if name in scene.extra else np.zeros(n, np.float32)))
     dc = _f32(scene.sh_dc)
     columns += [(name, dc[:, i]) for i, name in enumerate(DC)]
-    rest = _f32(scene.sh_rest).transpose(0, 2, 1).reshape(n, 3 * k)  # coefficient-major -> channel-major
-    columns += [(name, rest[:, i]) for i, name in enumerate(rest_names(k))]
+    # Coefficient-major -> channel-major as strided views, not a copy: at SH degree 3 a copy is 180 bytes per
+    # Gaussian on top of the scene and the output rows (issue 26 measures a decode's peak memory).
+    rest = _f32(scene.sh_rest).transpose(0, 2, 1)  # (n, 3, k)
+    columns += [(name, rest[:, i // k, i % k]) for i, name in enumerate(rest_names(k))]
     columns.append((OPACITY, _f32(scene.opacities).reshape(n)))
     scales = _f32(scene.log_scales)
     columns += [(name, scales[:, i]) for i, name in enumerate(SCALES)]

@@ -35,6 +35,7 @@ from gspc.limits import (
     SOG_MAX_MEMBER_RATIO,
     SOG_MEMBER_FLOOR,
     SOG_PIXELS_PER_ENTRY,
+    max_scene_gaussians,
 )
 from gspc.scene import GaussianScene, alpha_to_logit, make_scene, num_sh_rest, validate_named
 
@@ -115,7 +116,23 @@ def _meta(path: Path, load: Callable[[str], bytes]) -> dict:
         raise InputError(f"{path}: scene has zero Gaussians")
     if count > MAX_SOG_MAP_PIXELS:
         raise InputError(f"{path}: meta.json count {count:,} exceeds the limit {MAX_SOG_MAP_PIXELS:,}")
+    # A lossless WebP of one colour is tiny whatever its size: the count is bounded by the archive's bytes
+    # before any map is decoded (gspc/limits.py).
+    size = _source_bytes(path)
+    if count > max_scene_gaussians(size):
+        raise InputError(
+            f"{path}: meta.json count {count:,} is more than a {size:,}-byte SOG may hold (at most "
+            f"{max_scene_gaussians(size):,})"
+        )
     return meta
+
+
+def _source_bytes(path: Path) -> int:
+    """Bytes of a SOG: the zip's, or those of the regular files in its folder."""
+    folder = path if path.is_dir() else path.parent if path.name == "meta.json" else None
+    if folder is None:
+        return path.stat().st_size
+    return sum(p.stat().st_size for p in folder.iterdir() if p.is_file())
 
 
 def _files(path: Path, meta: dict, key: str, n: int) -> list[str]:
@@ -125,7 +142,17 @@ def _files(path: Path, meta: dict, key: str, n: int) -> list[str]:
     return files[:n]
 
 
-def _floats(path: Path, meta: dict, key: str, field: str, length: int | None) -> np.ndarray:
+# Bounds on meta.json's numbers, checked before any arithmetic so that huge finite values (1e308) give this
+# error, not numpy overflow warnings and then a blame on the decoded scene (issue 26): codebook entries must
+# fit float32 (the scene's type), and the log-transformed position bounds must expand to float32 positions
+# (e^88 - 1 = 1.65e38, under float32's 3.4e38).
+FLOAT32_MAX = float(np.finfo(np.float32).max)
+MAX_LOG_POSITION = 88.0
+
+
+def _floats(
+    path: Path, meta: dict, key: str, field: str, length: int | None, bound: float = FLOAT32_MAX
+) -> np.ndarray:
     try:
         values = np.asarray(meta[key][field], dtype=np.float64)
     except (KeyError, TypeError, ValueError) as err:
@@ -134,6 +161,8 @@ def _floats(path: Path, meta: dict, key: str, field: str, length: int | None) ->
         raise InputError(f"{path}: meta.json '{key}.{field}' must be a list of {length} numbers")
     if not np.isfinite(values).all():
         raise InputError(f"{path}: meta.json '{key}.{field}' has NaN or Inf values")
+    if values.size and np.abs(values).max() > bound:
+        raise InputError(f"{path}: meta.json '{key}.{field}' holds a value beyond +-{bound:g}")
     return values
 
 
@@ -233,8 +262,8 @@ def _read(path: Path, load: Callable[[str], bytes]) -> GaussianScene:
     lo_name, hi_name = _files(path, meta, "means", 2)
     lo = _pixels(path, load, lo_name, count)[:, :3].astype(np.int64)
     hi = _pixels(path, load, hi_name, count)[:, :3].astype(np.int64)
-    mins = _floats(path, meta, "means", "mins", 3)
-    maxs = _floats(path, meta, "means", "maxs", 3)
+    mins = _floats(path, meta, "means", "mins", 3, MAX_LOG_POSITION)
+    maxs = _floats(path, meta, "means", "maxs", 3, MAX_LOG_POSITION)
     t = (lo | (hi << 8)) / 65535.0
     means = _unlog(mins + (maxs - mins) * t)
 

@@ -39,6 +39,7 @@ import numpy as np
 import zstandard
 
 from gspc.errors import InputError
+from gspc.limits import max_scene_gaussians
 from gspc.scene import GaussianScene, alpha_to_logit, make_scene, num_sh_rest, validate_named
 
 MAGIC = 0x5053474E
@@ -115,10 +116,16 @@ def _check_header(h: SpzHeader, magic: int, file_size: int, source: object) -> N
         raise InputError(f"{source}: SH degree {h.sh_degree} is not supported (gspc reads degrees 0-3)")
     if h.fractional_bits > MAX_FRACTIONAL_BITS:
         raise InputError(f"{source}: {h.fractional_bits} fractional position bits (positions have 24 in all)")
-    if h.num_points > MAX_POINTS or h.payload_size() > MAX_EXPANSION * file_size + 4096:
+    # Both rules before anything is inflated: what the streams can expand to, and what a file of this size
+    # may ask a reader to hold (gspc/limits.py).
+    if (
+        h.num_points > MAX_POINTS
+        or h.payload_size() > MAX_EXPANSION * file_size + 4096
+        or h.num_points > max_scene_gaussians(file_size)
+    ):
         raise InputError(
             f"{source}: header declares {h.num_points:,} Gaussians, more than a {file_size:,}-byte SPZ "
-            f"file can hold"
+            "file can hold (gspc/limits.py)"
         )
 
 
