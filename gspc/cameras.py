@@ -96,9 +96,6 @@ class Camera:
     @staticmethod
     def from_dict(d: dict) -> Camera:
         try:
-            # Exactly 16 and 48 bytes (spec 10.8): a longer bin is refused, not read in part.
-            if len(d["intrinsics"]) != 16 or len(d["pose"]) != 48:
-                raise ValueError("intrinsics and pose must be bins of 16 and 48 bytes")
             fx, fy, cx, cy = np.frombuffer(d["intrinsics"], dtype="<f4", count=4).astype(np.float64)
             pose = np.frombuffer(d["pose"], dtype="<f4", count=12).astype(np.float64).reshape(3, 4)
             K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
