@@ -24,8 +24,7 @@ from gspc.codec.attributes import attribute_chunks, decode_attributes
 from gspc.codec.sideinfo import side_views
 from gspc.device import check_device, renderer_info
 from gspc.encoder.policy import CheckInputs, SideInfoDecision, check_cameras, check_side_info
-from gspc.encoder.side import SideCandidate, view_residuals
-from gspc.encoder.stages import (
+from gspc.encoder.prepare import (
     code_attributes,
     codec_params,
     encoder_cameras,
@@ -33,6 +32,7 @@ from gspc.encoder.stages import (
     sample_side_views,
     side_candidates,
 )
+from gspc.encoder.side import SideCandidate, view_residuals
 from gspc.errors import CodecError, InputError
 from gspc.format import container
 from gspc.format.chunks import ATTRIBUTE_TYPES, SIDE
@@ -42,9 +42,9 @@ from gspc.io.camera_files import load_cameras
 from gspc.options import DecodeOptions, EncodeOptions
 from gspc.paths import refuse_output_over_input
 from gspc.progress import Progress
+from gspc.reconstruct import refine_in_cells, render_images, restored_targets
 from gspc.restore.restorer import load_restorer
 from gspc.scene import GaussianScene
-from gspc.stages import refine_in_cells, render_images, restored_targets
 
 
 @dataclass

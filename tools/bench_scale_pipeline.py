@@ -40,7 +40,7 @@ from gspc.format.chunks import SIDE
 from gspc.format.header import FileHeader
 from gspc.io import read_scene
 from gspc.io.cameras_json import save_cameras_json
-from gspc.stages import mean_psnr, render_images
+from gspc.reconstruct import mean_psnr, render_images
 from gspc.views import look_at, split_test_views
 
 
