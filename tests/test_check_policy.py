@@ -1,8 +1,8 @@
-"""The side-information check's rules that need no scene: where it scores a trial, what a trial settles."""
+"""The side-information check's rules that need no scene: where it scores a trial, when a trial settles it."""
 
 import pytest
 
-from gspc.encoder.policy import CheckPolicy, trial_verdict
+from gspc.encoder.policy import CheckPolicy, trial_settles
 
 
 def test_trial_length():
@@ -14,18 +14,18 @@ def test_trial_length():
 
 
 @pytest.mark.parametrize(
-    ("gain", "needed", "verdict"),
+    ("gain", "needed", "ratio", "settles"),
     [
-        (1.0, 0.8, True),  # even the lowest ratio clears the bar
-        (0.3, 0.8, None),  # between: the run goes on
-        (0.2, 0.8, False),  # even the highest ratio falls short
-        (-0.1, -0.5, False),  # the trial made the coded scene worse
-        (0.0, 0.1, False),
-        (0.4, 0.8, True),
+        (1.0, 0.8, 1.0, True),  # the trial already clears the bar
+        (0.8, 0.8, 1.0, True),
+        (0.3, 0.8, 1.0, False),  # it does not: the run goes on
+        (0.3, 0.5, 2.0, True),  # predicted at twice the trial's gain
+        (-0.1, -0.5, 1.0, False),  # a trial that made the coded scene worse settles nothing
+        (0.0, 0.0, 1.0, False),
     ],
 )
-def test_trial_verdict(gain, needed, verdict):
-    assert trial_verdict(gain, needed, (2.0, 3.0)) is verdict
+def test_trial_settles(gain, needed, ratio, settles):
+    assert trial_settles(gain, needed, ratio) is settles
 
 
 def test_policy_is_frozen():

@@ -7,7 +7,7 @@ import torch
 from scenes import random_scene
 
 from gspc.codec.sideinfo import side_views
-from gspc.encoder.policy import CheckPolicy, Outcome, trial_verdict
+from gspc.encoder.policy import CheckPolicy, Outcome, trial_settles
 from gspc.errors import CodecError, InputError
 from gspc.format import container
 from gspc.io import read_scene, write_ply
@@ -141,10 +141,12 @@ def test_long_check_scores_a_trial_first(tmp_path):
     d = rep.side_info
     assert d is not None and container.read(out).header["side_info"]["refine_iterations"] == 400
     assert d.trial_iterations == CheckPolicy().trial_length(400) < 400
-    if d.predicted:  # decided from the trial: its verdict is the outcome
-        bar = max(d.coded_db, d.rival_db) + opts.check_margin_db
-        verdict = trial_verdict(d.refined_db - d.coded_db, bar - d.coded_db, CheckPolicy().gain_ratios)
-        assert verdict is not None and verdict == (d.outcome is Outcome.SENT)
+    bar = max(d.coded_db, d.rival_db) + opts.check_margin_db
+    if d.predicted:  # sent on the trial's score, which settled it
+        assert d.outcome is Outcome.SENT
+        assert trial_settles(d.refined_db - d.coded_db, bar - d.coded_db, CheckPolicy().gain_ratio)
+    else:  # the whole run decided
+        assert (d.outcome is Outcome.SENT) == (d.refined_db >= bar)
 
 
 def test_decoder_refines_inside_the_quantisation_cells(encoded, tmp_path):

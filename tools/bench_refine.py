@@ -98,6 +98,16 @@ def statue_setup(name: str) -> Setup:
     return Setup(f"statue {name}", scene, cams, [cams[i] for i in pick], (0.0,) * 3, None)
 
 
+def scale_setup(folder: Path, per_copy: int) -> Setup:
+    """bench/scale_pipeline.md's set-up: close-up cameras per copy, every 4th held out."""
+    from bench_scale_pipeline import closeup_cameras  # a sibling tool (run from tools/, as it is)
+
+    cams = closeup_cameras(json.loads((folder / "scene.json").read_text()), per_copy)
+    train, test = split_test_views(cams, every=4)
+    scene = read_scene(folder / "point_cloud.ply")
+    return Setup(folder.name, scene, [cams[i] for i in train], [cams[i] for i in test], (0.0,) * 3, None)
+
+
 def _options(s: Setup, **kw) -> EncodeOptions:
     side = max(max(c.width, c.height) for c in s.train)
     return EncodeOptions(background=s.background, max_side=side, **kw)
@@ -174,7 +184,7 @@ def bench_refinement(s: Setup, lines: list[str]) -> dict:
         f"({s.held_out[0].width}x{s.held_out[0].height}). G~ as coded: {base['psnr']:.2f} dB against the "
         "original's renders" + (f", {base['photo']:.2f} dB against the photos." if s.photos else "."),
         "",
-        "| schedule | iterations | rates (x INRIA's: sh / others) | refine s | PSNR vs original "
+        "| schedule | iterations | rates (x INRIA's: sh_rest / others) | refine s | PSNR vs original "
         f"| PSNR photos | PSNR at the check's trial ({policy.trial_fraction:g} of the run) |",
         "|---|---|---|---|---|---|---|",
     ]
@@ -183,7 +193,7 @@ def bench_refinement(s: Setup, lines: list[str]) -> dict:
         trial = policy.trial_length(sched.iterations) if sched.group_rates else None
         r = refine_row(s, inp, sched, reference, trial)
         results[label] = r
-        rate = f"{sched.rate * sched.group_rate('sh_dc'):g} / {sched.rate:g}"
+        rate = f"{sched.rate * sched.group_rate('sh_rest'):g} / {sched.rate:g}"
         if 0 < sched.full_rate_from and sched.iterations < sched.full_rate_from:
             rate += f" (x {sched.iterations}/{sched.full_rate_from})"
         photo = f"{r['photo']:.2f}" if "photo" in r else "-"
@@ -232,7 +242,10 @@ def main() -> None:
     ap.add_argument("--lego", default=str(REPO / "examples" / "lego"), help="'' to skip")
     ap.add_argument("--statue", default="massa", help="a statue in ../shared/data/statues ('' to skip)")
     ap.add_argument("--fit", default="", help="a tools/fit_scene.py output folder, e.g. a bird fit")
+    ap.add_argument("--scale", default="", help="a tools/make_scale_scenes.py scene folder")
+    ap.add_argument("--per-copy", type=int, default=8, help="close-up cameras per copy (--scale)")
     ap.add_argument("--check", action="store_true", help="also compare the check with the full check")
+    ap.add_argument("--check-only", action="store_true", help="only the check's comparison")
     ap.add_argument("--out", default=str(REPO / "bench" / "refine.md"))
     args = ap.parse_args()
     torch.set_num_threads(1)
@@ -243,6 +256,8 @@ def main() -> None:
         setups.append(lambda: statue_setup(args.statue))
     if args.fit:
         setups.append(lambda: fit_setup(Path(args.fit), None))
+    if args.scale:
+        setups.append(lambda: scale_setup(Path(args.scale), args.per_copy))
     t0 = time.perf_counter()
     lines = [
         "# Refinement: iterations and time against PSNR, before and after",
@@ -259,8 +274,9 @@ def main() -> None:
     ]
     for make in setups:
         s = make()
-        bench_refinement(s, lines)
-        if args.check:
+        if not args.check_only:
+            bench_refinement(s, lines)
+        if args.check or args.check_only:
             bench_check(s, lines)
         Path(args.out).write_text("\n".join(lines) + "\n")
     lines.append(f"Benchmark time: {time.perf_counter() - t0:.0f} s.")
