@@ -386,7 +386,7 @@ def render(
 
     from gspc.device import check_device
     from gspc.io import read_scene
-    from gspc.stages import render_images
+    from gspc.reconstruct import render_images
 
     dev = check_device(device)
     sc = read_scene(scene).to(dev)
@@ -424,7 +424,7 @@ def evaluate(
     from gspc.device import check_device
     from gspc.io import read_scene
     from gspc.metrics import mean_psnr, quantize8, ssim
-    from gspc.stages import render_images
+    from gspc.reconstruct import render_images
 
     dev = check_device(device)
     ref, tst = read_scene(reference).to(dev), read_scene(test).to(dev)

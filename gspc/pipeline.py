@@ -22,8 +22,7 @@ from gspc.cameras import Camera
 from gspc.codec.attributes import EncodedAttributes, decode_attributes
 from gspc.device import check_device, renderer_info, synchronize
 from gspc.encoder.policy import CheckInputs, SideInfoDecision, check_cameras, check_side_info
-from gspc.encoder.side import SideCandidate, view_residuals
-from gspc.encoder.stages import (
+from gspc.encoder.prepare import (
     CodedAttributes,
     code_attributes,
     codec_params,
@@ -32,6 +31,7 @@ from gspc.encoder.stages import (
     sample_side_views,
     side_candidates,
 )
+from gspc.encoder.side import SideCandidate, view_residuals
 from gspc.errors import CodecError, InputError
 from gspc.format import container
 from gspc.format.attribute_section import attribute_chunks
@@ -45,9 +45,9 @@ from gspc.limits import default_refine_iterations
 from gspc.options import DecodeOptions, EncodeOptions
 from gspc.paths import refuse_output_over_input
 from gspc.progress import Progress
+from gspc.reconstruct import refine_in_cells, render_images, restored_targets
 from gspc.restore.restorer import load_restorer
 from gspc.scene import GaussianScene
-from gspc.stages import refine_in_cells, render_images, restored_targets
 
 
 @dataclass

@@ -31,9 +31,11 @@ class Preset:
 # Side information measured on the lego fit (tools/bench_pipeline.py): at the low preset, residuals at half
 # resolution and distance 8 (~24 KB for 35 views) beat spending those bytes on attributes; at the high preset
 # residuals mostly fall under the skip threshold and cost nothing.
-# Refinement at the low preset (inside the quantisation cells): on the lego fit 300 iterations gain 2.3 dB
-# over the coded scene, 1000 gain 3.1 and 3000 gain 3.3 (bench/pipeline.md); 1000 is where side information
-# clearly beats spending its bytes on attributes, at about 0.16 s per iteration for 20k Gaussians on one core.
+# Refinement at the low preset (inside the quantisation cells, gspc/reconstruct.py's schedule): on the lego
+# fit 300 iterations gain 3.7 dB over the coded scene, as much as 1000 at the schedule before (INRIA's rates
+# throughout: 300 gained 2.6, 1000 3.5, 3000 3.3 then: bench/pipeline.md); on the statue massa 255 gain more
+# than 852 (bench/refine.md). The high preset's side information is mostly skipped (residuals under the
+# threshold); its length was cut in the same proportion.
 # The encoder also weighs residuals at half this resolution (gspc/encoder/policy.py, REFINE_TRANSFER).
 QUALITY: dict[str, Preset] = {
     "low": Preset(
@@ -41,24 +43,24 @@ QUALITY: dict[str, Preset] = {
         residual_codec="jxl",
         residual_distance=8.0,
         residual_scale=2,
-        refine_iterations=1000,
+        refine_iterations=300,
     ),
     "high": Preset(
         attributes=CodecParams(lam=1.0),
         residual_codec="jxl",
         residual_distance=4.0,
         residual_scale=1,
-        refine_iterations=300,
+        refine_iterations=100,
     ),
 }
 
 
 # Refinement costs about Gaussians x iterations (an iteration renders every Gaussian a view holds, and Adam
 # steps every attribute: bench/scale.md). A scene larger than REFINE_WORK / (the preset's iterations)
-# Gaussians gets REFINE_WORK / N iterations instead, never fewer than MIN_SCALED_ITERATIONS: about 140 at
-# 350k Gaussians and 50 at 1M, which keeps the default encode and decode of a million-Gaussian scene on one
-# core within 20 minutes (bench/scale_pipeline.md measures time and quality against iterations).
-REFINE_WORK = 50_000_000
+# Gaussians gets REFINE_WORK / N iterations instead, never fewer than MIN_SCALED_ITERATIONS: 150 at 100k
+# Gaussians, 50 from 300k (bench/scale_pipeline.md measures time and quality against iterations). It was
+# 5e7 with the preset's 1000 iterations: cut with them, so every scene gets 0.3x the iterations it had.
+REFINE_WORK = 15_000_000
 MIN_SCALED_ITERATIONS = 50
 
 

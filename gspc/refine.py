@@ -1,9 +1,11 @@
 """Decoder-side refinement: re-fit a decoded scene's attributes to restored renders (README.md, decoder).
 
-Adam over the chosen attributes with INRIA-3DGS-like per-attribute learning rates, loss
-0.8 * L1 + 0.2 * (1 - SSIM) on one view per iteration (drawn with a seeded generator, so a run on the CPU is
-reproducible; on CUDA it is not bit for bit: gradients are summed with float atomics in varying order), the
-Gaussian count fixed (no densification or pruning).
+Adam over the chosen attributes with per-attribute learning rates (INRIA 3DGS's, times the schedule's
+multiplier), loss 0.8 * L1 + 0.2 * (1 - SSIM) on one view per iteration (drawn with a seeded generator, so
+a run on the CPU is reproducible; on CUDA it is not bit for bit: gradients are summed with float atomics in
+varying order), the Gaussian count fixed (no densification or pruning). The pieces each have their
+own home: :class:`Schedule` (length, rates over time, render resolution), :class:`Deadline` (a time limit
+that shortens the schedule), :func:`parameter_groups` and :func:`project_into_cells`.
 """
 
 from __future__ import annotations
@@ -19,12 +21,11 @@ import torch.nn.functional as F
 
 from gspc.cameras import Camera
 from gspc.codec.cells import clamp_into
+from gspc.codec.quantisers import Box
 from gspc.errors import InputError
 from gspc.scene import ATTRIBUTE_NAMES, GaussianScene
 
-# INRIA 3DGS learning rates (means are scaled by the scene extent). Opacity keeps INRIA's 5e-2: on toy
-# scenes (400 Gaussians, 64x64, 150 iterations) 1e-2 and 2e-3 were no better when only colours were
-# perturbed and clearly worse (train loss 0.0097 vs 0.0069) when opacities were. Re-check on real scenes.
+# INRIA 3DGS learning rates (means are scaled by the scene extent), the base the schedule multiplies.
 BASE_LR = {
     "means": 1.6e-4,
     "quats": 1e-3,
@@ -39,6 +40,58 @@ SSIM_WEIGHT = 0.2
 # after the first: a process's first iteration also loads compiled code (refining the example lego scene,
 # the first took 1.7 s, the next ones 0.11 s).
 PROBE_ITERATIONS = 3
+
+
+@dataclass(frozen=True)
+class Schedule:
+    """How a run steps: its length, its learning rates over time and the resolution it renders at.
+
+    Rates are BASE_LR x ``rate`` x the attribute's own factor in ``group_rates`` (1 where not named) x a
+    cosine decay to zero over the run (late steps only polish, so the result depends little on where it
+    stops). ``full_rate_from``: a run shorter than this many iterations takes
+    proportionally smaller steps (rates x length / full_rate_from; 0: off), its length after any cut by a
+    deadline deciding. ``resolution`` < 1 renders and compares at reduced size (targets area-downsampled).
+    """
+
+    iterations: int
+    rate: float = 1.0
+    group_rates: tuple[tuple[str, float], ...] = ()  # (attribute, factor)
+    full_rate_from: int = 0
+    resolution: float = 1.0
+
+    def group_rate(self, name: str) -> float:
+        return dict(self.group_rates).get(name, 1.0)
+
+    def learning_rate_factor(self, it: int, total: int) -> float:
+        """The multiplier of BASE_LR at iteration ``it`` (from 0) of a run now ``total`` long."""
+        decay = 0.5 * (1 + math.cos(math.pi * it / total))
+        short = min(1.0, total / self.full_rate_from) if self.full_rate_from > 0 else 1.0
+        return self.rate * short * decay
+
+
+class Deadline:
+    """A time limit (a ``time.perf_counter()`` value): after the first iteration, PROBE_ITERATIONS are timed
+    and the run is shortened to what fits; whatever happens it stops once the limit has passed."""
+
+    def __init__(self, at: float) -> None:
+        self.at = at
+        self._first_done = 0.0
+
+    def passed(self) -> bool:
+        return time.perf_counter() >= self.at
+
+    def length(self, done: int, total: int, device: torch.device | None = None) -> int:
+        """The run's new length after ``done`` iterations of a run ``total`` long."""
+        from gspc.device import synchronize
+
+        synchronize(device)  # the clock counts the queued GPU work
+        now = time.perf_counter()
+        if done == 1:
+            self._first_done = now
+        if done == 1 + PROBE_ITERATIONS:
+            per_iteration = (now - self._first_done) / PROBE_ITERATIONS
+            return min(total, done + max(0, math.floor((self.at - now) / per_iteration)))
+        return done if now >= self.at else total
 
 
 @dataclass
@@ -65,6 +118,28 @@ def scene_extent(cameras: Sequence[Camera], scene: GaussianScene) -> float:
     return spread if spread > 0 else 1.0
 
 
+def parameter_groups(scene: GaussianScene, attributes: Sequence[str], extent: float) -> list[dict]:
+    """Adam's groups: each chosen, non-empty attribute of ``scene`` (made a leaf that needs gradients) at its
+    base rate, ``name`` kept for the projection."""
+    groups = []
+    for name in attributes:
+        t = getattr(scene, name)
+        if t.numel() == 0:  # e.g. sh_rest at SH degree 0
+            continue
+        t.requires_grad_(True)
+        lr = BASE_LR[name] * (extent if name == "means" else 1.0)
+        groups.append({"params": [t], "lr": lr, "name": name})
+    return groups
+
+
+@torch.no_grad()
+def project_into_cells(groups: Sequence[dict], cells: dict[str, Box]) -> None:
+    """Move every refined attribute (in place) back into its quantisation cell."""
+    for g in groups:
+        if g["name"] in cells:
+            clamp_into(g["name"], g["params"][0], cells[g["name"]])
+
+
 def _resize(img: torch.Tensor, h: int, w: int) -> torch.Tensor:
     if img.shape[:2] == (h, w):
         return img
@@ -72,39 +147,9 @@ def _resize(img: torch.Tensor, h: int, w: int) -> torch.Tensor:
     return F.interpolate(x, size=(h, w), mode="area")[0].permute(1, 2, 0)
 
 
-def refine(
-    scene: GaussianScene,
-    cameras: list[Camera],
-    targets: list[torch.Tensor],
-    iterations: int,
-    lr_scale: float = 1.0,
-    attributes: Sequence[str] = ATTRIBUTE_NAMES,
-    resolution_scale: float = 1.0,
-    background: torch.Tensor | None = None,
-    seed: int = 0,
-    progress: Callable[[int, int, float], None] | None = None,
-    cells: dict[str, tuple[torch.Tensor, torch.Tensor]] | None = None,
-    deadline: float | None = None,
-    short_run: int = 0,
-    in_place: bool = False,
-) -> Refined:
-    """Optimise ``attributes`` of ``scene`` so its renders at ``cameras`` match ``targets`` (H, W, 3).
-
-    ``resolution_scale`` < 1 renders and compares at reduced size (targets are area-downsampled),
-    the CPU speed knob. ``progress(done, total, loss)`` is called after every step (``total`` shrinks if a
-    deadline cuts the schedule). ``cells`` (from
-    :func:`gspc.codec.cells.quantisation_cells`) keeps every attribute inside its quantisation cell after
-    each step. ``deadline`` (a ``time.perf_counter()`` value): the schedule is shortened, after timing its
-    first iterations, to end by then, and stops there whatever happens; without it the run depends on its
-    inputs alone. ``short_run``: a schedule shorter than this many iterations takes proportionally smaller
-    steps (rates x length / short_run), also when a deadline shortens it (0: off). Returns the new, detached
-    scene and the iterations run; the input is left unchanged unless ``in_place`` (which saves a copy of
-    the scene: 236 MB for a million Gaussians at SH degree 3), where it is the result.
-    """
-    from gspc.device import float32_math, synchronize
-    from gspc.metrics import ssim  # imported here: refinement is the only user on the decode path
-    from gspc.render import render
-
+def _check_inputs(
+    cameras: Sequence[Camera], targets: Sequence[torch.Tensor], attributes: Sequence[str]
+) -> None:
     if len(cameras) != len(targets) or not cameras:
         raise InputError(f"refinement needs one target per camera, got {len(cameras)} and {len(targets)}")
     unknown = set(attributes) - set(ATTRIBUTE_NAMES)
@@ -116,67 +161,113 @@ def refine(
                 f"target for camera {cam.name!r} is {tuple(t.shape)}, expected ({cam.height}, {cam.width}, 3)"
             )
 
-    out = scene.map(lambda t: t.detach()) if in_place else scene.detach()
-    if resolution_scale != 1.0:
-        cameras = [c.scaled(resolution_scale) for c in cameras]
-    dtype, device = out.means.dtype, out.means.device
-    targets = [
-        _resize(t.detach().to(device=device, dtype=dtype), c.height, c.width)
-        for c, t in zip(cameras, targets, strict=True)
-    ]
-    if iterations <= 0 or (deadline is not None and time.perf_counter() >= deadline):
-        return Refined(out, 0)
 
-    extent = scene_extent(cameras, out)
-    groups = []
-    for name in attributes:
-        t = getattr(out, name)
-        if t.numel() == 0:  # e.g. sh_rest at SH degree 0
-            continue
-        t.requires_grad_(True)
-        lr = BASE_LR[name] * lr_scale * (extent if name == "means" else 1.0)
-        groups.append({"params": [t], "lr": lr, "name": name})
-    if not groups:
-        return Refined(out.map(lambda t: t.detach()), 0)
-    # fused: one pass over each tensor per step; measured 7.6x faster than the default at 1M Gaussians on one
-    # CPU thread (0.15 vs 1.16 s a step), where the step had been a sixth of an iteration.
-    opt = torch.optim.Adam(groups, eps=1e-15, fused=True)
-    base = [g["lr"] for g in opt.param_groups]
-    # A CPU generator whatever the scene's device: the views are drawn in the same order on every device.
-    gen = torch.Generator().manual_seed(seed)
+class Refinement:
+    """One refinement run that can be paused: :meth:`run` steps it up to an iteration, :meth:`scene` shows
+    where it is, and running on continues the same trajectory (the encoder's check scores a run part-way and
+    goes on only where the score leaves its decision open; gspc/encoder/policy.py).
 
-    total, it, first_done = iterations, 0, 0.0
-    while it < total:
-        # Cosine decay to zero: late steps only polish, so the result depends little on where it stops.
-        decay = 0.5 * (1 + np.cos(np.pi * it / total))
-        short = min(1.0, total / short_run) if short_run > 0 else 1.0
-        for g, lr0 in zip(opt.param_groups, base):
-            g["lr"] = lr0 * short * decay
-        v = int(torch.randint(len(cameras), (1,), generator=gen))
-        image = render(out, cameras[v], background).image
-        l1 = (image - targets[v]).abs().mean()
-        loss = (1 - SSIM_WEIGHT) * l1 + SSIM_WEIGHT * (1 - ssim(image, targets[v]))
-        opt.zero_grad(set_to_none=True)
-        with float32_math():  # SSIM's convolutions' gradients too (gspc/device.py)
-            loss.backward()
-        opt.step()
-        if cells is not None:
-            with torch.no_grad():
-                for g in opt.param_groups:
-                    if g["name"] in cells:
-                        clamp_into(g["name"], g["params"][0], cells[g["name"]])
-        it += 1
-        if deadline is not None:
-            synchronize(device)  # the clock counts the queued GPU work
-            now = time.perf_counter()
-            if it == 1:
-                first_done = now
-            if it == 1 + PROBE_ITERATIONS:
-                per_iteration = (now - first_done) / PROBE_ITERATIONS
-                total = min(total, it + max(0, math.floor((deadline - now) / per_iteration)))
-            elif now >= deadline:
-                total = it
-        if progress is not None:
-            progress(it, total, float(loss.detach()))
-    # out is this function's own (or, in place, the caller's): detached without another copy
-    return Refined(out.map(lambda t: t.detach()), it)
+    The input is left unchanged unless ``in_place`` (which saves a copy of the scene: 236 MB for a million
+    Gaussians at SH degree 3), where it is the result. See :func:`refine` for the arguments."""
+
+    def __init__(
+        self,
+        scene: GaussianScene,
+        cameras: list[Camera],
+        targets: list[torch.Tensor],
+        schedule: Schedule,
+        background: torch.Tensor | None = None,
+        cells: dict[str, Box] | None = None,
+        seed: int = 0,
+        attributes: Sequence[str] = ATTRIBUTE_NAMES,
+        in_place: bool = False,
+    ) -> None:
+        _check_inputs(cameras, targets, attributes)
+        self._scene = scene.map(lambda t: t.detach()) if in_place else scene.detach()
+        if schedule.resolution != 1.0:
+            cameras = [c.scaled(schedule.resolution) for c in cameras]
+        dtype, device = self._scene.means.dtype, self._scene.means.device
+        self._cameras = cameras
+        self._targets = [
+            _resize(t.detach().to(device=device, dtype=dtype), c.height, c.width)
+            for c, t in zip(cameras, targets, strict=True)
+        ]
+        self._schedule, self._background, self._cells = schedule, background, cells
+        self._groups = parameter_groups(self._scene, attributes, scene_extent(cameras, self._scene))
+        self._opt = None
+        if self._groups:
+            # fused: one pass over each tensor per step; measured 7.6x faster than the default at 1M Gaussians
+            # on one CPU thread (0.15 vs 1.16 s a step), where the step had been a sixth of an iteration.
+            self._opt = torch.optim.Adam(self._groups, eps=1e-15, fused=True)
+        self._base = [g["lr"] * schedule.group_rate(g["name"]) for g in self._groups]
+        # A CPU generator whatever the scene's device: the views are drawn in the same order on every device.
+        self._gen = torch.Generator().manual_seed(seed)
+        self.done = 0
+        self.total = schedule.iterations if self._groups else 0
+
+    def run(
+        self,
+        until: int | None = None,
+        deadline: Deadline | None = None,
+        progress: Callable[[int, int, float], None] | None = None,
+    ) -> None:
+        """Step on to iteration ``until`` (default: the end), or until ``deadline`` shortens the run."""
+        from gspc.device import float32_math
+        from gspc.metrics import ssim  # imported here: refinement is the only user on the decode path
+        from gspc.render import render
+
+        stop = self.total if until is None else min(until, self.total)
+        if deadline is not None and self.done == 0 and deadline.passed():
+            self.total = 0
+        while self.done < min(stop, self.total):
+            factor = self._schedule.learning_rate_factor(self.done, self.total)
+            for g, lr0 in zip(self._groups, self._base):
+                g["lr"] = lr0 * factor
+            v = int(torch.randint(len(self._cameras), (1,), generator=self._gen))
+            image = render(self._scene, self._cameras[v], self._background).image
+            target = self._targets[v]
+            loss = (1 - SSIM_WEIGHT) * (image - target).abs().mean() + SSIM_WEIGHT * (1 - ssim(image, target))
+            self._opt.zero_grad(set_to_none=True)
+            with float32_math():  # SSIM's convolutions' gradients too (gspc/device.py)
+                loss.backward()
+            self._opt.step()
+            if self._cells is not None:
+                project_into_cells(self._groups, self._cells)
+            self.done += 1
+            if deadline is not None:
+                self.total = deadline.length(self.done, self.total, self._scene.means.device)
+            if progress is not None:
+                progress(self.done, self.total, float(loss.detach()))
+
+    def scene(self) -> GaussianScene:
+        """The scene as refined so far, detached (it shares memory with the run: copy it to keep it)."""
+        return self._scene.map(lambda t: t.detach())
+
+    def result(self) -> Refined:
+        return Refined(self.scene(), self.done)
+
+
+def refine(
+    scene: GaussianScene,
+    cameras: list[Camera],
+    targets: list[torch.Tensor],
+    schedule: Schedule,
+    background: torch.Tensor | None = None,
+    cells: dict[str, Box] | None = None,
+    deadline: float | None = None,
+    seed: int = 0,
+    progress: Callable[[int, int, float], None] | None = None,
+    attributes: Sequence[str] = ATTRIBUTE_NAMES,
+    in_place: bool = False,
+) -> Refined:
+    """Optimise ``attributes`` of ``scene`` so its renders at ``cameras`` match ``targets`` (H, W, 3).
+
+    ``cells`` (from :func:`gspc.codec.cells.quantisation_cells`) keeps every attribute inside its
+    quantisation cell after each step. ``deadline`` (a ``time.perf_counter()`` value, see
+    :class:`Deadline`); without it the run depends on its inputs alone. ``progress(done, total, loss)`` is
+    called after every step (``total`` shrinks if a deadline cuts the schedule). Returns the new, detached
+    scene and the iterations run; the input is left unchanged unless ``in_place``, where it is the result.
+    """
+    run = Refinement(scene, cameras, targets, schedule, background, cells, seed, attributes, in_place)
+    run.run(deadline=Deadline(deadline) if deadline is not None else None, progress=progress)
+    return run.result()

@@ -11,7 +11,7 @@ from gspc.codec.cells import clamp_into, quantisation_cells
 from gspc.codec.params import CodecParams
 from gspc.errors import CodecError
 from gspc.format.attribute_section import AttributeSection
-from gspc.refine import refine
+from gspc.refine import Schedule, refine
 
 
 def _inside(name, value, box, tol=1e-5):
@@ -61,8 +61,8 @@ def test_refinement_stays_in_cells():
         targets = [render(original, c).image for c in cams]
     enc = encode_attributes(original, CodecParams(lam=16.0, keep_invisible=True))
     cells = quantisation_cells(enc.decoded, enc.section)
-    out = refine(enc.decoded, cams, [t + 0.05 for t in targets], iterations=20, cells=cells).scene
-    free = refine(enc.decoded, cams, [t + 0.05 for t in targets], iterations=20).scene
+    out = refine(enc.decoded, cams, [t + 0.05 for t in targets], Schedule(20), cells=cells).scene
+    free = refine(enc.decoded, cams, [t + 0.05 for t in targets], Schedule(20)).scene
     for name, box in cells.items():
         assert _inside(name, getattr(out, name), box).all(), name
     assert not all(_inside(n, getattr(free, n), b).all() for n, b in cells.items())

@@ -6,7 +6,7 @@ import pytest
 import torch
 from scenes import random_scene
 
-from gspc.encoder.policy import Outcome
+from gspc.encoder.policy import CheckPolicy, Outcome, trial_settles
 from gspc.errors import CodecError, InputError
 from gspc.format import container
 from gspc.format.attribute_section import AttributeSection
@@ -140,16 +140,21 @@ def test_encoder_check_keeps_side_info_only_if_refinement_pays(tmp_path):
 
 
 @pytest.mark.slow
-def test_long_check_runs_a_short_one_first(tmp_path):
+def test_long_check_scores_a_trial_first(tmp_path):
     src = tmp_path / "in.ply"
     write_ply(scene(seed=5), src)
     out = tmp_path / "c.gspc"
-    rep = encode(src, out, opts=EncodeOptions(lam=40, synth_views=5, max_side=32, check_iterations=500))
+    opts = EncodeOptions(lam=40, synth_views=5, max_side=32, check_iterations=400)
+    rep = encode(src, out, opts=opts)
     d = rep.side_info
-    assert d is not None and container.read(out).header["side_info"]["refine_iterations"] == 500
-    assert d.short_iterations == 50
-    if d.short_check_failed:  # refinement hurt after 50 iterations: the long run was skipped
-        assert d.refined_db < d.coded_db and d.outcome is not Outcome.SENT
+    assert d is not None and container.read(out).header["side_info"]["refine_iterations"] == 400
+    assert d.trial_iterations == CheckPolicy().trial_length(400) < 400
+    bar = max(d.coded_db, d.rival_db) + opts.check_margin_db
+    if d.predicted:  # sent on the trial's score, which settled it
+        assert d.outcome is Outcome.SENT
+        assert trial_settles(d.refined_db - d.coded_db, bar - d.coded_db, CheckPolicy().gain_ratio)
+    else:  # the whole run decided
+        assert (d.outcome is Outcome.SENT) == (d.refined_db >= bar)
 
 
 def test_decoder_refines_inside_the_quantisation_cells(encoded, tmp_path):

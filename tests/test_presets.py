@@ -2,7 +2,7 @@
 
 import pytest
 
-from gspc.encoder.stages import iteration_counts
+from gspc.encoder.prepare import iteration_counts
 from gspc.options import EncodeOptions
 from gspc.presets import MIN_SCALED_ITERATIONS, QUALITY, REFINE_WORK, refine_iterations_for
 
@@ -10,15 +10,15 @@ from gspc.presets import MIN_SCALED_ITERATIONS, QUALITY, REFINE_WORK, refine_ite
 @pytest.mark.parametrize(
     ("preset", "n", "expected"),
     [
-        (1000, 20_000, 1000),  # small scenes keep the preset's
-        (1000, REFINE_WORK // 1000, 1000),
-        (1000, 100_000, 500),
-        (1000, 300_000, 166),
-        (1000, 1_000_000, MIN_SCALED_ITERATIONS),
-        (1000, 6_000_000, MIN_SCALED_ITERATIONS),  # never below the floor
+        (300, 20_000, 300),  # small scenes keep the preset's
+        (300, REFINE_WORK // 300, 300),
+        (300, 100_000, 150),
+        (300, 200_000, 75),
         (300, 1_000_000, MIN_SCALED_ITERATIONS),
+        (300, 6_000_000, MIN_SCALED_ITERATIONS),  # never below the floor
+        (100, 1_000_000, MIN_SCALED_ITERATIONS),
         (30, 1_000_000, 30),  # a preset under the floor is not raised
-        (1000, 0, 1000),
+        (300, 0, 300),
     ],
 )
 def test_refine_iterations_scale_with_the_scene(preset, n, expected):

@@ -25,8 +25,8 @@ import typer
 from bench_setups import SHARED, Setup, fit_setup, run_point, score, synth_setup
 
 from gspc.io import read_scene
+from gspc.reconstruct import render_images
 from gspc.restore.restorer import available_restorers
-from gspc.stages import render_images
 
 
 def fmt_row(label: str, r: dict, n_in: int, photos: bool) -> str:

@@ -29,10 +29,10 @@ from gspc.io import read_scene
 from gspc.metrics import mean_psnr
 from gspc.options import DecodeOptions, EncodeOptions
 from gspc.pipeline import decode, encode
+from gspc.reconstruct import render_images
 from gspc.restore.data import load_view, read_manifest, validate
 from gspc.restore.nafnet import count_parameters
 from gspc.restore.restorer import load_restorer
-from gspc.stages import render_images
 from gspc.views import limit_size, sample_views, synthesize_views
 
 

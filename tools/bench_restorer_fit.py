@@ -22,7 +22,7 @@ from bench_setups import fit_setup, score
 
 from gspc.io import read_scene
 from gspc.pipeline import DecodeOptions, EncodeOptions, decode, encode
-from gspc.stages import render_images
+from gspc.reconstruct import render_images
 
 
 def main(

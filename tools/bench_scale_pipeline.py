@@ -41,7 +41,7 @@ from gspc.format.header import FileHeader
 from gspc.io import read_scene
 from gspc.io.cameras_json import save_cameras_json
 from gspc.metrics import mean_psnr
-from gspc.stages import render_images
+from gspc.reconstruct import render_images
 from gspc.views import look_at, split_test_views
 
 

@@ -27,7 +27,7 @@ from gspc.io.camera_files import load_cameras
 from gspc.io.cameras_json import save_cameras_json
 from gspc.metrics import mean_psnr, quantize8, ssim
 from gspc.pipeline import DecodeOptions, EncodeOptions, decode, encode
-from gspc.stages import render_images
+from gspc.reconstruct import render_images
 from gspc.views import sample_views, split_test_views, synthesize_views
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"

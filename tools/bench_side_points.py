@@ -16,7 +16,7 @@ import typer
 from bench_setups import SHARED, fit_setup, run_point, synth_setup
 
 from gspc.io import read_scene
-from gspc.stages import render_images
+from gspc.reconstruct import render_images
 
 
 def main(

@@ -6,7 +6,7 @@
         --scene ../shared/data/statues/massa.sog,split=val
 
 For every scene and rate point (attribute lambda, base residual distance) the encoder's own stages
-run (gspc/encoder/stages.py): cameras (loaded, or synthesised as the encoder does), shrunk to at most
+run (gspc/encoder/prepare.py): cameras (loaded, or synthesised as the encoder does), shrunk to at most
 400 px, the views in their stored form, visibility mask and attribute coding -> G~, clamped renders I
 and I~ on the scene's background, R = clamp(I) - clamp(I~), per-view distances from
 plan_residual_rates, residuals coded (at the rate point's residual scale) and decoded with
@@ -38,15 +38,15 @@ import typer
 
 from gspc.atomic import atomic_write, atomic_write_bytes
 from gspc.codec import residuals
+from gspc.encoder.prepare import code_attributes, codec_params, encoder_cameras, sample_side_views
 from gspc.encoder.side import view_residuals
-from gspc.encoder.stages import code_attributes, codec_params, encoder_cameras, sample_side_views
 from gspc.errors import GspcError, InputError
 from gspc.io import read_scene
 from gspc.io.camera_files import load_cameras
 from gspc.options import EncodeOptions
 from gspc.presets import QUALITY
+from gspc.reconstruct import render_images
 from gspc.restore.data import FORMAT, MANIFEST
-from gspc.stages import render_images
 
 DEFAULT_RATES = "low,high,3:3"
 DEFAULT_DISTANCES = "1.5,3,6"
@@ -187,7 +187,7 @@ def make_scene_rate(
     todo = [i for i, f in enumerate(files) if not f.is_file()]
     if todo:
         # The plan depends on every view's residual, so a partial set is redone as a whole.
-        # The encoder's own stages (gspc/encoder/stages.py, gspc/encoder/side.py), so the restorer learns
+        # The encoder's own stages (gspc/encoder/prepare.py, gspc/encoder/side.py), so the restorer learns
         # from what the encoder sends.
         opts = encode_options(spec, rate)
         enc = code_attributes(scene, all_cams, codec_params(opts)).encoded

@@ -89,9 +89,9 @@ class Asset:
     """One real scene, normalised (centred, longest robust side 1, z up), as float64 numpy arrays."""
 
     def __init__(self, path: Path, sh_degree: int = 3):
-        from gspc.cameras import robust_bounds
         from gspc.io import read_scene
         from gspc.scene import num_sh_rest
+        from gspc.views import robust_bounds
 
         scene = read_scene(path)
         self.name, self.n, self.sh_degree = path.name, scene.num_gaussians, scene.sh_degree
@@ -173,8 +173,9 @@ def main() -> None:
     ap.add_argument("--views", type=int, default=24)
     ap.add_argument("--sh-degree", type=int, default=3, choices=(0, 3))
     args = ap.parse_args()
-    from gspc.cameras import save_cameras_json, synthesize_views
+    from gspc.io.cameras_json import save_cameras_json
     from gspc.io.ply import write_ply
+    from gspc.views import synthesize_views
 
     torch.set_num_threads(1)
     missing = [str(p) for p in asset_paths() if not p.exists()]

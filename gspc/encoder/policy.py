@@ -7,8 +7,9 @@ measured PSNR are fields, which the pipeline reports and tests assert on.
 
 from __future__ import annotations
 
+import math
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from enum import Enum
 
@@ -22,20 +23,40 @@ from gspc.codec.params import CodecParams
 from gspc.encoder.side import SideCandidate
 from gspc.metrics import mean_psnr
 from gspc.progress import Progress
-from gspc.refine import Refined
+from gspc.reconstruct import decoder_refinement, refine_progress, render_images, restored_targets
+from gspc.refine import Deadline
 from gspc.scene import GaussianScene
-from gspc.stages import refine_in_cells, render_images, restored_targets
 
-# Held-out PSNR gain after refinement per dB that the residuals add to their own views' renders (I~ + R~ over
-# I~), measured with 1000 iterations inside the cells: lego fit lambda 8, 0.86 (residuals at 1/2 resolution)
-# and 0.82 (1/4); donut lambda 64, 0.89 (1/4). The encoder predicts with it which resolution pays best.
-REFINE_TRANSFER = 0.85
-# The rival may fall this far under the side information's bytes: search_lambda's default 3% is worth 1.5 dB
-# on a curve as steep as the donut's (5 dB per 10% of bytes), a handicap that would favour side information.
-RIVAL_TOLERANCE = 0.005
-CHUNK_ENTRY_BYTES = 48  # a chunk-table entry plus alignment padding, about (spec section 5)
-# A refinement this long or longer is first tried for a tenth of its iterations (see _short_length).
-SHORT_RUN_FROM = 500
+
+@dataclass(frozen=True)
+class CheckPolicy:
+    """The side-information check's rules, each with the measurement behind it."""
+
+    # Held-out PSNR gain after refinement per dB that the residuals add to their own views' renders (I~ + R~
+    # over I~), measured with 1000 iterations inside the cells: lego fit lambda 8, 0.86 (residuals at 1/2
+    # resolution) and 0.82 (1/4); donut lambda 64, 0.89 (1/4). The encoder predicts with it which resolution
+    # pays best.
+    refine_transfer: float = 0.85
+    # The rival may fall this far under the side information's bytes: search_lambda's default 3% is worth
+    # 1.5 dB on a curve as steep as the donut's (5 dB per 10% of bytes), a handicap that would favour side
+    # information.
+    rival_tolerance: float = 0.005
+    chunk_entry_bytes: int = 48  # a chunk-table entry plus alignment padding, about (spec section 5)
+    # The trial: a refinement of at least ``trial_from`` iterations is scored after its first
+    # ``trial_fraction``; where the trial's gain over the coded scene, times ``gain_ratio``, already clears
+    # the bar, the side information is sent without running on. The full run's gain measured 1.33x the
+    # trial's on the lego fit and more on the statue massa (bench/refine.md): the end of a cosine schedule
+    # polishes. A trial that does not clear it decides nothing: on massa the check views scored under the
+    # coded scene at the trial and over the bar at the end, so the run goes on and its end decides.
+    trial_from: int = 100
+    trial_fraction: float = 0.25
+    gain_ratio: float = 1.0
+
+    def trial_length(self, iterations: int) -> int:
+        """Where the check first scores a run of ``iterations``: all of a short one."""
+        if iterations < self.trial_from:
+            return iterations
+        return max(1, math.ceil(iterations * self.trial_fraction))
 
 
 class Outcome(str, Enum):
@@ -66,9 +87,9 @@ class SideInfoDecision:
     coded_db: float  # G~ as coded
     refined_db: float  # G~ after the decoder's refinement (the short run's, when that failed)
     rival_db: float  # the chosen candidate's rival: the same bytes on attributes
-    short_iterations: int  # the trial run's length
-    short_check_failed: bool  # the trial run made the coded scene worse: the long run was skipped
-    iterations: int  # the refinement run that decided: the decoder's default (a time budget may cut it)
+    trial_iterations: int  # where the run was first scored
+    predicted: bool  # sent on the trial's score (refined_db is then the trial's), the run not continued
+    iterations: int  # the refinement's length: the decoder's default (a time budget may cut it)
     candidates: tuple[CandidateScore, ...]
 
     def summary(self) -> dict[str, str]:
@@ -84,8 +105,8 @@ class SideInfoDecision:
                 + f"; chose 1/{self.scale}"
             )
         refined = f"{self.refined_db:.2f} dB"
-        if self.short_check_failed:
-            out["short check"] = f"{self.short_iterations} iterations: {refined}, worse than coded"
+        if self.predicted:
+            refined += f" after {self.trial_iterations} of {self.iterations} iterations (decided there)"
         out["check"] = (
             f"at {self.check_views} unsent views: coded {self.coded_db:.2f} dB, refined {refined}, "
             f"same bytes on attributes {self.rival_db:.2f} dB"
@@ -118,6 +139,7 @@ class CheckInputs:
     iterations: int
     background: tuple[float, float, float]
     margin_db: float  # side information must win by this much
+    policy: CheckPolicy = CheckPolicy()
     device: torch.device = torch.device("cpu")  # renders and refinement run here
     # time.perf_counter() by which the encode should end: refinement is shortened so that it and the final
     # scoring fit (None: the full ``iterations``).
@@ -141,8 +163,8 @@ def check_cameras(cameras: Sequence[Camera], views: Sequence[int], count: int) -
 
 
 def check_side_info(inp: CheckInputs, progress: Progress | None = None) -> CheckResult:
-    """Run the decoder's refinement and keep the side information only if it beats, at the check views, the
-    coded scene and the same bytes spent on attributes, by ``margin_db``."""
+    """Keep the side information only if the decoder's refinement, run here, beats at the check views the
+    coded scene and the same bytes spent on attributes by ``margin_db``."""
     enc = inp.attributes
     scene = inp.scene.to(inp.device)
     reference = render_images(scene, inp.check_cameras, inp.background, progress, "check render original")
@@ -153,48 +175,24 @@ def check_side_info(inp: CheckInputs, progress: Progress | None = None) -> Check
     t0 = time.perf_counter()
     before = score(enc.decoded)
     # A refinement must leave time for the scoring after it (one more like this one) and the writing.
-    deadline = None if inp.deadline is None else inp.deadline - 1.5 * (time.perf_counter() - t0)
-
-    def rival(candidate: SideCandidate) -> tuple[EncodedAttributes, float]:
-        """The fair rival: the same total bytes spent on attributes alone, and its PSNR."""
-        extra = len(candidate.payload) + CHUNK_ENTRY_BYTES
-        alt = search_lambda(
-            inp.scene,
-            enc.num_bytes + extra,
-            inp.params,
-            visible=inp.visible,
-            rel_tol=RIVAL_TOLERANCE,
-            first=enc,
-        )
-        return alt, score(alt.decoded)
-
-    rivals = []
-    for k, c in enumerate(inp.candidates):
-        if progress:
-            progress("check rivals", k, len(inp.candidates))
-        rivals.append(rival(c))
-    if progress:
-        progress("check rivals", len(inp.candidates), len(inp.candidates))
-    best = 0
-    gains: list[float | None] = [None] * len(inp.candidates)
-    if len(inp.candidates) > 1:
-        # Predict each candidate's refined PSNR from how much its residuals improve the renders they were
-        # sent for, and refine only the most promising one.
-        gains = [_target_gain(inp.original, inp.coded, c) for c in inp.candidates]
-        margins = [REFINE_TRANSFER * g - max(0.0, r[1] - before) for g, r in zip(gains, rivals)]
-        best = int(np.argmax(margins))
+    deadline = None if inp.deadline is None else Deadline(inp.deadline - 1.5 * (time.perf_counter() - t0))
+    rivals = _rivals(inp, score, progress)
+    best, gains = _choose_candidate(inp, rivals, before)
     side, (alt, alt_psnr) = inp.candidates[best], rivals[best]
+    bar = max(before, alt_psnr) + inp.margin_db
     targets = restored_targets(inp.coded, side.records, side.images, inp.restorer)
-    # A run a tenth as long first: where refinement makes the coded scene worse, the long run is not worth
-    # its minutes.
-    short = _short_length(inp.iterations)
-    run = _refined(inp, targets, short, progress, "check refine (short)", deadline)
-    after, ran = score(run.scene), run.iterations
-    failed = after < before
-    if not failed and short < inp.iterations and (deadline is None or time.perf_counter() < deadline):
-        run = _refined(inp, targets, inp.iterations, progress, "check refine", deadline)
-        after, ran = score(run.scene), run.iterations
-    if after >= max(before, alt_psnr) + inp.margin_db:
+    run = decoder_refinement(
+        enc.decoded.to(inp.device), enc.section, inp.view_cameras, targets, inp.iterations, inp.background
+    )
+    trial = inp.policy.trial_length(inp.iterations)
+    report = refine_progress(progress, "check refine", inp.iterations)
+    run.run(trial, deadline, report)
+    after = score(run.scene())
+    predicted = run.done < run.total and trial_settles(after - before, bar - before, inp.policy.gain_ratio)
+    if not predicted:
+        run.run(None, deadline, report)
+        after = score(run.scene())
+    if predicted or after >= bar:
         outcome = Outcome.SENT
     elif alt_psnr > before:
         # Side information does not pay for its bytes: send none (the decoder will not refine), and spend
@@ -209,9 +207,9 @@ def check_side_info(inp: CheckInputs, progress: Progress | None = None) -> Check
         coded_db=before,
         refined_db=after,
         rival_db=alt_psnr,
-        short_iterations=short,
-        short_check_failed=failed,
-        iterations=ran,
+        trial_iterations=trial,
+        predicted=predicted,
+        iterations=run.total,
         candidates=tuple(
             CandidateScore(c.scale, len(c.payload), g, r[1]) for c, g, r in zip(inp.candidates, gains, rivals)
         ),
@@ -219,6 +217,47 @@ def check_side_info(inp: CheckInputs, progress: Progress | None = None) -> Check
     if outcome is Outcome.SENT:
         return CheckResult(side, enc, decision)
     return CheckResult(None, alt if outcome is Outcome.SPENT_ON_ATTRIBUTES else enc, decision)
+
+
+def trial_settles(trial_gain: float, needed: float, ratio: float) -> bool:
+    """Whether a trial's gain over the coded scene settles the check for sending: the full run's gain,
+    predicted at ``ratio`` times the trial's, reaches ``needed`` (and the trial gained at all)."""
+    return trial_gain > 0 and ratio * trial_gain >= needed
+
+
+def _rivals(
+    inp: CheckInputs, score: Callable[[GaussianScene], float], progress: Progress | None
+) -> list[tuple[EncodedAttributes, float]]:
+    """Per candidate, the fair rival: the same total bytes spent on attributes alone, and its PSNR."""
+    enc, out = inp.attributes, []
+    for k, c in enumerate(inp.candidates):
+        if progress:
+            progress("check rivals", k, len(inp.candidates))
+        extra = len(c.payload) + inp.policy.chunk_entry_bytes
+        alt = search_lambda(
+            inp.scene,
+            enc.num_bytes + extra,
+            inp.params,
+            visible=inp.visible,
+            rel_tol=inp.policy.rival_tolerance,
+            first=enc,
+        )
+        out.append((alt, score(alt.decoded)))
+    if progress:
+        progress("check rivals", len(inp.candidates), len(inp.candidates))
+    return out
+
+
+def _choose_candidate(
+    inp: CheckInputs, rivals: list[tuple[EncodedAttributes, float]], before: float
+) -> tuple[int, list[float | None]]:
+    """The candidate to refine, and each one's render gain (None where there is one candidate): the one
+    whose residuals, by how much they improve the renders they were sent for, promise the widest margin."""
+    if len(inp.candidates) == 1:
+        return 0, [None]
+    gains = [_target_gain(inp.original, inp.coded, c) for c in inp.candidates]
+    margins = [inp.policy.refine_transfer * g - max(0.0, r[1] - before) for g, r in zip(gains, rivals)]
+    return int(np.argmax(margins)), list(gains)
 
 
 def _target_gain(original: list[torch.Tensor], coded: list[torch.Tensor], side: SideCandidate) -> float:
@@ -231,31 +270,3 @@ def _target_gain(original: list[torch.Tensor], coded: list[torch.Tensor], side: 
         r = torch.from_numpy(residuals.decode_residual(side.images[k], v.residual)).to(img)
         gains.append(mean_psnr([(img + r).clamp(0, 1)], [ref]) - mean_psnr([img], [ref]))
     return float(np.mean(gains))
-
-
-def _refined(
-    inp: CheckInputs,
-    targets: list[torch.Tensor],
-    iterations: int,
-    progress: Progress | None,
-    stage: str,
-    deadline: float | None,
-) -> Refined:
-    """The decoder's refinement as the encoder predicts it (same targets, iterations and cells)."""
-    enc = inp.attributes
-    return refine_in_cells(
-        enc.decoded.to(inp.device),
-        enc.section,
-        inp.view_cameras,
-        targets,
-        iterations,
-        inp.background,
-        progress,
-        stage,
-        deadline=deadline,
-    )
-
-
-def _short_length(iterations: int) -> int:
-    """The check's trial runs: a tenth of a long refinement, the whole of a short one."""
-    return iterations // 10 if iterations >= SHORT_RUN_FROM else iterations

@@ -1,0 +1,141 @@
+"""The decoder's reconstruction from side information: render G~ at the stored views, restore the renders,
+refine G~ against them inside its quantisation cells.
+
+The encoder predicts what the decoder will render and refine by running the decoder's own code, so these
+steps live here, used by gspc/pipeline.py's decoder and gspc/encoder/policy.py alike.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+
+import torch
+
+from gspc.cameras import Camera
+from gspc.codec import residuals
+from gspc.codec.cells import quantisation_cells
+from gspc.format.attribute_section import AttributeSection
+from gspc.format.view_records import ViewRecord
+from gspc.progress import Progress
+from gspc.refine import Deadline, Refined, Refinement, Schedule
+from gspc.render import render
+from gspc.scene import GaussianScene
+
+
+@torch.no_grad()
+def render_images(
+    scene: GaussianScene,
+    cameras: Sequence[Camera],
+    background: Sequence[float],
+    progress: Progress | None = None,
+    stage: str = "render",
+    backend: str = "auto",
+) -> list[torch.Tensor]:
+    """Clamped renders, one per camera (what a viewer displays), by render's ``backend``."""
+    bg = torch.tensor(background, dtype=scene.means.dtype, device=scene.means.device)
+    out = []
+    if progress:
+        progress(stage, 0, len(cameras))
+    for i, cam in enumerate(cameras):
+        out.append(render(scene, cam, background=bg, backend=backend).image.clamp(0, 1))
+        if progress:
+            progress(stage, i + 1, len(cameras))
+    return out
+
+
+def restored_targets(
+    degraded: list[torch.Tensor],
+    views: Sequence[ViewRecord],
+    images: dict[int, bytes],
+    restorer,
+    progress: Progress | None = None,
+) -> list[torch.Tensor]:
+    """The decoder's refinement targets: renders restored with their decoded residual ``images`` (by view
+    number) where one was sent."""
+    out = []
+    if progress:
+        progress("restore", 0, len(degraded))
+    for k, (img, v) in enumerate(zip(degraded, views)):
+        if k in images and restorer is not None:
+            r = torch.from_numpy(residuals.decode_residual(images[k], v.residual)).to(img)
+            img = restorer.restore(img, r)
+        # A view without a residual keeps its render: the restorer alone measured no gain (bench/restorer.md).
+        out.append(img.clamp(0, 1))
+        if progress:
+            progress("restore", k + 1, len(degraded))
+    return out
+
+
+def refine_progress(
+    progress: Progress | None, stage: str, iterations: int
+) -> Callable[[int, int, float], None] | None:
+    """refine()'s per-iteration callback reporting to ``progress`` under ``stage`` (opened here)."""
+    if progress is None:
+        return None
+    progress(stage, 0, iterations)
+    return lambda done, total, loss: progress(stage, done, total)
+
+
+# A refinement shorter than this takes steps in proportion (learning rates x iterations / FULL_RATE_FROM):
+# Adam's first steps move every attribute by about its full rate whatever the gradient, and a short
+# schedule has no time to undo that. Measured on the 100k scale scene at close-up views
+# (tools/bench_scale_pipeline.py's cameras, 16 per copy), 50 iterations against the unrefined 44.22 dB:
+# rates x1 43.69, x0.3 44.16, x0.1 44.48; 200 iterations at x1: 45.01. A schedule that a time budget cuts
+# below FULL_RATE_FROM takes the steps of its new length from then on (gspc/refine.py, Schedule).
+FULL_RATE_FROM = 300
+# The decoder's learning rates: INRIA 3DGS's (gspc/refine.py, BASE_LR), but view-dependent colour 8x faster.
+# INRIA's sh_rest rate (a twentieth of sh_dc's) is made for training from scratch; refining a coded scene,
+# it is what holds the run back. Lego fit, low preset, 300 iterations, held-out views against the original's
+# renders (coded 39.57 dB; 1000 iterations at INRIA's rates 43.05): INRIA's rates 42.13; every rate x8
+# 43.08; sh_dc and sh_rest x8 43.07-43.09; sh_rest x8 alone 43.23; the others x8 with colour at x1 41.96.
+# The statue massa (SH degree 0, no sh_rest): every rate x8 49.58, colour x8 50.25, INRIA's 50.35 (852
+# iterations: 49.96). bench/refine.md measures the result.
+DECODER_GROUP_RATES = (("sh_rest", 8.0),)
+
+
+def decoder_schedule(iterations: int, lr_scale: float = 1.0) -> Schedule:
+    """The decoder's refinement schedule for a run of ``iterations`` (``lr_scale``: the user's multiplier)."""
+    return Schedule(iterations, lr_scale, DECODER_GROUP_RATES, full_rate_from=FULL_RATE_FROM)
+
+
+def decoder_refinement(
+    decoded: GaussianScene,
+    section: AttributeSection | None,
+    cameras: list[Camera],
+    targets: list[torch.Tensor],
+    iterations: int,
+    background: Sequence[float],
+    seed: int = 0,
+    lr_scale: float = 1.0,
+    in_place: bool = False,
+) -> Refinement:
+    """The decoder's refinement of G~ against ``targets`` (:func:`decoder_schedule`), inside the
+    quantisation cells of the attribute ``section`` (None: free refinement), ready to run. ``in_place``: G~
+    itself is refined (a caller that keeps no use for it saves a copy)."""
+    bg = torch.tensor(background, dtype=decoded.means.dtype, device=decoded.means.device)
+    cells = quantisation_cells(decoded, section) if section is not None else None
+    schedule = decoder_schedule(iterations, lr_scale)
+    return Refinement(decoded, cameras, targets, schedule, bg, cells, seed, in_place=in_place)
+
+
+def refine_in_cells(
+    decoded: GaussianScene,
+    section: AttributeSection | None,
+    cameras: list[Camera],
+    targets: list[torch.Tensor],
+    iterations: int,
+    background: Sequence[float],
+    progress: Progress | None = None,
+    stage: str = "refine",
+    seed: int = 0,
+    lr_scale: float = 1.0,
+    deadline: float | None = None,
+    in_place: bool = False,
+) -> Refined:
+    """:func:`decoder_refinement` run to its end, or to ``deadline`` when one is given."""
+    run = decoder_refinement(
+        decoded, section, cameras, targets, iterations, background, seed, lr_scale, in_place
+    )
+    limit = Deadline(deadline) if deadline is not None else None
+    run.run(deadline=limit, progress=refine_progress(progress, stage, iterations))
+    return run.result()
