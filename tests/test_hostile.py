@@ -1,12 +1,12 @@
-"""Hostile inputs through the CLI (tests/hostile.py): each is refused in one typed line, leaves no output, and
-costs memory bounded by its size (issue 15); files at a size-bounded limit's edge decode, one step past it
-are refused (issue 26)."""
+"""Hostile inputs through the CLI (tools/hostile_cases.py): each is refused in one typed line, leaves no
+output, and costs memory bounded by its size (issue 15); files at a size-bounded limit's edge decode, one step
+past it are refused (issue 26)."""
 
 import tracemalloc
 from pathlib import Path
 
 import pytest
-from hostile import (
+from hostile_cases import (
     Case,
     amplification_cases,
     camera_cases,
@@ -154,7 +154,7 @@ def test_info_refuses_the_attribute_sections_decode_refuses(vector, tmp_path):
 
 
 def test_info_reads_a_file_at_the_count_limit_and_refuses_one_past(work):
-    import amplification as amp
+    import amplification_cases as amp
 
     tmp, _, base = work
     from gspc.format import container
@@ -169,7 +169,7 @@ def test_spec_reader_refuses_every_hostile_header_and_view(work):
     """tests/spec_reader.py, written from the spec alone, refuses each file gspc refuses (issue 26: the spec
     states every rule the decoder enforces), with its own error rather than a crash."""
     import spec_reader
-    from hostile import header_mutations, side_mutations
+    from hostile_cases import header_mutations, side_mutations
 
     from gspc.format import container
 

@@ -25,11 +25,8 @@ import tracemalloc
 from collections import Counter, defaultdict
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tests"))
-
-import torch  # noqa: E402
-from hostile import (  # noqa: E402
+import torch
+from hostile_cases import (
     amplification_cases,
     camera_cases,
     camera_input_cases,
@@ -44,14 +41,16 @@ from hostile import (  # noqa: E402
     sog_cases,
     touched,
 )
-from scenes import random_scene  # noqa: E402
-from sog_files import make_sog  # noqa: E402
-from typer.testing import CliRunner  # noqa: E402
+from scenes import random_scene
+from sog_files import make_sog
+from typer.testing import CliRunner
 
-from gspc.cli import app  # noqa: E402
-from gspc.errors import GspcError  # noqa: E402
-from gspc.io import write_ply  # noqa: E402
-from gspc.pipeline import DecodeOptions, EncodeOptions, decode, encode  # noqa: E402
+from gspc.cli import app
+from gspc.errors import GspcError
+from gspc.io import write_ply
+from gspc.pipeline import DecodeOptions, EncodeOptions, decode, encode
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def sweep(tmp: Path) -> tuple[dict, list[str], dict]:

@@ -564,9 +564,10 @@ def unneeded_bomb(tmp: Path, make_sog) -> Path:
 
 
 def amplification_cases(base: Path, tmp: Path) -> Iterator[Case]:
-    """Files at each size-bounded limit and just past it (tests/amplification.py), and the base file naming a
-    refinement of 100,000 iterations for its 300 Gaussians (the decoder runs at most max(1000, n))."""
-    import amplification as amp
+    """Files at each size-bounded limit and just past it (tools/amplification_cases.py), and the base file
+    naming a refinement of 100,000 iterations for its 300 Gaussians (the decoder runs at most
+    max(1000, n))."""
+    import amplification_cases as amp
 
     header = container.read(base).header
     d = tmp / "amplification"

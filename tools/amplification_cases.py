@@ -1,7 +1,7 @@
 """Files crafted at each limit of gspc/limits.py that bounds work by a file's size (issue 26), and just
 past it: Gaussians per coded bit, entropy-model tables and model lists per payload byte, and the Gaussians an
 SPZ or SOG scene may declare. At the edge a file decodes (or reads); one step past it is refused in one line
-before anything of its size is allocated. tests/hostile.py turns them into CLI cases.
+before anything of its size is allocated. tools/hostile_cases.py turns them into CLI cases.
 
 Every .gspc file here codes identical Gaussians (each ECM column has one-value models, which cost no bits),
 padded where a case needs more payload bytes with range-coder words the decoder never reads (spec 10.0:

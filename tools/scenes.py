@@ -1,5 +1,6 @@
-"""Small random scenes for tests: a plausible object (a blob of Gaussians around the origin), and unbounded
-scenes (an object with a background shell and far floaters) for the contracted grid and its far set."""
+"""Small random scenes for tests and tools/fuzz_inputs.py: a plausible object (a blob of Gaussians around
+the origin), and unbounded scenes (an object with a background shell and far floaters) for the contracted
+grid and its far set."""
 
 import numpy as np
 import torch
