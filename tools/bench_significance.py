@@ -1,7 +1,7 @@
 """Which per-Gaussian measure predicts where the attribute codec's error shows (issue: precision that follows
 what each Gaussian does to the views; gspc/encoder/significance.py).
 
-    python tools/bench_significance.py SCENE [SCENE ...] [--lam 8] [--out bench/significance.md]
+    python tools/bench_significance.py SCENE [SCENE ...] [--lam 8] [--measure-views N] [--out FILE]
 
 SCENE is a fit directory or file (point_cloud.ply with cameras.json and fit.json beside it: the measure
 uses the training cameras, scoring the held-out ones) or a scene without cameras (views are synthesised:
@@ -82,8 +82,10 @@ def psnr(m: float) -> float:
     return 10 * np.log10(1.0 / max(m, 1e-20))
 
 
-def bench(path: Path, lam: float, synth_side: int) -> tuple[list[str], dict]:
+def bench(path: Path, lam: float, synth_side: int, measure_views: int = 0) -> tuple[list[str], dict]:
     scene, train, score, bg = load(path, synth_side)
+    if 0 < measure_views < len(train):  # evenly spaced: the measure's cost is per view
+        train = [train[int(i)] for i in np.linspace(0, len(train) - 1, measure_views).round()]
     params = replace(quality_preset("low").attributes, lam=lam)
     visible = visible_mask(scene.means.numpy(), scene.log_scales.numpy(), train + score)
     t = time.perf_counter()
@@ -152,13 +154,14 @@ def main() -> None:
     ap.add_argument("scenes", nargs="+", type=Path)
     ap.add_argument("--lam", type=float, default=8.0)
     ap.add_argument("--synth-side", type=int, default=400, help="size of synthesised views")
+    ap.add_argument("--measure-views", type=int, default=0, help="measure over this many views (0: all)")
     ap.add_argument("--out", type=Path, default=None, help="append the tables to this Markdown file")
     a = ap.parse_args()
     torch.set_num_threads(1)
     machine = f"{platform.machine()} {os.cpu_count()}-vCPU VM"
     lines = [f"Machine: {machine}, one torch thread, loaded by other jobs.", ""]
     for p in a.scenes:
-        lines += bench(p, a.lam, a.synth_side)[0]
+        lines += bench(p, a.lam, a.synth_side, a.measure_views)[0]
         print("\n".join(lines), flush=True)
     if a.out:
         with open(a.out, "a") as f:
