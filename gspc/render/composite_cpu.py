@@ -368,7 +368,7 @@ def bin_ellipses(lo, hi, means2d, conics, thr, exact, tiles_x, num_tiles):
     start = np.cumsum(count) - count
     fill = start.copy()
     total = start[-1] + count[-1] if num_tiles else 0
-    gauss = np.empty(total, np.int64)
+    gauss = np.empty(total, np.int32)  # (half the bytes of int64 to scatter)
     r = 0
     for i in range(len(lo)):
         if hi[i, 0] < lo[i, 0]:
@@ -387,20 +387,22 @@ def pack(order, means2d, conics, opacities, features):
     """(len(order), FIELDS + FEATURES) float64 records of the Gaussians ``order``, in that order: mean x,
     mean y, conic a, b, c, opacity, threshold, the FEATURES - 1 features (colour, depth) and a 1 (its
     composite is the alpha image): one Gaussian's data in one or two cache lines (the kernels read Gaussians
-    scattered). One pass, reading the projection's arrays in their own dtype."""
+    scattered). Reads the projection's arrays in their own dtype; the gather (latency-bound at 1M Gaussians)
+    and the logarithms run in separate passes."""
     out = np.empty((len(order), FIELDS + FEATURES))
     for r in range(len(order)):
         i = order[r]
         rec = out[r]
         rec[0], rec[1] = means2d[i, 0], means2d[i, 1]
         rec[2], rec[3], rec[4] = conics[i, 0], conics[i, 1], conics[i, 2]
-        o = np.float64(opacities[i])
-        rec[5] = o
-        thr = 2.0 * math.log(o / ALPHA_MIN) if o > 0.0 else -np.inf
-        rec[6] = thr * (1.0 + THRESHOLD_REL_MARGIN) + THRESHOLD_REL_MARGIN
+        rec[5] = opacities[i]
         for k in range(FEATURES - 1):
             rec[FIELDS + k] = features[i, k]
         rec[FIELDS + FEATURES - 1] = 1.0
+    for r in range(len(order)):
+        o = out[r, 5]
+        thr = 2.0 * math.log(o / ALPHA_MIN) if o > 0.0 else -np.inf
+        out[r, 6] = thr * (1.0 + THRESHOLD_REL_MARGIN) + THRESHOLD_REL_MARGIN
     return out
 
 
