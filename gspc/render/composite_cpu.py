@@ -251,6 +251,7 @@ def _tile_backward(t, gaussians, gauss, start, count, tiles_x, size, grad_image,
             lo, hi = _row_span(ell, dy, x0)
             e, step = e_row, s_row
             e_row, s_row, v_row = e_row * v_row, s_row * eb, v_row * ec
+            r0 = r1 = r2 = 0.0  # this row's sums of gp, gp dx, gp dx^2 (dy is the row's constant)
             for col in range(col0, hi + 1):
                 raw = e
                 e *= step
@@ -271,12 +272,16 @@ def _tile_backward(t, gaussians, gauss, start, count, tiles_x, size, grad_image,
                 if raw < ALPHA_MAX:  # above the cap alpha does not move
                     gp = (gw * tr - rem / (1.0 - alpha)) * alpha  # dL/d power, power = ln o - q / 2
                     dx = x0 + col + 0.5 - ell[0]
-                    d_pow += gp
-                    d_mx += gp * (a * dx + b * dy)
-                    d_my += gp * (b * dx + c * dy)
-                    d_a += gp * dx * dx
-                    d_b += gp * dx * dy
-                    d_c += gp * dy * dy
+                    r0 += gp
+                    r1 += gp * dx
+                    r2 += gp * dx * dx
+            # The row's d power / d (mean, conic): q = a dx^2 + 2 b dx dy + c dy^2, dx = px - mean x.
+            d_pow += r0
+            d_mx += a * r1 + b * dy * r0
+            d_my += b * r1 + c * dy * r0
+            d_a += r2
+            d_b += dy * r1
+            d_c += dy * dy * r0
         out_row = grads[dest[p]]
         out_row[0] += d_mx
         out_row[1] += d_my
