@@ -71,7 +71,7 @@ def load_case(spec: dict):
     """(name, scene, cameras) of a case spec: {"n", "w", "h", "dist"} or {"scene", "cameras"}."""
     if "n" in spec:
         return (
-            f"{spec['n']:,} synthetic",
+            f"{spec['n']:,} synthetic, distance {spec['dist']:g},",
             bench_scene(spec["n"]),
             [bench_camera(spec["w"], spec["h"], spec["dist"])],
         )
