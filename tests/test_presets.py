@@ -12,8 +12,8 @@ from gspc.presets import MIN_SCALED_ITERATIONS, QUALITY, REFINE_WORK, refine_ite
     [
         (300, 20_000, 300),  # small scenes keep the preset's
         (300, REFINE_WORK // 300, 300),
-        (300, 100_000, 150),
-        (300, 200_000, 75),
+        (300, 100_000, 300),
+        (300, 300_000, 100),
         (300, 1_000_000, MIN_SCALED_ITERATIONS),
         (300, 6_000_000, MIN_SCALED_ITERATIONS),  # never below the floor
         (100, 1_000_000, MIN_SCALED_ITERATIONS),

@@ -189,7 +189,7 @@ def check_side_info(inp: CheckInputs, progress: Progress | None = None) -> Check
     run.run(trial, deadline, report)
     after = score(run.scene())
     predicted = run.done < run.total and trial_settles(after - before, bar - before, inp.policy.gain_ratio)
-    if not predicted:
+    if run.done < run.total and not predicted:
         run.run(None, deadline, report)
         after = score(run.scene())
     if predicted or after >= bar:
