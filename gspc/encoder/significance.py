@@ -51,7 +51,8 @@ def blend_weights(scene: GaussianScene, camera: Camera) -> torch.Tensor:
             scene.means, scene.quats, scene.log_scales, scene.opacities, scene.sh_dc, scene.sh_rest,
             camera, 0,
         )
-    probe = torch.zeros(len(p.index), 1, dtype=scene.means.dtype, requires_grad=True)
+    # Four columns, as render() composites colour and depth: the compiled compositor takes that layout.
+    probe = torch.zeros(len(p.index), 4, dtype=scene.means.dtype, requires_grad=True)
     acc, _ = composite(
         p.means2d, p.conics, p.opacities, probe, p.depths, p.extents, camera.width, camera.height
     )
