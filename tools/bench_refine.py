@@ -162,7 +162,7 @@ def refine_row(s: Setup, inp: Inputs, schedule: Schedule, reference, trial: int 
     return out
 
 
-def bench_refinement(s: Setup, lines: list[str]) -> dict:
+def bench_refinement(s: Setup, lines: list[str], only_ends: bool = False) -> dict:
     inp = decode_inputs(s)
     reference = render_images(s.scene, s.held_out, s.background)
     coded = render_images(inp.decoded, s.held_out, s.background)
@@ -176,6 +176,8 @@ def bench_refinement(s: Setup, lines: list[str]) -> dict:
         ("after, half the new length", decoder_schedule(max(1, after.iterations // 2))),
         ("after", after),
     ]
+    if only_ends:
+        rows = [rows[0], rows[-1]]
     lines += [
         f"### {s.name}",
         "",
@@ -246,6 +248,7 @@ def main() -> None:
     ap.add_argument("--per-copy", type=int, default=8, help="close-up cameras per copy (--scale)")
     ap.add_argument("--check", action="store_true", help="also compare the check with the full check")
     ap.add_argument("--check-only", action="store_true", help="only the check's comparison")
+    ap.add_argument("--only-ends", action="store_true", help="only the before and after rows")
     ap.add_argument("--out", default=str(REPO / "bench" / "refine.md"))
     args = ap.parse_args()
     torch.set_num_threads(1)
@@ -275,7 +278,7 @@ def main() -> None:
     for make in setups:
         s = make()
         if not args.check_only:
-            bench_refinement(s, lines)
+            bench_refinement(s, lines, args.only_ends)
         if args.check or args.check_only:
             bench_check(s, lines)
         Path(args.out).write_text("\n".join(lines) + "\n")
