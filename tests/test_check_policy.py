@@ -31,3 +31,16 @@ def test_trial_settles(gain, needed, ratio, settles):
 def test_policy_is_frozen():
     with pytest.raises(AttributeError):
         CheckPolicy().trial_fraction = 0.5  # type: ignore[misc]
+
+
+def test_each_part_of_the_checks_run_is_its_own_stage():
+    """The trial and the rest of the run report as two stages, each counting from 0 and closing at its end
+    (a trial that settles the check leaves no stage open); a deadline that shortens the run shortens it."""
+    from gspc.encoder.policy import _stage_report
+
+    calls = []
+    report = _stage_report(lambda *a: calls.append(a), "rest", 75, 300)
+    report(76, 300, 0.0)
+    report(200, 250, 0.0)  # the run was cut to 250
+    assert calls == [("rest", 0, 225), ("rest", 1, 225), ("rest", 125, 175)]
+    assert _stage_report(None, "rest", 0, 10) is None

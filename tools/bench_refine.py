@@ -29,19 +29,21 @@ import imagecodecs
 import numpy as np
 import torch
 import torch.nn.functional as F
-from gspc.codec.sideinfo import side_views
 
 import gspc.pipeline as pipeline
 from gspc.cameras import Camera
-from gspc.codec.attributes import attribute_chunks, decode_attributes
+from gspc.codec.attributes import decode_attributes
 from gspc.codec.cells import quantisation_cells
 from gspc.encoder.policy import CheckPolicy
 from gspc.format import container
+from gspc.format.attribute_section import AttributeSection, attribute_chunks
 from gspc.format.header import FileHeader
+from gspc.format.side_chunk import read_side_views
 from gspc.io import read_scene
 from gspc.io.camera_files import load_cameras
+from gspc.metrics import mean_psnr
 from gspc.options import EncodeOptions
-from gspc.reconstruct import FULL_RATE_FROM, decoder_schedule, mean_psnr, render_images, restored_targets
+from gspc.reconstruct import FULL_RATE_FROM, decoder_schedule, render_images, restored_targets
 from gspc.refine import Refinement, Schedule
 from gspc.restore.restorer import load_restorer
 from gspc.scene import GaussianScene
@@ -116,7 +118,7 @@ def _options(s: Setup, **kw) -> EncodeOptions:
 @dataclasses.dataclass
 class Inputs:
     decoded: GaussianScene
-    meta: dict
+    section: AttributeSection
     cameras: list[Camera]
     targets: list[torch.Tensor]
     iterations: int  # the file's (the decoder's default now)
@@ -127,11 +129,11 @@ def decode_inputs(s: Setup) -> Inputs:
     data, _ = pipeline.encode_scene(s.scene, s.train, _options(s, check_iterations=0))
     c = container.unpack(data)
     fields = FileHeader.from_dict(c.header)
-    views, res = side_views(fields.side_info.to_dict(), c.chunks)
+    side = read_side_views(fields.side_info.legacy_views, c.chunks, len(data))
     decoded = decode_attributes(attribute_chunks(c.chunks), fields.attributes)
-    cams = [Camera.from_dict(v["camera"]) for v in views]
+    cams = [v.camera.to_camera() for v in side.views]
     degraded = render_images(decoded, cams, s.background)
-    targets = restored_targets(degraded, views, res, load_restorer(fields.side_info.restorer))
+    targets = restored_targets(degraded, side.views, side.images, load_restorer(fields.side_info.restorer))
     return Inputs(decoded, fields.attributes, cams, targets, fields.side_info.refine_iterations)
 
 
@@ -143,7 +145,7 @@ def old_schedule(num_gaussians: int) -> Schedule:
 def refine_row(s: Setup, inp: Inputs, schedule: Schedule, reference, trial: int | None) -> dict:
     """One refinement under ``schedule``: seconds, PSNR at the held-out views (and at ``trial``)."""
     bg = torch.tensor(s.background, dtype=inp.decoded.means.dtype)
-    cells = quantisation_cells(inp.decoded, inp.meta)
+    cells = quantisation_cells(inp.decoded, inp.section)
     run = Refinement(inp.decoded, inp.cameras, inp.targets, schedule, bg, cells)
     out: dict = {"iterations": schedule.iterations}
     seconds = 0.0
@@ -162,7 +164,7 @@ def refine_row(s: Setup, inp: Inputs, schedule: Schedule, reference, trial: int 
     return out
 
 
-def bench_refinement(s: Setup, lines: list[str]) -> dict:
+def bench_refinement(s: Setup, lines: list[str], only_ends: bool = False) -> dict:
     inp = decode_inputs(s)
     reference = render_images(s.scene, s.held_out, s.background)
     coded = render_images(inp.decoded, s.held_out, s.background)
@@ -176,6 +178,8 @@ def bench_refinement(s: Setup, lines: list[str]) -> dict:
         ("after, half the new length", decoder_schedule(max(1, after.iterations // 2))),
         ("after", after),
     ]
+    if only_ends:
+        rows = [rows[0], rows[-1]]
     lines += [
         f"### {s.name}",
         "",
@@ -246,6 +250,7 @@ def main() -> None:
     ap.add_argument("--per-copy", type=int, default=8, help="close-up cameras per copy (--scale)")
     ap.add_argument("--check", action="store_true", help="also compare the check with the full check")
     ap.add_argument("--check-only", action="store_true", help="only the check's comparison")
+    ap.add_argument("--only-ends", action="store_true", help="only the before and after rows")
     ap.add_argument("--out", default=str(REPO / "bench" / "refine.md"))
     args = ap.parse_args()
     torch.set_num_threads(1)
@@ -275,7 +280,7 @@ def main() -> None:
     for make in setups:
         s = make()
         if not args.check_only:
-            bench_refinement(s, lines)
+            bench_refinement(s, lines, args.only_ends)
         if args.check or args.check_only:
             bench_check(s, lines)
         Path(args.out).write_text("\n".join(lines) + "\n")

@@ -39,7 +39,11 @@ def _run(code: Path, args: list[str]) -> tuple[float, float]:
     env = {**os.environ, "GSPC_THREADS": "1", "PYTHONPATH": str(code)}
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t = time.perf_counter()
-    subprocess.run([sys.executable, "-c", CLI, *args], env=env, check=True, capture_output=True, text=True)
+    # Run from the root directory: ``python -c`` puts the working folder first on sys.path, and a gspc tree
+    # there would shadow the one on PYTHONPATH.
+    subprocess.run(
+        [sys.executable, "-c", CLI, *args], env=env, cwd="/", check=True, capture_output=True, text=True
+    )
     wall = time.perf_counter() - t
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)

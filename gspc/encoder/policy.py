@@ -23,7 +23,7 @@ from gspc.codec.params import CodecParams
 from gspc.encoder.side import SideCandidate
 from gspc.metrics import mean_psnr
 from gspc.progress import Progress
-from gspc.reconstruct import decoder_refinement, refine_progress, render_images, restored_targets
+from gspc.reconstruct import decoder_refinement, render_images, restored_targets
 from gspc.refine import Deadline
 from gspc.scene import GaussianScene
 
@@ -185,12 +185,11 @@ def check_side_info(inp: CheckInputs, progress: Progress | None = None) -> Check
         enc.decoded.to(inp.device), enc.section, inp.view_cameras, targets, inp.iterations, inp.background
     )
     trial = inp.policy.trial_length(inp.iterations)
-    report = refine_progress(progress, "check refine", inp.iterations)
-    run.run(trial, deadline, report)
+    run.run(trial, deadline, _stage_report(progress, "check refine (trial)", 0, trial))
     after = score(run.scene())
     predicted = run.done < run.total and trial_settles(after - before, bar - before, inp.policy.gain_ratio)
     if run.done < run.total and not predicted:
-        run.run(None, deadline, report)
+        run.run(None, deadline, _stage_report(progress, "check refine", run.done, run.total))
         after = score(run.scene())
     if predicted or after >= bar:
         outcome = Outcome.SENT
@@ -223,6 +222,17 @@ def trial_settles(trial_gain: float, needed: float, ratio: float) -> bool:
     """Whether a trial's gain over the coded scene settles the check for sending: the full run's gain,
     predicted at ``ratio`` times the trial's, reaches ``needed`` (and the trial gained at all)."""
     return trial_gain > 0 and ratio * trial_gain >= needed
+
+
+def _stage_report(
+    progress: Progress | None, stage: str, first: int, last: int
+) -> Callable[[int, int, float], None] | None:
+    """A refinement callback reporting iterations ``first``..``last`` of a run as ``stage`` (opened here;
+    a deadline that shortens the run shortens the stage)."""
+    if progress is None:
+        return None
+    progress(stage, 0, last - first)
+    return lambda done, total, loss: progress(stage, done - first, min(last, total) - first)
 
 
 def _rivals(
