@@ -87,9 +87,10 @@ FULL_RATE_FROM = 300
 # INRIA's sh_rest rate (a twentieth of sh_dc's) is made for training from scratch; refining a coded scene,
 # it is what holds the run back. Lego fit, low preset, 300 iterations, held-out views against the original's
 # renders (coded 39.57 dB; 1000 iterations at INRIA's rates 43.05): INRIA's rates 42.13; every rate x8
-# 43.08; sh_dc and sh_rest x8 43.07-43.09; sh_rest x8 alone 43.23; the others x8 with colour at x1 41.96.
-# The statue massa (SH degree 0, no sh_rest): every rate x8 49.58, colour x8 50.25, INRIA's 50.35 (852
-# iterations: 49.96). bench/refine.md measures the result.
+# 43.08, and 43.07-43.09 with opacity's or the means' left at x1; every rate x8 but colour's (sh_dc,
+# sh_rest) 41.96; sh_rest x8 alone 43.23 (x16: 43.24). The statue massa (SH degree 0, no sh_rest): every
+# rate x8 49.58, colour x8 50.25, INRIA's 50.35 (852 iterations: 49.96). The 100k bird fit: every rate x2
+# with sh_rest x16 lost 1.2 dB to sh_rest x8 alone at 153 iterations. bench/refine.md measures the result.
 DECODER_GROUP_RATES = (("sh_rest", 8.0),)
 
 

@@ -241,6 +241,31 @@ def bench_check(s: Setup, lines: list[str]) -> None:
     lines.append("")
 
 
+def bench_end_to_end(s: Setup, lines: list[str]) -> None:
+    """The default encode and decode in memory (gspc.encode_scene / decode_bytes), timed per stage."""
+    t0 = time.perf_counter()
+    data, rep = pipeline.encode_scene(s.scene, s.train, _options(s))
+    encode_s = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    decoded, drep = pipeline.decode_bytes(data)
+    decode_s = time.perf_counter() - t0
+    images = render_images(decoded, s.held_out, s.background)
+    p = mean_psnr(images, render_images(s.scene, s.held_out, s.background))
+    photo = f", {mean_psnr(images, s.photos):.2f} dB against the photos" if s.photos else ""
+
+    def stages(r) -> str:
+        return ", ".join(f"{k} {v:.1f}" for k, v in r.seconds.items())
+
+    lines += [
+        f"Default encode and decode of {s.name}, end to end in memory: encode {encode_s:.1f} s "
+        f"({stages(rep)}; "
+        f"check: {rep.info.get('check', 'none')}), {len(data):,} B; decode {decode_s:.1f} s ({stages(drep)}; "
+        f"refine: {drep.info.get('refine', 'none')}); {p:.2f} dB against the original's renders{photo}.",
+        "",
+    ]
+    print(lines[-2], flush=True)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--lego", default=str(REPO / "examples" / "lego"), help="'' to skip")
@@ -251,6 +276,7 @@ def main() -> None:
     ap.add_argument("--check", action="store_true", help="also compare the check with the full check")
     ap.add_argument("--check-only", action="store_true", help="only the check's comparison")
     ap.add_argument("--only-ends", action="store_true", help="only the before and after rows")
+    ap.add_argument("--end-to-end", action="store_true", help="only the default encode and decode, timed")
     ap.add_argument("--out", default=str(REPO / "bench" / "refine.md"))
     args = ap.parse_args()
     torch.set_num_threads(1)
@@ -279,6 +305,9 @@ def main() -> None:
     ]
     for make in setups:
         s = make()
+        if args.end_to_end:
+            bench_end_to_end(s, lines)
+            continue
         if not args.check_only:
             bench_refinement(s, lines, args.only_ends)
         if args.check or args.check_only:

@@ -85,7 +85,7 @@ class SideInfoDecision:
     scale: int  # the candidate refined (and sent, when outcome is SENT)
     check_views: int
     coded_db: float  # G~ as coded
-    refined_db: float  # G~ after the decoder's refinement (the short run's, when that failed)
+    refined_db: float  # G~ after the decoder's refinement (after the trial, when the trial decided)
     rival_db: float  # the chosen candidate's rival: the same bytes on attributes
     trial_iterations: int  # where the run was first scored
     predicted: bool  # sent on the trial's score (refined_db is then the trial's), the run not continued
