@@ -32,3 +32,12 @@ def test_explicit_check_iterations_are_not_scaled():
     assert (runs.check, runs.refine) == (700, 700)
     runs = iteration_counts(EncodeOptions(check_iterations=0), 1_000_000)
     assert (runs.check, runs.refine) == (0, refine_iterations_for(low, 1_000_000))
+
+
+def test_check_iterations_stay_within_what_a_file_may_name():
+    """A file's default refinement is bounded by its Gaussians (gspc/limits.py): the check runs no longer than
+    the decode it predicts will."""
+    runs = iteration_counts(EncodeOptions(check_iterations=5000), 300)
+    assert (runs.check, runs.refine) == (1000, 1000)
+    runs = iteration_counts(EncodeOptions(check_iterations=5000), 4000)
+    assert (runs.check, runs.refine) == (4000, 4000)

@@ -14,6 +14,7 @@ from gspc.codec import residuals
 from gspc.codec.attributes import EncodedAttributes, encode_attributes, search_lambda
 from gspc.codec.params import CodecParams
 from gspc.encoder.side import SideCandidate, side_candidate
+from gspc.limits import default_refine_iterations
 from gspc.options import EncodeOptions
 from gspc.presets import quality_preset, refine_iterations_for
 from gspc.scene import GaussianScene
@@ -67,9 +68,11 @@ class Iterations:
 
 def iteration_counts(opts: EncodeOptions, num_gaussians: int) -> Iterations:
     """The check's and the decoder's refinement lengths: an explicit ``--check-iterations``, else the preset's
-    scaled down for large scenes (gspc/presets.py, REFINE_WORK)."""
+    scaled down for large scenes (gspc/presets.py, REFINE_WORK); both within the default a file of
+    ``num_gaussians`` coded Gaussians may name (gspc/limits.py), so the check runs what a decode will run."""
     preset = refine_iterations_for(quality_preset(opts.quality).refine_iterations, num_gaussians)
     check = preset if opts.check_iterations is None else opts.check_iterations
+    check = default_refine_iterations(check, num_gaussians)
     return Iterations(check, check or preset)  # unchecked files name the preset's
 
 
