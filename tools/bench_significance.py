@@ -30,8 +30,9 @@ from gspc.codec.attributes import encode_attributes
 from gspc.encoder.significance import significance
 from gspc.io import read_scene
 from gspc.io.camera_files import load_cameras
+from gspc.metrics import mse
 from gspc.presets import quality_preset
-from gspc.render import render
+from gspc.reconstruct import render_images
 from gspc.scene import GaussianScene
 from gspc.views import synthesize_views
 from gspc.visibility import visible_mask
@@ -69,13 +70,12 @@ def size_over_distance(scene: GaussianScene, cams) -> np.ndarray:
 
 
 def renders(scene: GaussianScene, cams, bg: float) -> list[torch.Tensor]:
-    b = torch.full((3,), bg)
-    with torch.no_grad():
-        return [render(scene, c, background=b).image.clamp(0, 1) for c in cams]
+    return render_images(scene, cams, (bg, bg, bg))
 
 
-def mse(a: list[torch.Tensor], b: list[torch.Tensor]) -> float:
-    return float(np.mean([torch.mean((x - y) ** 2).item() for x, y in zip(a, b)]))
+def mean_mse(a: list[torch.Tensor], b: list[torch.Tensor]) -> float:
+    """Unquantised MSE over the views: the shares compare small differences that 8 bits would round."""
+    return float(np.mean([mse(x, y).item() for x, y in zip(a, b)]))
 
 
 def psnr(m: float) -> float:
@@ -103,7 +103,7 @@ def bench(path: Path, lam: float, synth_side: int, measure_views: int = 0) -> tu
               "random": rng.permutation(orig.num_gaussians)}  # fmt: skip
     scales = {"1x": score, "2x": [c.scaled(2.0) for c in score]}
     refs = {k: renders(orig, cams, bg) for k, cams in scales.items()}
-    base = {k: mse(renders(coded, cams, bg), refs[k]) for k, cams in scales.items()}
+    base = {k: mean_mse(renders(coded, cams, bg), refs[k]) for k, cams in scales.items()}
     rows, summary = [], {}
     groups = [g for g in GROUPS if g != "sh_rest" or scene.sh_degree > 0]
     for group in groups:
@@ -115,7 +115,7 @@ def bench(path: Path, lam: float, synth_side: int, measure_views: int = 0) -> tu
             values[ix] = getattr(orig, group)[ix]
             return replace(coded, **{group: values})
 
-        full = {k: mse(renders(restored(np.arange(orig.num_gaussians)), cams, bg), refs[k])
+        full = {k: mean_mse(renders(restored(np.arange(orig.num_gaussians)), cams, bg), refs[k])
                 for k, cams in scales.items()}  # fmt: skip
         for name, order in own.items():
             shares = []
@@ -123,7 +123,7 @@ def bench(path: Path, lam: float, synth_side: int, measure_views: int = 0) -> tu
                 sub = restored(order[: int(round(f * len(order)))])
                 for k, cams in scales.items():
                     drop = base[k] - full[k]
-                    got = base[k] - mse(renders(sub, cams, bg), refs[k])
+                    got = base[k] - mean_mse(renders(sub, cams, bg), refs[k])
                     shares.append(got / drop if drop > 0 else float("nan"))
             summary[(group, name)] = shares
             cells = " | ".join(f"{s:.2f}" for s in shares)
