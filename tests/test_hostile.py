@@ -42,7 +42,9 @@ def work(tmp_path_factory):
     scene = tmp / "scene.ply"
     write_ply(random_scene(300, sh_degree=1, seed=0), scene)
     base = tmp / "base.gspc"
-    encode(scene, base, opts=EncodeOptions(lam=200, synth_views=6, max_side=48, check_iterations=0))
+    # The uniform codec (versions 1-3): tools/amplification_cases.py builds its payloads for that layout.
+    opts = EncodeOptions(lam=200, synth_views=6, max_side=48, check_iterations=0, precision=False)
+    encode(scene, base, opts=opts)
     return tmp, scene, base
 
 

@@ -697,11 +697,12 @@ def unbounded_scene(n: int, far: int, seed: int, far_growth: float):
 
 
 def encode_scene(scene) -> tuple[dict, dict[str, bytes]]:
-    """(meta["attributes"], attribute payloads) from gspc's attribute encoder at the low preset."""
+    """(meta["attributes"], attribute payloads) from gspc's uniform attribute encoder (versions 1 to 3) at
+    lambda 8, the low preset's before per-Gaussian precision: these vectors keep their bytes."""
     from gspc.codec.attributes import encode_attributes
-    from gspc.presets import QUALITY
+    from gspc.codec.params import CodecParams
 
-    enc = encode_attributes(scene, QUALITY["low"].attributes)
+    enc = encode_attributes(scene, CodecParams(lam=8.0))
     return enc.section.to_dict(), enc.chunks
 
 

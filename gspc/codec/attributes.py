@@ -28,15 +28,14 @@ from gspc.codec import positions as pos
 from gspc.codec.entropy import SYMBOL_LIMIT, decode_matrix, encode_matrix
 from gspc.codec.params import CodecParams
 from gspc.codec.precision import (
+    Plan,
     PrecisionMap,
+    RateSteps,
     Significance,
-    class_exponents,
     decode_precision,
     encode_precision,
     pack_bins,
-    prune_by_weight,
-    sensitivity,
-    sh_degrees,
+    plan_precision,
     unpack_bins,
 )
 from gspc.codec.quantisers import (
@@ -64,6 +63,11 @@ class EncodedAttributes:
     decoded: GaussianScene  # G~, from decode_attributes on the chunks
     kept: np.ndarray  # indices into the input scene, in decoded (curve) order
     lam: float  # the rate knob it was coded at
+
+    @property
+    def precision(self) -> PrecisionMap | None:
+        """Each Gaussian's class and SH degree at version 4 (what the decoder reads), else None."""
+        return decoded_precision(self.chunks, self.section)
 
     @property
     def num_bytes(self) -> int:
@@ -144,14 +148,11 @@ def encode_attributes(
     ``params.precision`` and the ``significance`` of the scene's Gaussians, per-Gaussian precision
     (version 4, gspc/codec/precision.py); otherwise every Gaussian at the rate's steps."""
     scene.validate()
-    classed = params.precision is not None and significance is not None
     keep = prune_mask(scene, params, visible)
-    if classed:
-        if len(significance.weight) != scene.num_gaussians:
-            raise CodecError(
-                f"significance of {len(significance.weight)} Gaussians for {scene.num_gaussians} Gaussians"
-            )
-        keep &= prune_by_weight(significance, params.lam, params.precision)
+    plan = None
+    if params.precision is not None and significance is not None:
+        plan = _plan(scene, params, significance, keep)
+        keep = plan.keep
     keep_idx = np.flatnonzero(keep)
     if keep_idx.size == 0:
         raise CodecError("every Gaussian was pruned (transparent or unseen); use the keep flags to code them")
@@ -162,8 +163,8 @@ def encode_attributes(
     except CodecError as err:  # a grid the format's bounds refuse (spec 10.1)
         raise InputError(f"the scene's positions cannot be coded: {err}") from None
     kept = keep_idx[order]
-    if classed:
-        chunks, section = _encode_classed(scene, params, significance, kept, grid)
+    if plan is not None:
+        chunks, section = _encode_classed(scene, params, plan, kept, grid)
         chunks = {POSN: pos.encode_positions(voxels, grid), **chunks}
     else:
         chunks, section = _encode_uniform(scene, params, kept, grid)
@@ -218,39 +219,37 @@ def _encode_uniform(
     return chunks, section
 
 
+def _plan(scene: GaussianScene, params: CodecParams, sig: Significance, candidates: np.ndarray) -> Plan:
+    """gspc/codec/precision.py's plan at this rate, for every input Gaussian."""
+    base = class_steps(params, scene.sh_degree)
+    alpha = torch.sigmoid(scene.opacities.detach().double()).cpu().numpy()
+    steps = RateSteps(
+        base.opacity_levels,
+        base.scale_step,
+        2.0 * SQRT_HALF / base.rotation_levels,
+        base.dc_step,
+        tuple(base.sh_steps[b * b - 1] for b in range(1, scene.sh_degree + 1)),
+    )
+    faint = min(0.5, params.sh_faint_alpha * params.lam)
+    return plan_precision(sig, alpha, steps, params.precision, candidates, faint, params.lam)
+
+
 def _encode_classed(
-    scene: GaussianScene, params: CodecParams, sig: Significance, kept: np.ndarray, grid: PositionGrid
+    scene: GaussianScene, params: CodecParams, plan: Plan, kept: np.ndarray, grid: PositionGrid
 ) -> tuple[dict[str, bytes], AttributeSection]:
-    """Version 4: each Gaussian's class and SH degree planned from its significance (gspc/codec/precision.py),
-    each class's rows coded as matrices of their own."""
+    """Version 4: each Gaussian's class and SH degree as planned (gspc/codec/precision.py), each class's
+    rows coded as matrices of their own."""
     lam, prec, degree = params.lam, params.precision, scene.sh_degree
-    base = class_steps(params, degree)
-    alpha = 1.0 / (1.0 + np.exp(-_np(scene.opacities, kept)))
-    # Each group's step at the rate, per Gaussian where the domain bends it: an opacity level is a step of
-    # alpha, so of the logit (the gradient's variable) it is 1 / (L alpha (1 - alpha)).
-    steps = {
-        "opacities": 1.0 / (base.opacity_levels * np.maximum(alpha * (1 - alpha), 1e-3)),
-        "log_scales": base.scale_step,
-        "quats": 2.0 * SQRT_HALF / base.rotation_levels,
-        "sh_dc": base.dc_step,
-        "sh_rest": base.sh_steps[0] if base.sh_steps else 0.0,
-    }
-    exponent = class_exponents(sensitivity(sig, kept, steps, prec.groups), prec)
+    exponent = plan.exponent[kept]
     # Class 0 is the rate's own steps; the others follow in increasing step.
-    used = sorted(set(np.unique(exponent).tolist()) - {0})
-    exps = [0, *used]
+    exps = [0, *sorted(set(np.unique(exponent).tolist()) - {0})]
     classes = np.zeros(len(kept), np.int64)
     for i, e in enumerate(exps):
         classes[exponent == e] = i
     class_list = [class_steps(params, degree, e, prec.groups) for e in exps]
     n = int(kept.size)
-    degrees = np.zeros(n, np.int64)
-    if degree > 0:
-        faint = alpha < min(0.5, params.sh_faint_alpha * lam)
-        band_steps = np.asarray([base.sh_steps[b * b - 1] for b in range(1, degree + 1)])
-        multipliers = 2.0 ** exponent.astype(np.float64) if "sh_rest" in prec.groups else np.ones(n)
-        degrees = sh_degrees(sig.sh_band_change[kept][:, :degree], band_steps, multipliers, prec.sh_keep)
-        degrees[faint] = 0
+    degrees = plan.degree[kept] if degree > 0 else np.zeros(n, np.int64)
+    base = class_list[0]
     pmap = PrecisionMap(classes, degrees)
     section = AttributeSection(
         n=n,
@@ -390,6 +389,7 @@ def search_lambda(
     rel_tol: float = 0.03,
     max_iter: int = 12,
     first: EncodedAttributes | None = None,
+    significance: Significance | None = None,
 ) -> EncodedAttributes:
     """The encoding with the smallest lambda whose size is at most ``target_bytes``.
 
@@ -411,7 +411,7 @@ def search_lambda(
             enc = first
         else:
             try:
-                enc = encode_attributes(scene, params.with_lambda(math.exp(x)), visible)
+                enc = encode_attributes(scene, params.with_lambda(math.exp(x)), visible, significance)
             except ValueRangeError:
                 # Too fine for the scene's largest values: a larger lambda, as if the size were too big.
                 if x >= hi or k == max_iter - 1:

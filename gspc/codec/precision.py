@@ -12,13 +12,12 @@ Gaussian over the encoder's views, and the rate's :class:`PrecisionParams`:
   half the log2 of the Gaussian's sensitivity relative to the scene's median, within the params' range.
 - **SH degree**: a band is kept where dropping it would change the views (its first-order change of the
   renders, ``sh_band_change``) by more than its coded step does;
-- **removal**: a Gaussian whose blending weight over the views is below a fraction of a pixel per view
-  at this rate is dropped (never at rates finer than the params allow).
+- **removal**: a Gaussian that paints a small fraction of what the median Gaussian paints over the views
+  (its blending weight) is dropped: its bytes buy less than theirs.
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 import msgpack
@@ -61,14 +60,14 @@ class PrecisionParams:
     Class step multipliers are ``2^e`` for integer ``e`` in ``exponents`` (``e = 0``: the rate's own steps,
     class 0); a Gaussian's ``e`` is ``round(bias - log2(sensitivity / median) / 2)``. ``sh_keep``: a band is
     kept where its change of the views is at least this many of its coded steps (0 keeps every band).
-    ``prune_pixels``: a Gaussian whose mean blending weight per view is below this x lambda pixels' worth (of
-    a 256 x 256 view) is removed (0: never).
+    ``prune``: a Gaussian whose blending weight over the views is below ``prune`` times the median
+    Gaussian's is removed (0: never).
     """
 
     exponents: tuple[int, int] = (-1, 2)  # (finest, coarsest)
     bias: float = 0.0
     sh_keep: float = 0.0
-    prune_pixels: float = 0.0
+    prune: float = 0.0
     groups: tuple[str, ...] = field(default=CLASSED_GROUPS)
 
 
@@ -122,21 +121,76 @@ def unpack_bins(payload: bytes, name: str, count: int) -> list[bytes]:
 # The encoder's plan
 
 
-def sensitivity(
-    sig: Significance, rows: np.ndarray, steps: dict[str, float], groups: tuple[str, ...]
-) -> np.ndarray:
-    """(len(rows),) sum over ``groups`` of (gradient x the group's step)^2: how much a Gaussian's quantisation
-    at these steps moves the views, to first order."""
-    out = np.zeros(len(rows))
-    for g in groups:
-        out += (sig.gradient[g][rows] * steps[g]) ** 2
-    return out
+@dataclass(frozen=True)
+class Plan:
+    """Per input Gaussian: worth coding at this rate (``keep``), its class's step exponent and SH degree."""
+
+    keep: np.ndarray  # (N,) bool
+    exponent: np.ndarray  # (N,) int64
+    degree: np.ndarray  # (N,) int64
 
 
-def class_exponents(sens: np.ndarray, params: PrecisionParams) -> np.ndarray:
-    """Each Gaussian's step exponent ``e`` (multiplier 2^e) from its sensitivity (see PrecisionParams)."""
+@dataclass(frozen=True)
+class RateSteps:
+    """The rate's own steps (class 0) of the groups the plan weighs, in the domain of the gradients."""
+
+    opacity_levels: int
+    scale_step: float
+    rotation_step: float  # of a smallest-three component
+    dc_step: float
+    sh_band_steps: tuple[float, ...]  # band 1 .. D
+
+
+def plan_precision(
+    sig: Significance,
+    alpha: np.ndarray,
+    steps: RateSteps,
+    params: PrecisionParams,
+    candidates: np.ndarray,
+    faint_alpha: float,
+    lam: float,
+) -> Plan:
+    """The encoder's choice for every input Gaussian (``alpha`` its activated opacity; ``candidates``: those
+    the codec would code at all). See the module's docstring; ``faint_alpha``: below it, no SH rest."""
+    n = len(alpha)
+    if len(sig.weight) != n:
+        raise CodecError(f"significance of {len(sig.weight)} Gaussians for {n} Gaussians")
+    # An opacity level is a step of alpha, so of the logit (the gradient's variable) 1 / (L alpha (1 -
+    # alpha)).
+    group_steps = {
+        "opacities": 1.0 / (steps.opacity_levels * np.maximum(alpha * (1 - alpha), 1e-3)),
+        "log_scales": steps.scale_step,
+        "quats": steps.rotation_step,
+        "sh_dc": steps.dc_step,
+        "sh_rest": steps.sh_band_steps[0] if steps.sh_band_steps else 0.0,
+    }
+    sens = np.zeros(n)
+    for g in params.groups:
+        sens += (sig.gradient[g] * group_steps[g]) ** 2
+    keep = candidates.copy()
+    if params.prune > 0 and keep.any():
+        # Blending weight, not a first-order change of the views: removing one of several Gaussians that
+        # paint the same surface changes little, removing all of them removes the surface (a statue lost
+        # 9 dB that way, bench/precision.md); a weight is what a Gaussian paints, however redundant.
+        floor = params.prune * float(np.median(sig.weight[keep]))
+        keep &= sig.weight >= floor
+    exponent = class_exponents(sens, params, keep)
+    d = len(steps.sh_band_steps)
+    degree = np.full(n, d, np.int64)
+    if d > 0:
+        multipliers = 2.0 ** exponent.astype(np.float64) if "sh_rest" in params.groups else np.ones(n)
+        bands = np.asarray(steps.sh_band_steps)
+        degree = sh_degrees(sig.sh_band_change[:, :d], bands, multipliers, params.sh_keep)
+        degree[alpha < faint_alpha] = 0
+    return Plan(keep, exponent, degree)
+
+
+def class_exponents(sens: np.ndarray, params: PrecisionParams, among: np.ndarray | None = None) -> np.ndarray:
+    """Each Gaussian's step exponent ``e`` (multiplier 2^e) from its sensitivity (see PrecisionParams),
+    relative to the median of those ``among`` (all by default)."""
     lo, hi = params.exponents
-    positive = sens[sens > 0]
+    ref = sens if among is None else sens[among]
+    positive = ref[ref > 0]
     if positive.size == 0:
         return np.full(len(sens), hi, np.int64)
     median = float(np.median(positive))
@@ -156,16 +210,3 @@ def sh_degrees(
     keep = change >= sh_keep * band_steps[None, :] * multipliers[:, None]
     highest = np.where(keep.any(1), d - np.argmax(keep[:, ::-1], axis=1), 0)
     return highest.astype(np.int64)
-
-
-def prune_by_weight(sig: Significance, lam: float, params: PrecisionParams) -> np.ndarray:
-    """Per input Gaussian: worth keeping at this rate (blending weight per view above the params' floor)."""
-    if params.prune_pixels <= 0:
-        return np.ones(len(sig.weight), bool)
-    per_view = sig.weight / max(sig.views, 1) * (256 * 256)  # pixels' worth of a 256 x 256 view
-    return per_view >= params.prune_pixels * lam
-
-
-def band_of(k: int) -> int:
-    """The SH band (1..3) of rest coefficient ``k`` (0..14)."""
-    return int(math.isqrt(k + 1))

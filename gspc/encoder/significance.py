@@ -27,6 +27,7 @@ import torch
 
 from gspc.cameras import Camera
 from gspc.codec.precision import Significance
+from gspc.progress import Progress
 from gspc.render.project import project
 from gspc.render.rasterize import composite
 from gspc.scene import ATTRIBUTE_NAMES, GaussianScene
@@ -95,19 +96,26 @@ def evenly_spaced(cameras: Sequence[Camera], count: int) -> list[Camera]:
 
 
 def significance(
-    scene: GaussianScene, cameras: Sequence[Camera], background: Sequence[float] = (0.0, 0.0, 0.0)
+    scene: GaussianScene,
+    cameras: Sequence[Camera],
+    background: Sequence[float] = (0.0, 0.0, 0.0),
+    progress: Progress | None = None,
 ) -> Significance:
     """Every measure, accumulated over ``cameras``."""
     n, d = scene.num_gaussians, scene.sh_degree
     weight = torch.zeros(n, dtype=torch.float64)
     gradient = {k: torch.zeros(n, dtype=torch.float64) for k in ATTRIBUTE_NAMES}
     change = torch.zeros(n, d, dtype=torch.float64)
-    for cam in cameras:
+    for i, cam in enumerate(cameras):
+        if progress:
+            progress("significance", i, len(cameras))
         m = measure_view(scene, cam, background)
         weight += m.weight
         change += m.sh_band_change
         for k, g in m.gradient.items():
             gradient[k] += g
+    if progress:
+        progress("significance", len(cameras), len(cameras))
     return Significance(
         weight.numpy(), {k: v.numpy() for k, v in gradient.items()}, change.numpy(), len(cameras)
     )
