@@ -195,8 +195,9 @@ def levels(m: int) -> list[list[tuple[int, int, int]]]:
     return out
 
 
-def decode_ecm(payload: bytes, m_expected: int, c_expected: int) -> list[list[int]]:
-    """The matrix as a list of columns."""
+def read_ecm(payload: bytes, m_expected: int | None, c_expected: int | None) -> tuple:
+    """10.0: (m, c, models, words, table entries) of an ECM, every rule checked that needs no symbol decoded
+    (an empty ECM: no models); ``None`` leaves a dimension unchecked."""
     try:
         ecm = msgpack.unpackb(payload, raw=False)
     except Exception as e:
@@ -204,10 +205,11 @@ def decode_ecm(payload: bytes, m_expected: int, c_expected: int) -> list[list[in
     need(isinstance(ecm, list) and len(ecm) == 4, "ECM array")
     m, c, models, words = ecm
     need(is_int(m) and is_int(c) and isinstance(models, bytes) and isinstance(words, bytes), "ECM types")
-    need((m, c) == (m_expected, c_expected), f"ECM shape {m}x{c}, expected {m_expected}x{c_expected}")
+    need(m_expected in (None, m) and c_expected in (None, c), f"ECM shape {m}x{c}")
+    need(m >= 0 and c >= 0, "ECM shape")
     if m == 0:
         need(models == b"" and words == b"", "an empty ECM has empty models and words")
-        return [[] for _ in range(c)]
+        return m, c, [], words, 0
     need(len(words) % 4 == 0, "words length")
     limit = min(MAX_MODELS_BYTES, max(MODELS_FLOOR, MODELS_RATIO * len(models)))
     try:
@@ -234,6 +236,14 @@ def decode_ecm(payload: bytes, m_expected: int, c_expected: int) -> list[list[in
         need(isinstance(specs, list) and len(specs) == 15, "15 model specs")
         entries += sum(s[2] - s[1] + 1 for s in map(check_spec, specs) if s[0] >= 2)
     need(entries <= max(TABLE_FLOOR, TABLE_PER_BYTE * len(payload)), "model tables too large for the ECM")
+    return m, c, header, words, entries
+
+
+def decode_ecm(payload: bytes, m_expected: int, c_expected: int) -> list[list[int]]:
+    """The matrix as a list of columns."""
+    m, c, header, words, _ = read_ecm(payload, m_expected, c_expected)
+    if m == 0:
+        return [[] for _ in range(c)]
     rc = RangeDecoder(list(struct.unpack(f"<{len(words) // 4}I", words)))
     lv = levels(m)
     cols: list[list[int]] = []
@@ -353,6 +363,9 @@ def unpack_bins(payload: bytes, count: int, what: str) -> list[bytes]:
         raise SpecError(f"{what} is not one msgpack value") from None
     need(isinstance(parts, list) and len(parts) == count, f"{what}: {count} bins")
     need(all(isinstance(x, bytes) for x in parts), f"{what}: bins")
+    # 10.0: the ECMs of the chunk share one table bound, checked before any of their tables is built.
+    entries = sum(read_ecm(x, None, None)[4] for x in parts)
+    need(entries <= max(TABLE_FLOOR, TABLE_PER_BYTE * len(payload)), f"{what}: model tables past the chunk's")
     return parts
 
 

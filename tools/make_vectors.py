@@ -1302,6 +1302,23 @@ def precision_vectors(ok, bad_codec, a0: dict, c0: dict) -> None:
         "dc_step",
         meta=scene_meta(dict(a7, classes=lacking)),
     )
+    # 10.0: the ECMs of one chunk share one table bound; two of OPAC's get an unused wide model (column 0,
+    # bucket 14: column 0's intra class is always 0), each within its own ECM's bound.
+    bins = msgpack.unpackb(c7["OPAC"])
+    others = sum(table_entries(ecm_parts(b)[2]) for b in bins if ecm_parts(b)[0])
+    for extra, good in ((0, True), (1, False)):
+        half = ((1 << 22) - others + extra) // 2
+        widths = (half, (1 << 22) - others + extra - half)
+        wide = [with_model(b, 0, 14, [2, 0, w - 1, 0, 0, 0]) for b, w in zip(bins, widths)]
+        desc = (
+            f"OPAC's {len(bins)} ECMs with tables that sum to 2^22{' + 1' if extra else ''} entries (unused "
+            f"models of {widths[0]} and {widths[1]} symbols in classes 0 and 1)"
+        )
+        chunks = attribute_entries({**c7, "OPAC": msgpack.packb([*wide, *bins[2:]], use_bin_type=True)})
+        if good:
+            ok("codec_precision_tables_floor", desc, scene_meta(a7), chunks, minor=4)
+        else:
+            bad_codec("codec_invalid_precision_tables", desc, scene_meta(a7), chunks, "entries", minor=4)
     bins = msgpack.unpackb(c7["SCAL"])
     refused(
         "codec_invalid_precision_bins",
