@@ -23,9 +23,10 @@ from dataclasses import dataclass, field
 import msgpack
 import numpy as np
 
-from gspc.codec.entropy import decode_matrix, encode_matrix
-from gspc.errors import CodecError
+from gspc.codec.entropy import decode_matrix, encode_matrix, matrix_table_entries
+from gspc.errors import CodecError, ValueRangeError
 from gspc.format.attribute_section import AttributeSection
+from gspc.limits import max_model_entries
 
 # The attribute groups whose steps the classes scale, with the Significance gradient each is weighed by.
 CLASSED_GROUPS = ("opacities", "log_scales", "quats", "sh_dc", "sh_rest")
@@ -103,7 +104,16 @@ def decode_precision(payload: bytes, section: AttributeSection) -> PrecisionMap:
 
 
 def pack_bins(parts: list[bytes]) -> bytes:
-    return msgpack.packb(parts, use_bin_type=True)
+    """A chunk of one matrix per bin (spec 10.13); never one the decoder refuses for its tables (spec 10.10):
+    tables wider than the chunk's bytes warrant come from steps far finer than the values' spread."""
+    payload = msgpack.packb(parts, use_bin_type=True)
+    entries = sum(matrix_table_entries(p) for p in parts)
+    if entries > max_model_entries(len(payload)):
+        raise ValueRangeError(
+            f"a chunk's matrices need {entries:,} table entries for {len(payload):,} bytes, more than a "
+            "decoder accepts; a larger lambda codes it"
+        )
+    return payload
 
 
 def unpack_bins(payload: bytes, name: str, count: int) -> list[bytes]:
@@ -114,6 +124,14 @@ def unpack_bins(payload: bytes, name: str, count: int) -> list[bytes]:
         raise CodecError(f"chunk {name} is malformed") from None
     if not (isinstance(parts, list) and len(parts) == count and all(isinstance(p, bytes) for p in parts)):
         raise CodecError(f"chunk {name} is not an array of {count} msgpack bins")
+    # The chunk's matrices share one table bound (spec 10.10), checked before any table is built: each
+    # matrix's own bound has a floor, and 16 classes would multiply it (a 10 KB file took 30 s).
+    entries, limit = sum(matrix_table_entries(p) for p in parts), max_model_entries(len(payload))
+    if entries > limit:
+        raise CodecError(
+            f"chunk {name}'s entropy models build {entries:,} table entries from {len(payload):,} bytes "
+            f"(limit {limit:,})"
+        )
     return parts
 
 
