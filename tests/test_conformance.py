@@ -175,7 +175,7 @@ def test_spec_hexdump_is_the_minimal_file() -> None:
     assert dump == (VECTORS / "valid_minimal.gspc").read_bytes()
     # The example is a 1.0 file; this writer differs only in the minor version and so in the file CRC.
     ours = pack({}, [])
-    assert ours[:10] == dump[:10] and ours[12:44] == dump[12:44] and ours[10:12] == b"\x03\x00"
+    assert ours[:10] == dump[:10] and ours[12:44] == dump[12:44] and ours[10:12] == b"\x04\x00"
     assert len(dump) == 48
 
 
