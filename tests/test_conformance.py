@@ -267,7 +267,7 @@ def test_describe(tmp_path: Path) -> None:
     path = tmp_path / "s.gspc"
     container.write(path, {"codec": "x"}, [Chunk("POSN", b"p" * 100), Chunk("RESI", b"r" * 9, index=0)])
     info = container.describe(path)
-    assert info["version"] == container.VERSION == (1, 3)
+    assert info["version"] == container.VERSION == (1, 4)
     assert [(c["type"], c["index"], c["size"], c["required"]) for c in info["chunks"]] == [
         ("POSN", 0, 100, True),
         ("RESI", 0, 9, True),
