@@ -528,3 +528,18 @@ def test_row_walk_values_stay_exact_over_whole_tile_rows():
             np.testing.assert_allclose(er, expected, rtol=1e-12, atol=0)
             er, vr = er * vr, vr * ec
     assert checked > 150
+
+
+def test_colour_only_loss_on_black_matches_reference():
+    # A loss of the colour image alone on a black background (refinement's, on most scenes) leaves depth's
+    # and alpha's gradients all zero, and the compiled backward then leaves their terms out of its walk.
+    scene = random_scene(150, 2, seed=21, spread=0.6)
+    grads = {}
+    for name, fn in (("compiled", partial(render, backend="torch")), ("reference", render_reference)):
+        s = scene.detach()
+        params = [s.tensors()[k].requires_grad_(True) for k in ATTRIBUTE_NAMES]
+        out = fn(s, camera(), background=[0.0, 0.0, 0.0])
+        wi, _ = loss_weights(H, W)
+        grads[name] = torch.autograd.grad((out.image * wi).sum(), params)
+    for name, a, b in zip(ATTRIBUTE_NAMES, grads["compiled"], grads["reference"], strict=True):
+        assert_close(a, b, 1e-10, f"d/d {name}")

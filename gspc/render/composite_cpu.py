@@ -51,6 +51,8 @@ FIELDS = 7  # pack(): mean x, mean y, conic a, b, c, opacity, threshold; then th
 FEATURES = 5
 GRADS = 6  # gradient columns before the features: d mean x, d mean y, d a, d b, d c, d opacity
 STATS = 2  # composite_forward's counts per tile: pairs walked, pixel visits
+if TILE != 8:  # _lane_total adds up exactly 8 columns
+    raise ImportError("the compiled compositor is written for 8x8 tiles")
 # Divisors (kernels.JIT has no zero checks): conic a and its determinant are bounded away from 0 by the
 # low-pass filter, 1 - alpha >= 0.01 by the cap, opacity >= 1/255 for a listed Gaussian.
 
@@ -259,7 +261,7 @@ def _forward_parallel(gaussians, gauss, start, count, tiles_x, size, image, stat
 
 
 @numba.njit(**JIT)
-def _tile_backward(t, gaussians, gauss, start, count, tiles_x, size, grad_image, image, dest, grads):
+def _tile_backward(t, gaussians, gauss, start, count, tiles_x, size, grad_image, image, dest, grads, used):
     """Tile t of composite_backward, walked as _tile_forward walks it. A pair's sums over its pixels are
     kept per tile column (vector lanes) and added up when the pair is done."""
     n = count[t]
@@ -279,6 +281,7 @@ def _tile_backward(t, gaussians, gauss, start, count, tiles_x, size, grad_image,
     dxs = numba.carray(_row_dx(), (TILE,))
     lanes = numba.carray(_lane_sums(), (LANE_SUMS * TILE,))
     rem_at, g_at = np.uint64(PIXELS), np.uint64(2 * PIXELS)
+    depth_used, alpha_used = used[3], used[4]
     for p in range(start[t], start[t] + n):
         rec = gaussians[gauss[p]]
         ell = _ellipse(rec)
@@ -308,12 +311,16 @@ def _tile_backward(t, gaussians, gauss, start, count, tiles_x, size, grad_image,
                 g0, g1 = state[g_at + pix], state[g_at + np.uint64(PIXELS) + pix]
                 g2, g3 = state[g_at + np.uint64(2 * PIXELS) + pix], state[g_at + np.uint64(3 * PIXELS) + pix]
                 g4 = state[g_at + np.uint64(4 * PIXELS) + pix]
-                gw = g0 * f0 + g1 * f1 + g2 * f2 + g3 * f3 + g4 * f4
+                gw = g0 * f0 + g1 * f1 + g2 * f2
+                if depth_used:
+                    gw += g3 * f3
+                    lanes[np.uint64(3 * TILE) + cu] += w * g3
+                if alpha_used:
+                    gw += g4 * f4
+                    lanes[np.uint64(4 * TILE) + cu] += w * g4
                 lanes[cu] += w * g0
                 lanes[np.uint64(TILE) + cu] += w * g1
                 lanes[np.uint64(2 * TILE) + cu] += w * g2
-                lanes[np.uint64(3 * TILE) + cu] += w * g3
-                lanes[np.uint64(4 * TILE) + cu] += w * g4
                 rem = state[rem_at + pix] - w * gw
                 state[rem_at + pix] = rem
                 # dL/d power (power = ln o - q / 2); above the cap alpha does not move.
@@ -344,23 +351,22 @@ def _tile_backward(t, gaussians, gauss, start, count, tiles_x, size, grad_image,
 
 @numba.njit(inline="always", error_model="numpy")
 def _lane_total(lanes, k):
-    """The sum of partial sum k over the tile columns."""
-    total = 0.0
-    for col in range(TILE):
-        total += lanes[k * TILE + col]
-    return total
+    """The sum of partial sum k over the tile columns (pairwise: a short dependency chain)."""
+    b = k * TILE
+    left = (lanes[b] + lanes[b + 1]) + (lanes[b + 2] + lanes[b + 3])
+    return left + ((lanes[b + 4] + lanes[b + 5]) + (lanes[b + 6] + lanes[b + 7]))
 
 
 @numba.njit(**JIT)
-def _backward_serial(gaussians, gauss, start, count, tiles_x, size, grad_image, image, dest, grads):
+def _backward_serial(gaussians, gauss, start, count, tiles_x, size, grad_image, image, dest, grads, used):
     for t in range(len(start)):
-        _tile_backward(t, gaussians, gauss, start, count, tiles_x, size, grad_image, image, dest, grads)
+        _tile_backward(t, gaussians, gauss, start, count, tiles_x, size, grad_image, image, dest, grads, used)
 
 
 @numba.njit(parallel=True, **JIT)
-def _backward_parallel(gaussians, gauss, start, count, tiles_x, size, grad_image, image, dest, grads):
+def _backward_parallel(gaussians, gauss, start, count, tiles_x, size, grad_image, image, dest, grads, used):
     for t in numba.prange(len(start)):
-        _tile_backward(t, gaussians, gauss, start, count, tiles_x, size, grad_image, image, dest, grads)
+        _tile_backward(t, gaussians, gauss, start, count, tiles_x, size, grad_image, image, dest, grads, used)
 
 
 @numba.njit(inline="always", error_model="numpy")
@@ -536,13 +542,19 @@ def composite_backward(
     (height, width, FEATURES) float64 and the forward's ``image``."""
     dest = rows[lists[0]]  # the caller's row of each pair
     cols = GRADS + FEATURES
+    # Depth's and alpha's image gradients are often all zero (a loss of the colour image alone, on a black
+    # background): their terms are then left out of the walk (adding zeros changes no sum).
+    used = np.ones(FEATURES, np.bool_)
+    used[3:] = np.any(grad_image[..., 3:] != 0.0, axis=(0, 1))
     size = np.asarray(size, np.int64)
     if threads <= 1:  # one thread: every pair adds straight into its Gaussian's row
         grads = np.zeros((num, cols))
-        _backward_serial(gaussians, *lists, tiles_x, size, grad_image, image, dest, grads)
+        _backward_serial(gaussians, *lists, tiles_x, size, grad_image, image, dest, grads, used)
         return grads
     # Threads own tiles, and a Gaussian's pairs lie in several: each pair gets its own row, summed after.
     set_threads(threads)
     per_pair = np.zeros((len(dest), cols))
-    _backward_parallel(gaussians, *lists, tiles_x, size, grad_image, image, np.arange(len(dest)), per_pair)
+    _backward_parallel(
+        gaussians, *lists, tiles_x, size, grad_image, image, np.arange(len(dest)), per_pair, used
+    )
     return np.stack([np.bincount(dest, weights=col, minlength=num) for col in per_pair.T], 1)
