@@ -26,8 +26,6 @@ import math
 
 import numba
 import numpy as np
-from numba.core import cgutils, types
-from numba.extending import intrinsic
 
 from gspc.render.kernels import JIT, set_threads
 from gspc.render.rules import (
@@ -40,6 +38,7 @@ from gspc.render.rules import (
     THRESHOLD_REL_MARGIN,
     TILE,
 )
+from gspc.render.stack import stack_array
 
 # The ellipse q <= 2 ln(255 o) bounds the pixels a pair visits; widened so that round-off never leaves out
 # a pixel whose computed alpha reaches 1/255 (alpha itself is then tested exactly as the rules say).
@@ -93,36 +92,18 @@ def _row_range(ell, y0):
     return max(int(lo), 0), min(int(hi), TILE - 1)
 
 
-def _stack_array(size: int):
-    """A compiled function returning a pointer to ``size`` float64 in its caller's stack frame (numba
-    inlines it; the kernels wrap it with numba.carray).
-
-    Why: LLVM vectorises a tile row's TILE pixels (below) only where it can prove that the arrays it loads
-    and stores do not overlap. Stack memory it can; np.empty's heap arrays it cannot. Each kernel thread has
-    its own stack, so the parallel loops share nothing."""
-
-    @intrinsic
-    def pointer(typingctx):
-        def codegen(context, builder, signature, args):
-            return cgutils.alloca_once(builder, context.get_value_type(types.float64), size=size)
-
-        return types.CPointer(types.float64)(), codegen
-
-    return pointer
-
-
 # A tile's per-pixel state, one block of PIXELS each: the forward's transmittance and its FEATURES sums;
 # the backward's transmittance, R and dL/d image (FEATURES).
-_forward_state = _stack_array(PIXELS * (1 + FEATURES))
-_backward_state = _stack_array(PIXELS * (2 + FEATURES))
+_forward_state = stack_array(PIXELS * (1 + FEATURES))
+_backward_state = stack_array(PIXELS * (2 + FEATURES))
 # A pair's walk, one value per tile column: e = o exp(-q / 2) on the current row, its factor to the next row,
 # and (backward) dx = pixel centre x - mean x.
-_row_values = _stack_array(TILE)
-_row_factors = _stack_array(TILE)
-_row_dx = _stack_array(TILE)
+_row_values = stack_array(TILE)
+_row_factors = stack_array(TILE)
+_row_dx = stack_array(TILE)
 # The backward's per-column partial sums of a pair (LANE_SUMS of them), added up when the pair is done.
 LANE_SUMS = FEATURES + 6
-_lane_sums = _stack_array(LANE_SUMS * TILE)
+_lane_sums = stack_array(LANE_SUMS * TILE)
 
 
 @numba.njit(inline="always", error_model="numpy")
