@@ -101,8 +101,9 @@ _backward_state = stack_array(PIXELS * (2 + FEATURES))
 _row_values = stack_array(TILE)
 _row_factors = stack_array(TILE)
 _row_dx = stack_array(TILE)
-# The backward's per-column partial sums of a pair (LANE_SUMS of them), added up when the pair is done.
-LANE_SUMS = FEATURES + 6
+# The backward's per-column partial sums of a pair (LANE_SUMS of them), added up when the pair is done:
+# w g_k for each feature k, and gp, gp dy, gp dy^2 (gp = dL/d power; dx is a column's constant).
+LANE_SUMS = FEATURES + 3
 _lane_sums = stack_array(LANE_SUMS * TILE)
 
 
@@ -242,7 +243,9 @@ def _forward_parallel(gaussians, gauss, start, count, tiles_x, size, image, stat
 
 
 @numba.njit(**JIT)
-def _tile_backward(t, gaussians, gauss, start, count, tiles_x, size, grad_image, image, dest, grads, used):
+def _tile_backward(
+    t, gaussians, gauss, start, count, tiles_x, size, grad_image, image, rows, per_pair, grads, used
+):
     """Tile t of composite_backward, walked as _tile_forward walks it. A pair's sums over its pixels are
     kept per tile column (vector lanes) and added up when the pair is done."""
     n = count[t]
@@ -306,18 +309,15 @@ def _tile_backward(t, gaussians, gauss, start, count, tiles_x, size, grad_image,
                 state[rem_at + pix] = rem
                 # dL/d power (power = ln o - q / 2); above the cap alpha does not move.
                 gp = (gw * tr - rem / (1.0 - alpha)) * alpha if raw < ALPHA_MAX else 0.0
-                gdx = gp * dxs[cu]
                 lanes[np.uint64(5 * TILE) + cu] += gp
-                lanes[np.uint64(6 * TILE) + cu] += gdx
-                lanes[np.uint64(7 * TILE) + cu] += gdx * dxs[cu]
-                lanes[np.uint64(8 * TILE) + cu] += gp * dy
-                lanes[np.uint64(9 * TILE) + cu] += gdx * dy
-                lanes[np.uint64(10 * TILE) + cu] += gp * dy2
+                lanes[np.uint64(6 * TILE) + cu] += gp * dy
+                lanes[np.uint64(7 * TILE) + cu] += gp * dy2
             live -= stops
         # d power / d (mean, conic): q = a dx^2 + 2 b dx dy + c dy^2, dx = px - mean x, dy = py - mean y.
-        g_pow, g_dx, g_dx2 = _lane_total(lanes, 5), _lane_total(lanes, 6), _lane_total(lanes, 7)
-        g_dy, g_dxdy, g_dy2 = _lane_total(lanes, 8), _lane_total(lanes, 9), _lane_total(lanes, 10)
-        out_row = grads[dest[p]]
+        g_pow, g_dx, g_dx2 = _lane_moments(lanes, 5, dxs)
+        g_dy, g_dxdy, _ = _lane_moments(lanes, 6, dxs)
+        g_dy2 = _lane_total(lanes, 7)
+        out_row = grads[p] if per_pair else grads[rows[gauss[p]]]  # (composite_backward says which)
         out_row[0] += a * g_dx + b * g_dy
         out_row[1] += b * g_dx + c * g_dy
         out_row[2] -= 0.5 * g_dx2
@@ -338,16 +338,38 @@ def _lane_total(lanes, k):
     return left + ((lanes[b + 4] + lanes[b + 5]) + (lanes[b + 6] + lanes[b + 7]))
 
 
+@numba.njit(inline="always", error_model="numpy")
+def _lane_moments(lanes, k, dxs):
+    """sum_col v, sum_col v dx, sum_col v dx^2 of partial sum k (v) over the tile columns, column col's
+    pixels lying dxs[col] right of the mean."""
+    s0 = s1 = s2 = 0.0
+    for col in range(TILE):
+        v = lanes[k * TILE + col]
+        vd = v * dxs[col]
+        s0 += v
+        s1 += vd
+        s2 += vd * dxs[col]
+    return s0, s1, s2
+
+
 @numba.njit(**JIT)
-def _backward_serial(gaussians, gauss, start, count, tiles_x, size, grad_image, image, dest, grads, used):
+def _backward_serial(
+    gaussians, gauss, start, count, tiles_x, size, grad_image, image, rows, per_pair, grads, used
+):
     for t in range(len(start)):
-        _tile_backward(t, gaussians, gauss, start, count, tiles_x, size, grad_image, image, dest, grads, used)
+        _tile_backward(
+            t, gaussians, gauss, start, count, tiles_x, size, grad_image, image, rows, per_pair, grads, used
+        )
 
 
 @numba.njit(parallel=True, **JIT)
-def _backward_parallel(gaussians, gauss, start, count, tiles_x, size, grad_image, image, dest, grads, used):
+def _backward_parallel(
+    gaussians, gauss, start, count, tiles_x, size, grad_image, image, rows, per_pair, grads, used
+):
     for t in numba.prange(len(start)):
-        _tile_backward(t, gaussians, gauss, start, count, tiles_x, size, grad_image, image, dest, grads, used)
+        _tile_backward(
+            t, gaussians, gauss, start, count, tiles_x, size, grad_image, image, rows, per_pair, grads, used
+        )
 
 
 @numba.njit(inline="always", error_model="numpy")
@@ -521,21 +543,19 @@ def composite_backward(
     """(num, GRADS + FEATURES): dL/d (mean x, mean y, conic a, b, c, opacity, features) of every Gaussian,
     record r being the caller's Gaussian rows[r] (the others get zeros), for dL/d image = grad_image
     (height, width, FEATURES) float64 and the forward's ``image``."""
-    dest = rows[lists[0]]  # the caller's row of each pair
     cols = GRADS + FEATURES
     # Depth's and alpha's image gradients are often all zero (a loss of the colour image alone, on a black
     # background): their terms are then left out of the walk (adding zeros changes no sum).
     used = np.ones(FEATURES, np.bool_)
     used[3:] = np.any(grad_image[..., 3:] != 0.0, axis=(0, 1))
     size = np.asarray(size, np.int64)
-    if threads <= 1:  # one thread: every pair adds straight into its Gaussian's row
+    if threads <= 1:  # one thread: every pair adds straight into its Gaussian's row, rows[gauss]
         grads = np.zeros((num, cols))
-        _backward_serial(gaussians, *lists, tiles_x, size, grad_image, image, dest, grads, used)
+        _backward_serial(gaussians, *lists, tiles_x, size, grad_image, image, rows, False, grads, used)
         return grads
     # Threads own tiles, and a Gaussian's pairs lie in several: each pair gets its own row, summed after.
     set_threads(threads)
-    per_pair = np.zeros((len(dest), cols))
-    _backward_parallel(
-        gaussians, *lists, tiles_x, size, grad_image, image, np.arange(len(dest)), per_pair, used
-    )
+    per_pair = np.zeros((len(lists[0]), cols))
+    _backward_parallel(gaussians, *lists, tiles_x, size, grad_image, image, rows, True, per_pair, used)
+    dest = rows[lists[0]]  # the caller's row of each pair
     return np.stack([np.bincount(dest, weights=col, minlength=num) for col in per_pair.T], 1)
