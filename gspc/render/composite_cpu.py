@@ -27,6 +27,7 @@ import math
 import numba
 import numpy as np
 
+from gspc.render.intrinsics import prefetch, stack_array
 from gspc.render.kernels import JIT, set_threads
 from gspc.render.rules import (
     ALPHA_MAX,
@@ -38,7 +39,6 @@ from gspc.render.rules import (
     THRESHOLD_REL_MARGIN,
     TILE,
 )
-from gspc.render.stack import stack_array
 
 # The ellipse q <= 2 ln(255 o) bounds the pixels a pair visits; widened so that round-off never leaves out
 # a pixel whose computed alpha reaches 1/255 (alpha itself is then tested exactly as the rules say).
@@ -49,6 +49,7 @@ FIELDS = 7  # pack(): mean x, mean y, conic a, b, c, opacity, threshold; then th
 # 100k-Gaussian frame-filling case and the lego fit).
 FEATURES = 5
 GRADS = 6  # gradient columns before the features: d mean x, d mean y, d a, d b, d c, d opacity
+AHEAD = 4  # pairs: each pair's record is prefetched while the pair AHEAD before it is walked
 STATS = 2  # composite_forward's counts per tile: pairs walked, pixel visits
 if TILE != 8:  # _lane_total adds up exactly 8 columns
     raise ImportError("the compiled compositor is written for 8x8 tiles")
@@ -196,6 +197,8 @@ def _tile_forward(t, gaussians, gauss, start, count, tiles_x, size, image, stats
     visits = 0
     p = start[t]
     while p < start[t] + n and live > 0:
+        if p + AHEAD < start[t] + n:
+            prefetch(gaussians, np.int64(gauss[p + AHEAD]))
         rec = gaussians[gauss[p]]
         p += 1
         ell = _ellipse(rec)
@@ -267,6 +270,8 @@ def _tile_backward(
     rem_at, g_at = np.uint64(PIXELS), np.uint64(2 * PIXELS)
     depth_used, alpha_used = used[3], used[4]
     for p in range(start[t], start[t] + n):
+        if p + AHEAD < start[t] + n:
+            prefetch(gaussians, np.int64(gauss[p + AHEAD]))
         rec = gaussians[gauss[p]]
         ell = _ellipse(rec)
         a, b, c, o = ell[2], ell[3], ell[4], ell[5]
