@@ -4,9 +4,10 @@ only the compiled kernels import numba."""
 
 from __future__ import annotations
 
-from llvmlite import ir
 from numba.core import cgutils, types
 from numba.extending import intrinsic
+
+ir = cgutils.ir  # llvmlite's IR builder, as numba's own code generation uses it (llvmlite comes with numba)
 
 
 def stack_array(size: int):
