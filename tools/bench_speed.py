@@ -5,10 +5,11 @@
         [--statue massa] [--out bench/speed.md]
 
 Per scene: the default encode (low preset, the encoder's check as each version runs it) from the training
-cameras, then the default decode, each a fresh `gspc` process on one thread (GSPC_THREADS=1), the code
-under ``--after`` (default: this checkout) and ``--before`` in turn, each first on PYTHONPATH. Wall and CPU
-seconds per command; the decoded PLY scored by this checkout at held-out views that never carry side
-information, against the original's renders and, for fits, against the held-out photos.
+cameras, then the default decode, each a fresh `gspc` process on one thread (GSPC_THREADS=1), the code under
+``--after`` (default: this checkout) and ``--before`` in turn, each first on PYTHONPATH. Wall and CPU seconds
+per command, and the decode's stages as its report prints them; the decoded PLY scored by this checkout at
+held-out views that never carry side information, against the original's renders and, for fits, against the
+held-out photos.
 """
 
 from __future__ import annotations
