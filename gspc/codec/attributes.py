@@ -151,6 +151,9 @@ def encode_attributes(
     keep = prune_mask(scene, params, visible)
     plan = None
     if params.precision is not None and significance is not None:
+        # Values no rate can code are refused whether or not the plan would remove their Gaussian: removal
+        # is an R-D choice, not a check of the input.
+        _check_ranges(scene, class_steps(params, scene.sh_degree), params, np.flatnonzero(keep))
         plan = _plan(scene, params, significance, keep)
         keep = plan.keep
     keep_idx = np.flatnonzero(keep)
@@ -266,6 +269,17 @@ def _encode_classed(
     chunks = {PREC: encode_precision(pmap, degree)}
     chunks.update({t: pack_bins(p) for t, p in parts.items() if t != SHRS or degree > 0})
     return chunks, section
+
+
+def _check_ranges(scene: GaussianScene, steps: ClassSteps, params: CodecParams, rows: np.ndarray) -> None:
+    """ValueRangeError where any of ``rows`` has a log scale, DC or SH rest value beyond ``steps``' range."""
+    _check_range("log scale", _np(scene.log_scales, rows), steps.scale_step, params.lam)
+    _check_range("SH DC", _np(scene.sh_dc, rows), steps.dc_step, params.lam)
+    if scene.sh_degree > 0:  # faint Gaussians' SH rest is dropped whatever it holds
+        alpha = torch.sigmoid(scene.opacities.detach().double()).cpu().numpy()[rows]
+        rows = rows[alpha >= min(0.5, params.sh_faint_alpha * params.lam)]
+        rest, sh = scene.sh_rest.detach().cpu().numpy(), np.asarray(steps.sh_steps)[None, :, None]
+        _check_range("SH rest", rest, sh, params.lam, rows)
 
 
 def _check_range(name: str, values: np.ndarray, steps, lam: float, rows: np.ndarray | None = None) -> None:
