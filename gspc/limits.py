@@ -52,7 +52,10 @@ def max_coded_gaussians(payload_bytes: int) -> int:
 # max(MODEL_TABLE_FLOOR, MODEL_ENTRIES_PER_BYTE * P). A six-integer geometric model may span 2^22 symbols, so
 # without this rule a 6 KB file built tables for 86 s (issue 26). Building costs about 0.17 us and 30
 # transient bytes per entry (measured on this project's loaded 2-vCPU machine). The floor is one model of the
-# widest window (gspc/codec/entropy.py MAX_WINDOW), about 0.7 s, and a file holds at most 8 matrices. Real
+# widest window (gspc/codec/entropy.py MAX_WINDOW), about 0.7 s, and a file holds at most 8 matrices; at
+# attribute codec version 4 (up to 16 classes, a matrix each per chunk) the matrices of one chunk also share
+# this bound, P the chunk's bytes (gspc/codec/precision.py unpack_bins; without it a 10 KB file of 16 classes
+# took 30 s), so a file again holds at most 8 floors' worth. Real
 # matrices need under 1 entry per payload byte at lambda 0.1 and above; tables grow as 1/lambda, to 34 per
 # byte at lambda 1e-3 (donut's DC), so this rule stops the finest lambdas on real scenes, where the encoder
 # refuses with a ValueRangeError (a larger lambda codes it) rather than write a file the decoder refuses.

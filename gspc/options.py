@@ -148,6 +148,11 @@ class EncodeOptions:
         DEFAULT_RESTORER, "restorer the decoder should use ('none': I~ + R~; see gspc/restore/weights)"
     )
     keep_invisible: bool = knob(False, "keep Gaussians no view sees")
+    precision: bool = knob(
+        True,
+        "spend precision per Gaussian as its effect on the views calls for, and remove those worth less than "
+        "their bytes (attribute codec version 4; off: every Gaussian at the rate's steps, versions 1-3)",
+    )
     background: tuple[float, float, float] = knob(
         (0.0, 0.0, 0.0), "render background RGB in [0, 1] (1 1 1 for scenes trained on white)"
     )

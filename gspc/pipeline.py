@@ -19,7 +19,8 @@ from pathlib import Path
 from gspc import __version__
 from gspc.atomic import atomic_write_bytes
 from gspc.cameras import Camera
-from gspc.codec.attributes import EncodedAttributes, decode_attributes
+from gspc.codec.attributes import EncodedAttributes, decode_attributes, decoded_precision
+from gspc.codec.precision import PrecisionMap
 from gspc.device import check_device, renderer_info, synchronize
 from gspc.encoder.policy import CheckInputs, SideInfoDecision, check_cameras, check_side_info
 from gspc.encoder.prepare import (
@@ -133,7 +134,9 @@ def encode_scene(
     cameras = encoder_cameras(scene, cameras, opts)
     restorer = load_restorer(opts.restorer, device=device)  # fails early on a name the package lacks
     with _stage(rep, progress, "attributes"):
-        coded_attributes = code_attributes(scene, cameras, codec_params(opts), opts.target_size)
+        coded_attributes = code_attributes(
+            scene, cameras, codec_params(opts), opts.target_size, opts.background, progress
+        )
     enc = coded_attributes.encoded
     if opts.target_size is not None:  # what the search reached, so a missed target is visible
         reached = f"attributes {enc.num_bytes:,} B for a {opts.target_size:,} B target"
@@ -194,6 +197,7 @@ def _side_information(
         attributes=enc,
         params=coded_attributes.params,
         visible=coded_attributes.visible,
+        significance=coded_attributes.significance,
         view_cameras=view_cams,
         check_cameras=check_cameras(cameras, view_indices, opts.check_views),
         original=original,
@@ -289,7 +293,8 @@ def decode_bytes(
     side = file.side
     cams = [v.camera.to_camera() for v in side.views]
     if cams and (opts.restore or opts.refine):
-        scene = _restore_and_refine(scene, file.header, side, cams, restorer, opts, progress, rep)
+        precision = decoded_precision(file.attribute_chunks, file.header.attributes)
+        scene = _restore_and_refine(scene, file.header, side, cams, restorer, opts, progress, rep, precision)
     rep.info["restorer"] = restorer_name if opts.restore else "off"
     rep.num_views = rep.info["views"] = len(cams)
     rep.num_views_with_residual = len(side.images)
@@ -324,6 +329,7 @@ def _restore_and_refine(
     opts: DecodeOptions,
     progress: Progress | None,
     rep: Report,
+    precision: PrecisionMap | None,
 ) -> GaussianScene:
     """Render G~ at the stored views, restore them with their residuals and refine G~ against them."""
     background = header.side_info.background
@@ -356,6 +362,7 @@ def _restore_and_refine(
             lr_scale=opts.lr_scale,
             deadline=deadline,
             in_place=True,  # G~ is not needed after
+            precision=precision,
         )
     rep.refine_iterations = refined.iterations
     ran = f"{refined.iterations} iterations"

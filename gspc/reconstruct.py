@@ -14,6 +14,7 @@ import torch
 from gspc.cameras import Camera
 from gspc.codec import residuals
 from gspc.codec.cells import quantisation_cells
+from gspc.codec.precision import PrecisionMap
 from gspc.format.attribute_section import AttributeSection
 from gspc.format.view_records import ViewRecord
 from gspc.progress import Progress
@@ -109,12 +110,14 @@ def decoder_refinement(
     seed: int = 0,
     lr_scale: float = 1.0,
     in_place: bool = False,
+    precision: PrecisionMap | None = None,
 ) -> Refinement:
     """The decoder's refinement of G~ against ``targets`` (:func:`decoder_schedule`), inside the
-    quantisation cells of the attribute ``section`` (None: free refinement), ready to run. ``in_place``: G~
-    itself is refined (a caller that keeps no use for it saves a copy)."""
+    quantisation cells of the attribute ``section`` (None: free refinement; at version 4 with the file's
+    ``precision``), ready to run. ``in_place``: G~ itself is refined (a caller that keeps no use for it saves
+    a copy)."""
     bg = torch.tensor(background, dtype=decoded.means.dtype, device=decoded.means.device)
-    cells = quantisation_cells(decoded, section) if section is not None else None
+    cells = quantisation_cells(decoded, section, precision) if section is not None else None
     schedule = decoder_schedule(iterations, lr_scale)
     return Refinement(decoded, cameras, targets, schedule, bg, cells, seed, in_place=in_place)
 
@@ -132,10 +135,11 @@ def refine_in_cells(
     lr_scale: float = 1.0,
     deadline: float | None = None,
     in_place: bool = False,
+    precision: PrecisionMap | None = None,
 ) -> Refined:
     """:func:`decoder_refinement` run to its end, or to ``deadline`` when one is given."""
     run = decoder_refinement(
-        decoded, section, cameras, targets, iterations, background, seed, lr_scale, in_place
+        decoded, section, cameras, targets, iterations, background, seed, lr_scale, in_place, precision
     )
     limit = Deadline(deadline) if deadline is not None else None
     run.run(deadline=limit, progress=refine_progress(progress, stage, iterations))

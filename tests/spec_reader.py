@@ -1,4 +1,4 @@
-"""A gspc 1.3 reader written from spec/gspc-format.md alone, as an outside implementer would write one.
+"""A gspc 1.4 reader written from spec/gspc-format.md alone, as an outside implementer would write one.
 
 It imports numpy, msgpack, zstandard and imagecodecs only, never gspc: the range decoder, the probability
 tables, the matrix coder and every payload layout follow the spec's words (section numbers in comments), in
@@ -195,8 +195,9 @@ def levels(m: int) -> list[list[tuple[int, int, int]]]:
     return out
 
 
-def decode_ecm(payload: bytes, m_expected: int, c_expected: int) -> list[list[int]]:
-    """The matrix as a list of columns."""
+def read_ecm(payload: bytes, m_expected: int | None, c_expected: int | None) -> tuple:
+    """10.0: (m, c, models, words, table entries) of an ECM, every rule checked that needs no symbol decoded
+    (an empty ECM: no models); ``None`` leaves a dimension unchecked."""
     try:
         ecm = msgpack.unpackb(payload, raw=False)
     except Exception as e:
@@ -204,10 +205,11 @@ def decode_ecm(payload: bytes, m_expected: int, c_expected: int) -> list[list[in
     need(isinstance(ecm, list) and len(ecm) == 4, "ECM array")
     m, c, models, words = ecm
     need(is_int(m) and is_int(c) and isinstance(models, bytes) and isinstance(words, bytes), "ECM types")
-    need((m, c) == (m_expected, c_expected), f"ECM shape {m}x{c}, expected {m_expected}x{c_expected}")
+    need(m_expected in (None, m) and c_expected in (None, c), f"ECM shape {m}x{c}")
+    need(m >= 0 and c >= 0, "ECM shape")
     if m == 0:
         need(models == b"" and words == b"", "an empty ECM has empty models and words")
-        return [[] for _ in range(c)]
+        return m, c, [], words, 0
     need(len(words) % 4 == 0, "words length")
     limit = min(MAX_MODELS_BYTES, max(MODELS_FLOOR, MODELS_RATIO * len(models)))
     try:
@@ -234,6 +236,14 @@ def decode_ecm(payload: bytes, m_expected: int, c_expected: int) -> list[list[in
         need(isinstance(specs, list) and len(specs) == 15, "15 model specs")
         entries += sum(s[2] - s[1] + 1 for s in map(check_spec, specs) if s[0] >= 2)
     need(entries <= max(TABLE_FLOOR, TABLE_PER_BYTE * len(payload)), "model tables too large for the ECM")
+    return m, c, header, words, entries
+
+
+def decode_ecm(payload: bytes, m_expected: int, c_expected: int) -> list[list[int]]:
+    """The matrix as a list of columns."""
+    m, c, header, words, _ = read_ecm(payload, m_expected, c_expected)
+    if m == 0:
+        return [[] for _ in range(c)]
     rc = RangeDecoder(list(struct.unpack(f"<{len(words) // 4}I", words)))
     lv = levels(m)
     cols: list[list[int]] = []
@@ -329,10 +339,40 @@ def decode_attributes(meta: dict, chunks: dict[str, bytes]) -> dict[str, np.ndar
         raise SpecError(f"attribute codec parameters malformed ({type(e).__name__})") from None
 
 
+QUANTISER_KEYS = ("opacity_levels", "scale_step", "rotation_levels", "dc_step", "sh_steps")
+MAX_CLASS_MAPS = 15  # 10.0: classes holds 0 to 15 maps (10.10: at most 16 precision classes)
+
+
+def class_steps(q: dict, k: int) -> dict:
+    """10.0: the five quantiser keys of the section (class 0) or of one ``classes`` map, checked."""
+    need(isinstance(q, dict) and all(key in q for key in QUANTISER_KEYS), "class map lacks a quantiser key")
+    L, M = q["opacity_levels"], q["rotation_levels"]
+    need(is_int(L) and 1 <= L <= INT_LIMIT and is_int(M) and 1 <= M <= INT_LIMIT, "levels")
+    sh = q["sh_steps"]
+    need(isinstance(sh, list) and len(sh) == k, "sh_steps length")
+    steps = [q["scale_step"], q["dc_step"], *sh]
+    need(all(finite_float(s) and s > 0 for s in steps), "steps")
+    return {key: q[key] for key in QUANTISER_KEYS}
+
+
+def unpack_bins(payload: bytes, count: int, what: str) -> list[bytes]:
+    """10.13: a msgpack array of exactly ``count`` bins."""
+    try:
+        parts = msgpack.unpackb(payload, raw=False)
+    except Exception:
+        raise SpecError(f"{what} is not one msgpack value") from None
+    need(isinstance(parts, list) and len(parts) == count, f"{what}: {count} bins")
+    need(all(isinstance(x, bytes) for x in parts), f"{what}: bins")
+    # 10.0: the ECMs of the chunk share one table bound, checked before any of their tables is built.
+    entries = sum(read_ecm(x, None, None)[4] for x in parts)
+    need(entries <= max(TABLE_FLOOR, TABLE_PER_BYTE * len(payload)), f"{what}: model tables past the chunk's")
+    return parts
+
+
 def _decode_attributes(meta: dict, chunks: dict[str, bytes]) -> dict[str, np.ndarray]:
     a = meta["attributes"]
     version = a["version"]
-    need(is_int(version) and version in (1, 2, 3), "codec version")
+    need(is_int(version) and version in (1, 2, 3, 4), "codec version")
     n, deg = a["n"], a["sh_degree"]
     need(is_int(n) and 1 <= n <= MAX_GAUSSIANS, "Gaussian count")
     need(is_int(deg) and 0 <= deg <= 3, "SH degree")
@@ -340,14 +380,20 @@ def _decode_attributes(meta: dict, chunks: dict[str, bytes]) -> dict[str, np.nda
     payload = sum(len(p) for p in chunks.values())  # the attribute chunks' payloads, 10.10
     need(n <= max(GAUSSIAN_FLOOR, 8 * payload // MIN_CODED_BITS), "Gaussian count vs payload")
     grid = a["position"]
+    need(isinstance(grid, dict), "position map")
+    # 10.0: at version 4 the position keys say which grid it is, and that version's rules apply to it.
+    gv = version
+    if version == 4:
+        has_far = "far_count" in grid or "far_shift" in grid
+        gv = 3 if has_far else 2 if "centre" in grid or "radius" in grid else 1
     bits, lo, step = grid["bits"], grid["lo"], grid["step"]
-    need(is_int(bits) and 1 <= bits <= (17 if version == 1 else 21), "position bits")
-    contracted = version >= 2
+    need(is_int(bits) and 1 <= bits <= (17 if gv == 1 else 21), "position bits")
+    contracted = gv >= 2
     need(contracted == ("radius" in grid) and contracted == ("centre" in grid), "contraction keys")
-    need((version == 3) == ("far_count" in grid) == ("far_shift" in grid), "far set keys")
-    far, shift = (grid["far_count"], grid["far_shift"]) if version == 3 else (0, 0)
+    need((gv == 3) == ("far_count" in grid) == ("far_shift" in grid), "far set keys")
+    far, shift = (grid["far_count"], grid["far_shift"]) if gv == 3 else (0, 0)
     need(is_int(far) and is_int(shift), "far set integers")
-    if version == 3:
+    if gv == 3:
         need(1 <= far <= n - 1 and 1 <= shift <= bits - 1, "far set range")
     if contracted:
         centre, radius = grid["centre"], grid["radius"]
@@ -360,21 +406,24 @@ def _decode_attributes(meta: dict, chunks: dict[str, bytes]) -> dict[str, np.nda
     need(all(abs(x) <= bound for x in lo + corner), "position grid bounds")
     if contracted:
         need(all(abs(c) <= 2.0**64 for c in centre) and radius <= 2.0**64, "centre, radius bounds")
-    L, M = a["opacity_levels"], a["rotation_levels"]
-    need(is_int(L) and 1 <= L <= INT_LIMIT and is_int(M) and 1 <= M <= INT_LIMIT, "levels")
-    steps = [a["scale_step"], a["dc_step"], *a["sh_steps"]]
-    need(len(a["sh_steps"]) == k and all(finite_float(s) and s > 0 for s in steps), "steps")
-    need(set(chunks) == {"POSN", "OPAC", "SCAL", "ROTN", "SHDC"} | ({"SHRS"} if deg else set()), "chunks")
+    # 10.0, 10.13: class 0 is the section's own quantisers; at version 4 each classes map is one more.
+    classes = [class_steps(a, k)]
+    if version == 4:
+        maps = a["classes"]
+        need(isinstance(maps, list) and len(maps) <= MAX_CLASS_MAPS, "classes: an array of at most 15 maps")
+        classes += [class_steps(m, k) for m in maps]
+    wanted = {"POSN", "OPAC", "SCAL", "ROTN", "SHDC"} | ({"SHRS"} if deg else set())
+    need(set(chunks) == wanted | ({"PREC"} if version == 4 else set()), "chunks")
 
     # 10.1 positions: one curve, or the near curve and the far set's (version 3)
     try:
         parts = msgpack.unpackb(chunks["POSN"], raw=False)
     except Exception:
         raise SpecError("POSN is not one msgpack value") from None
-    need(isinstance(parts, list) and len(parts) == (4 if version == 3 else 2), "POSN array length")
+    need(isinstance(parts, list) and len(parts) == (4 if gv == 3 else 2), "POSN array length")
     need(all(isinstance(x, bytes) for x in parts), "POSN bins")
     voxels = curve_voxels(parts[0], parts[1], n - far, bits)
-    if version == 3:
+    if gv == 3:
         voxels += [[w << shift for w in v] for v in curve_voxels(parts[2], parts[3], far, bits - shift)]
     means = np.zeros((n, 3), np.float32)
     for i, v in enumerate(voxels):
@@ -391,50 +440,82 @@ def _decode_attributes(meta: dict, chunks: dict[str, bytes]) -> dict[str, np.nda
             y = [c * sc for c in y]
         means[i] = np.array([centre[ax] + radius * y[ax] for ax in range(3)], np.float32)
 
-    def cols(name: str, c: int) -> list[list[int]]:
-        return decode_ecm(chunks[name], n, c)
+    out = {
+        "means": means,
+        "quats": np.zeros((n, 4), np.float32),
+        "log_scales": np.zeros((n, 3), np.float32),
+        "opacities": np.zeros(n, np.float32),
+        "sh_dc": np.zeros((n, 3), np.float32),
+        "sh_rest": np.zeros((n, k, 3), np.float32),
+    }
+    if version < 4:
+        matrices = {t: chunks[t] for t in ("OPAC", "SCAL", "ROTN", "SHDC")}
+        decode_values(out, classes[0], list(range(n)), matrices)
+        if deg:  # 10.6 SH rest: flags, then the flagged Gaussians' K coefficients
+            fl, vals = unpack_bin_pair(chunks["SHRS"], "SHRS")
+            flags = decode_ecm(fl, n, 1)[0]
+            need(all(f in (0, 1) for f in flags), "SH rest flag")
+            rows = [i for i, f in enumerate(flags) if f]
+            decode_band(out["sh_rest"], classes[0], rows, decode_ecm(vals, len(rows), 3 * k), 0, k)
+        return out
 
+    # 10.13: each Gaussian's class and SH degree, then each class's rows from bins of their own.
+    c = len(classes)
+    prec = decode_ecm(chunks["PREC"], n, 1 if deg == 0 else 2)
+    cls = prec[0]
+    degrees = prec[1] if deg else [0] * n
+    need(all(0 <= x < c for x in cls), "PREC class outside 0 .. C - 1")
+    need(all(0 <= d <= deg for d in degrees), "PREC SH degree outside 0 .. sh_degree")
+    bins = {t: unpack_bins(chunks[t], c, t) for t in ("OPAC", "SCAL", "ROTN", "SHDC")}
+    rest_bins = unpack_bins(chunks["SHRS"], c * deg, "SHRS") if deg else []
+    for kk in range(c):
+        rows = [i for i in range(n) if cls[i] == kk]
+        decode_values(out, classes[kk], rows, {t: b[kk] for t, b in bins.items()})
+        for b in range(1, deg + 1):
+            band_rows = [i for i in rows if degrees[i] >= b]
+            cols = decode_ecm(rest_bins[kk * deg + b - 1], len(band_rows), 3 * (2 * b + 1))
+            decode_band(out["sh_rest"], classes[kk], band_rows, cols, b * b - 1, 2 * b + 1)
+    return out
+
+
+def decode_values(out: dict, q: dict, rows: list[int], matrices: dict[str, bytes]) -> None:
+    """10.2 to 10.5 for the Gaussians ``rows`` (in decoded order), each matrix of len(rows) rows, with the
+    quantisers ``q`` of their class."""
+    m = len(rows)
+    L, M = q["opacity_levels"], q["rotation_levels"]
     # 10.2 opacity
-    opac = np.zeros(n, np.float32)
-    for i, q in enumerate(cols("OPAC", 1)[0]):
-        x = min(max(q / float(L), 0.25 / L), 1.0 - 0.25 / L)
-        opac[i] = np.float32(det_log(x) - det_log(1.0 - x))
+    for i, v in zip(rows, decode_ecm(matrices["OPAC"], m, 1)[0]):
+        x = min(max(v / float(L), 0.25 / L), 1.0 - 0.25 / L)
+        out["opacities"][i] = np.float32(det_log(x) - det_log(1.0 - x))
     # 10.3, 10.5
-    scales = np.array(cols("SCAL", 3), dtype=np.float64).T * a["scale_step"]
-    dc = np.array(cols("SHDC", 3), dtype=np.float64).T * a["dc_step"]
+    for name, chunk, s in (("log_scales", "SCAL", q["scale_step"]), ("sh_dc", "SHDC", q["dc_step"])):
+        cols = decode_ecm(matrices[chunk], m, 3)
+        for r, i in enumerate(rows):
+            out[name][i] = [np.float32(cols[ch][r] * s) for ch in range(3)]
     # 10.4 rotations
-    rot = cols("ROTN", 4)
-    quats = np.zeros((n, 4), np.float32)
+    rot = decode_ecm(matrices["ROTN"], m, 4)
     rstep = 2.0 * SQRT_HALF / M
-    for i in range(n):
-        j = rot[0][i]
-        need(0 <= j <= 3 and all(0 <= rot[c][i] <= M for c in (1, 2, 3)), "rotation symbol")
-        r = [rot[c][i] * rstep - SQRT_HALF for c in (1, 2, 3)]
+    for r_i, i in enumerate(rows):
+        j = rot[0][r_i]
+        need(0 <= j <= 3 and all(0 <= rot[c][r_i] <= M for c in (1, 2, 3)), "rotation symbol")
+        r = [rot[c][r_i] * rstep - SQRT_HALF for c in (1, 2, 3)]
         largest = math.sqrt(max(1.0 - ((r[0] * r[0] + r[1] * r[1]) + r[2] * r[2]), 0.0))
         others = [x for x in range(4) if x != j]
-        quats[i, j] = np.float32(largest)
+        out["quats"][i, j] = np.float32(largest)
         for x, v in zip(others, r):
-            quats[i, x] = np.float32(v)
-    # 10.6 SH rest
-    rest = np.zeros((n, k, 3), np.float32)
-    if deg:
-        fl, vals = unpack_bin_pair(chunks["SHRS"], "SHRS")
-        flags = decode_ecm(fl, n, 1)[0]
-        need(all(f in (0, 1) for f in flags), "SH rest flag")
-        rows = [i for i, f in enumerate(flags) if f]
-        v = decode_ecm(vals, len(rows), 3 * k)
-        for r_i, i in enumerate(rows):
-            for kk in range(k):
-                for ch in range(3):
-                    rest[i, kk, ch] = np.float32(v[3 * kk + ch][r_i] * a["sh_steps"][kk])
-    return {
-        "means": means,
-        "quats": quats,
-        "log_scales": scales.astype(np.float32),
-        "opacities": opac,
-        "sh_dc": dc.astype(np.float32),
-        "sh_rest": rest,
-    }
+            out["quats"][i, x] = np.float32(v)
+
+
+def decode_band(
+    rest: np.ndarray, q: dict, rows: list[int], cols: list[list[int]], first: int, count: int
+) -> None:
+    """10.6, 10.13: coefficients first .. first + count - 1 of the Gaussians ``rows``; column 3 j + ch is
+    coefficient first + j, colour channel ch, decoded float32(q * sh_steps[first + j])."""
+    steps = q["sh_steps"]
+    for r_i, i in enumerate(rows):
+        for j in range(count):
+            for ch in range(3):
+                rest[i, first + j, ch] = np.float32(cols[3 * j + ch][r_i] * steps[first + j])
 
 
 # --------------------------------------------------------------------------------- side information
@@ -581,7 +662,7 @@ def read_scene(data: bytes) -> tuple[dict[str, np.ndarray], list[dict]]:
     check_meta(meta)
     attr = {}
     for t, index, payload in chunks:
-        if t in ("POSN", "OPAC", "SCAL", "ROTN", "SHDC", "SHRS"):
+        if t in ("POSN", "PREC", "OPAC", "SCAL", "ROTN", "SHDC", "SHRS"):
             need(index == 0, f"{t} index")
             attr[t] = payload
     attributes = decode_attributes(meta, attr)

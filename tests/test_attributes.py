@@ -267,7 +267,7 @@ def test_values_too_large_to_code_are_named(name, attr, value):
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # a clear error, not a numpy cast warning
         with pytest.raises(
-            InputError, match=f"1 Gaussian\\(s\\) have {name} values up to .*beyond what lambda 8"
+            InputError, match=f"1 Gaussian\\(s\\) have {name} values up to .*beyond what lambda 9"
         ):
             encode_attributes(scene, QUALITY["low"].attributes)
 
@@ -300,7 +300,7 @@ def test_largest_codable_values_roundtrip(monkeypatch):
 def test_search_lambda_steps_over_lambdas_too_fine_for_the_scene():
     # A DC value of 100 is beyond what lambda 1e-3 can code: a search asked for more bytes than any lambda
     # gives moves up from there instead of failing.
-    params = QUALITY["low"].attributes
+    params = CodecParams(lam=8.0)
     scene = _scene(n=300, opacities=np.full(300, 5.0))
     scene.sh_dc[3, 0] = 100.0
     with pytest.raises(ValueRangeError):

@@ -128,6 +128,14 @@ def test_codec_vectors_cover_each_chunk_type() -> None:
     types = {c["type"] for v in ok for c in v["chunks"]}
     assert types == set(container.KNOWN_TYPES)
     assert {v["meta"]["attributes"]["sh_degree"] for v in ok} >= {0, 3}
+    # Every attribute codec version decodes (spec 10.0), version 4 on each kind of position grid (10.13).
+    assert {v["meta"]["attributes"]["version"] for v in ok} == {1, 2, 3, 4}
+    grids = {
+        tuple(sorted(v["meta"]["attributes"]["position"]))
+        for v in ok
+        if v["meta"]["attributes"]["version"] == 4
+    }
+    assert len(grids) >= 2
     assert len([v for v in CODEC if v["codec"]["expect"] == "error"]) >= 20
 
 

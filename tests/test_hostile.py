@@ -42,7 +42,9 @@ def work(tmp_path_factory):
     scene = tmp / "scene.ply"
     write_ply(random_scene(300, sh_degree=1, seed=0), scene)
     base = tmp / "base.gspc"
-    encode(scene, base, opts=EncodeOptions(lam=200, synth_views=6, max_side=48, check_iterations=0))
+    # The uniform codec (versions 1-3): tools/amplification_cases.py builds its payloads for that layout.
+    opts = EncodeOptions(lam=200, synth_views=6, max_side=48, check_iterations=0, precision=False)
+    encode(scene, base, opts=opts)
     return tmp, scene, base
 
 
@@ -184,5 +186,54 @@ def test_spec_reader_refuses_every_hostile_header_and_view(work):
             spec_reader.read_scene(data)
             accepted.append(desc)
         except spec_reader.SpecError:
+            pass
+    assert not accepted, accepted
+
+
+def test_precision_files_end_as_expected(work):
+    """Version 4 (spec 10.13): 16 classes at the count floor and a chunk's tables at its shared bound decode;
+    a widest table in every matrix of 16 classes (a 30 s decode before the shared bound), one entry past the
+    bound, 17 classes and a matrix of 2^40 rows are refused at once, in one line."""
+    import amplification_cases as amp
+
+    from gspc.format import container
+
+    tmp, _, base = work
+    for name, path, ok in amp.precision_files(container.read(base).header, tmp):
+        out = tmp / "prec_out.ply"
+        res = runner.invoke(app, ["decode", str(path), "-o", str(out), "--no-restore", "--no-refine"])
+        assert outcome(Case("", name, [], out, "ok" if ok else "refused"), res.exit_code, res.output) == (
+            "ok" if ok else "refused"
+        ), (name, res.output)
+        out.unlink(missing_ok=True)
+
+
+def test_both_decoders_refuse_every_version_4_header_mutation(work, tmp_path):
+    """Each mutation of a version-4 header's classes is refused by gspc and by tests/spec_reader.py."""
+    import spec_reader
+    from hostile_cases import precision_base, precision_mutations
+
+    from gspc.format import container
+
+    _, _, base = work
+    v4 = container.read(precision_base(base, tmp_path))
+    spec_reader.read_scene(container.pack(v4.header, v4.chunks))  # the base itself decodes
+    decode(precision_base(base, tmp_path), tmp_path / "ok.ply", DecodeOptions(restore=False, refine=False))
+    mutations = list(precision_mutations(v4.header))
+    assert len(mutations) > 50
+    accepted = []
+    for desc, meta in mutations:
+        data = container.pack(meta, v4.chunks)
+        try:
+            spec_reader.read_scene(data)
+            accepted.append(f"spec reader: {desc}")
+        except spec_reader.SpecError:
+            pass
+        path = tmp_path / "m.gspc"
+        path.write_bytes(data)
+        try:
+            decode(path, tmp_path / "m.ply", DecodeOptions(restore=False, refine=False))
+            accepted.append(f"gspc: {desc}")
+        except GspcError:
             pass
     assert not accepted, accepted

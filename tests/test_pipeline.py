@@ -158,14 +158,15 @@ def test_long_check_scores_a_trial_first(tmp_path):
 
 
 def test_decoder_refines_inside_the_quantisation_cells(encoded, tmp_path):
-    from gspc.codec.attributes import decode_attributes
+    from gspc.codec.attributes import decode_attributes, decoded_precision
     from gspc.codec.cells import quantisation_cells
 
     _, out, _ = encoded
     c = container.read(out)
     section = AttributeSection.from_dict(c.header["attributes"])
-    coded = decode_attributes({ch.type: ch.payload for ch in c.chunks}, section)
-    cells = quantisation_cells(coded, section)
+    chunks = {ch.type: ch.payload for ch in c.chunks}
+    coded = decode_attributes(chunks, section)
+    cells = quantisation_cells(coded, section, decoded_precision(chunks, section))
     inside, free = tmp_path / "a.ply", tmp_path / "b.ply"
     rep = decode(out, inside, DecodeOptions(iterations=5))
     assert rep.refine_iterations == 5

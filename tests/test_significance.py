@@ -2,7 +2,7 @@ import numpy as np
 import torch
 from scenes import random_scene
 
-from gspc.encoder.significance import attribute_gradients, blend_weights, significance
+from gspc.encoder.significance import measure_view, significance
 from gspc.render import render
 from gspc.views import synthesize_views
 
@@ -10,9 +10,10 @@ from gspc.views import synthesize_views
 def test_blend_weights_sum_to_the_rendered_alpha():
     scene = random_scene(200, sh_degree=1, seed=3)
     cam = synthesize_views(scene, 1, 48, 40)[0]
-    w = blend_weights(scene, cam)
+    w = measure_view(scene, cam, (0.0, 0.0, 0.0)).weight
     assert w.shape == (200,) and (w >= 0).all()
-    assert torch.isclose(w.sum(), render(scene, cam).alpha.sum(), rtol=1e-5)
+    # A fraction of the view's pixels: the summed weights are the rendered alpha's mean.
+    assert torch.isclose(w.sum(), render(scene, cam).alpha.double().mean(), rtol=1e-5)
 
 
 def test_hidden_gaussian_weighs_nothing():
@@ -24,7 +25,7 @@ def test_hidden_gaussian_weighs_nothing():
         scene.means[0] = 0.5 * centre  # half-way to the camera
         scene.means[1] = -0.5 * centre  # behind the first, from the camera
         scene.log_scales[1] = scene.log_scales[0] - 1.0  # and smaller on screen: wholly covered
-    w = blend_weights(scene, cam)
+    w = measure_view(scene, cam, (0.0, 0.0, 0.0)).weight * (32 * 32)  # in pixels
     assert w[0] > 10 and w[1] < 0.02 * w[0]
 
 
@@ -34,7 +35,9 @@ def test_attribute_gradients_cover_every_group_and_a_faint_speck_ranks_last():
         scene.opacities[7] = -5.0  # alpha 0.0067: barely shows
         scene.log_scales[7] = -7.0
     cams = synthesize_views(scene, 3, 40, 40)
-    g = attribute_gradients(scene, cams[0], (0.0, 0.0, 0.0))
+    m = measure_view(scene, cams[0], (0.0, 0.0, 0.0))
+    g = m.gradient
+    assert m.sh_band_change.shape == (60, 2) and (m.sh_band_change >= 0).all()
     assert set(g) == {"means", "quats", "log_scales", "opacities", "sh_dc", "sh_rest"}
     assert all(v.shape == (60,) and torch.isfinite(v).all() for v in g.values())
     sig = significance(scene, cams)
@@ -42,3 +45,17 @@ def test_attribute_gradients_cover_every_group_and_a_faint_speck_ranks_last():
         order = sig.ranking(measure)
         assert sorted(order.tolist()) == list(range(60))
         assert np.where(order == 7)[0][0] >= 50  # among the least significant
+
+
+def test_sh_band_change_is_the_first_order_change_of_dropping_a_band():
+    """Linear in the coefficients: the summed image changes by exactly the band's term when it is dropped."""
+    scene = random_scene(40, sh_degree=2, seed=9)
+    cam = synthesize_views(scene, 1, 40, 40)[0]
+    m = measure_view(scene, cam, (0.0, 0.0, 0.0))
+    whole = render(scene, cam).image.double().sum()
+    dropped = scene.map(lambda x: x.detach().clone())
+    with torch.no_grad():
+        dropped.sh_rest[:, 3:8] = 0  # band 2, every Gaussian
+    change = (whole - render(dropped, cam).image.double().sum()).abs()
+    # Colours clamped at 0 make it first order only; the Gaussians' own terms bound it.
+    assert change <= m.sh_band_change[:, 1].sum() * 1.001 + 1e-6

@@ -5,9 +5,11 @@ reference's coder, symbol by symbol; whole files from gspc's encoder must decode
 """
 
 import re
+from dataclasses import replace
 from pathlib import Path
 
 import constriction
+import make_vectors as mv
 import msgpack
 import numpy as np
 import pytest
@@ -18,8 +20,10 @@ from scenes import random_scene
 
 from gspc.codec.attributes import decode_attributes, encode_attributes
 from gspc.codec.entropy import _categorical, decode_matrix, encode_matrix, fixed_point_table
+from gspc.codec.precision import PrecisionParams
 from gspc.errors import CodecError
 from gspc.format import container
+from gspc.format.attribute_section import AttributeSection
 from gspc.format.header import FileHeader, SideInfoHeader
 from gspc.format.side_chunk import read_side_views
 from gspc.io import read_scene
@@ -100,8 +104,8 @@ def test_spec_worked_example():
         ]
 
 
-def attribute_file(scene, params) -> tuple[bytes, dict]:
-    enc = encode_attributes(scene, params)
+def attribute_file(scene, params, significance=None) -> tuple[bytes, dict]:
+    enc = encode_attributes(scene, params, significance=significance)
     meta = {
         "attributes": enc.section.to_dict(),
         "side_info": {"background": [0.0, 0.0, 0.0], "restorer": "none"},
@@ -142,6 +146,67 @@ def test_spec_reader_decodes_a_contracted_position_grid():
     data, enc = attribute_file(scene, QUALITY["low"].attributes)
     assert enc.section.version == 2
     assert_same(sr.read_scene(data)[0], enc.decoded)
+
+
+PRECISION = replace(
+    QUALITY["low"].attributes, precision=PrecisionParams(exponents=(-1, 2), bias=1.0, sh_keep=1.0)
+)
+
+
+@pytest.mark.parametrize("degree, grid", [(0, 1), (1, 2), (2, 3), (3, 1), (0, 3)])
+def test_spec_reader_decodes_precision_classes(degree, grid):
+    """Attribute codec version 4 (spec 10.13) on each position grid (its version 1, 2 or 3): classes and
+    per-Gaussian SH degrees from the encoder, every decoded value the same in both decoders."""
+    far = {1: 0, 2: 15, 3: 40}[grid]
+    scene = mv.unbounded_scene(300, far, 20 + degree, 0.5 if grid == 3 else 0.0, degree=degree)
+    sig = mv.synthetic_significance(scene.num_gaussians, degree, seed=degree)
+    data, enc = attribute_file(scene, PRECISION, sig)
+    assert enc.section.version == 4 and enc.section.position.version == grid and enc.section.classes
+    assert_same(sr.read_scene(data)[0], enc.decoded)
+
+
+def test_spec_precision_example():
+    """Section 10.13's example: C = 2, SH degree 1, PREC rows (0, 1), (1, 0), (0, 0): OPAC bins of 2 and 1
+    rows, SHRS bins 1 x 9 and 0 x 9; both decoders read it alike, each class with its own steps."""
+    steps = {"opacity_levels": 8, "scale_step": 0.5, "rotation_levels": 4, "dc_step": 0.25}
+    a = {
+        "version": 4,
+        "n": 3,
+        "sh_degree": 1,
+        "position": {"bits": 2, "lo": [0.0, 0.0, 0.0], "step": [1.0, 1.0, 1.0]},
+        **steps,
+        "sh_steps": [0.125] * 3,
+        "classes": [dict(steps, opacity_levels=2, scale_step=2.0, dc_step=1.0, sh_steps=[1.0] * 3)],
+    }
+    rows = {0: [0, 2], 1: [1]}  # Gaussians of each class, in decoded order
+
+    def bins(columns: int, values) -> bytes:
+        return msgpack.packb([encode_matrix(values(k, len(r), columns)) for k, r in rows.items()])
+
+    def q(k: int, m: int, c: int) -> np.ndarray:
+        return np.arange(m * c, dtype=np.int64).reshape(m, c) + k + 1
+
+    def rot(k: int, m: int, c: int) -> np.ndarray:
+        return np.tile([0, 2, 2, 2], (m, 1))  # largest component w, the others 2 of M = 4 levels: in range
+
+    chunks = {
+        "POSN": msgpack.packb([encode_matrix(np.array([[0], [1], [1]])), b""]),
+        "PREC": encode_matrix(np.array([[0, 1], [1, 0], [0, 0]])),
+        "OPAC": bins(1, q),
+        "SCAL": bins(3, q),
+        "ROTN": bins(4, rot),
+        "SHDC": bins(3, q),
+        "SHRS": msgpack.packb([encode_matrix(q(0, 1, 9)), msgpack.packb([0, 9, b"", b""])]),
+    }
+    assert [msgpack.unpackb(b)[0] for b in msgpack.unpackb(chunks["OPAC"])] == [2, 1]
+    meta = {"attributes": a, "side_info": {"background": [0.0, 0.0, 0.0], "restorer": "none"}}
+    data = container.pack(meta, [container.Chunk(t, p) for t, p in chunks.items()])
+    ref = decode_attributes(chunks, AttributeSection.from_dict(a))
+    assert_same(sr.read_scene(data)[0], ref)
+    assert ref.log_scales[1].tolist() == [4.0, 6.0, 8.0]  # class 1's row 0 (2, 3, 4) x its step 2
+    assert ref.log_scales[2].tolist() == [2.0, 2.5, 3.0]  # class 0's row 1 (4, 5, 6) x 0.5
+    assert ref.sh_rest[0, :, 0].tolist() == [0.125, 0.5, 0.875]  # coefficient j, channel 0: column 3 j
+    assert not ref.sh_rest[1:].any()  # degree 0: no SH rest
 
 
 @pytest.mark.slow

@@ -25,7 +25,7 @@ from gspc import limits
 from gspc.format import container
 from gspc.scene import num_sh_rest
 
-ATTRIBUTES = ("POSN", "OPAC", "SCAL", "ROTN", "SHDC", "SHRS")
+ATTRIBUTES = ("POSN", "PREC", "OPAC", "SCAL", "ROTN", "SHDC", "SHRS")
 ONE_VALUE = [[1, 0]] * 15  # the 15 model specs of a column whose every row is 0 (spec 10.0)
 
 
@@ -205,6 +205,97 @@ def model_list_files(header: dict, d: Path) -> list[tuple[str, Path, bool]]:
     opac = msgpack.packb([n, 1, models, b""], use_bin_type=True)
     name = f"model list of {len(raw):,} bytes from a {len(models):,}-byte frame"
     out.append((name, write_gspc(d / "models_big.gspc", header, n, constant_chunks(a, n, opac=opac)), False))
+    return out
+
+
+# ------------------------------------------------------------------------ precision classes (version 4)
+
+
+def precision_header(header: dict, classes: int) -> dict:
+    """The base header at attribute codec version 4 (spec 10.13) with ``classes`` precision classes, each
+    with the section's own quantisers (maps need not differ)."""
+    a = header["attributes"]
+    steps = {k: a[k] for k in ("opacity_levels", "scale_step", "rotation_levels", "dc_step", "sh_steps")}
+    return dict(header, attributes=dict(a, version=4, classes=[steps] * (classes - 1)))
+
+
+def precision_chunks(
+    meta: dict, counts: list[int], tables: dict[str, list[int]] | None = None
+) -> dict[str, bytes]:
+    """Version-4 payloads of identical Gaussians, ``counts[k]`` of them in class k (in class order), each of
+    the section's SH degree; ``tables``: chunk -> per class the window of one unused geometric model (column
+    0, bucket 14, which column 0 never uses) in each of the class's matrices of that chunk."""
+    from gspc.codec.entropy import encode_matrix
+
+    n, degree = sum(counts), meta["sh_degree"]
+    tables = tables or {}
+
+    def matrix(name: str, k: int, columns: list[tuple[int, list]]) -> bytes:
+        if not counts[k]:
+            return msgpack.packb([0, len(columns), b"", b""], use_bin_type=True)
+        if name in tables:
+            columns = [(0, [*columns[0][1][:14], [2, 0, tables[name][k] - 1, 0, 0, 0]]), *columns[1:]]
+        return ecm(counts[k], columns)
+
+    rotation = [(0, ONE_VALUE), *[(0, [[1, meta["rotation_levels"] // 2]] * 15)] * 3]
+    widths = {"OPAC": [(0, ONE_VALUE)], "SCAL": [(0, ONE_VALUE)] * 3, "ROTN": rotation}
+    widths["SHDC"] = widths["SCAL"]
+    classes = np.repeat(np.arange(len(counts)), counts)
+    prec = np.stack([classes, np.full(n, degree)], 1)[:, : 1 if degree == 0 else 2]
+    chunks = {
+        "POSN": msgpack.packb([ecm(n, [(0, ONE_VALUE)]), b""], use_bin_type=True),
+        "PREC": encode_matrix(prec),
+    }
+    for name, columns in widths.items():
+        chunks[name] = msgpack.packb(
+            [matrix(name, k, columns) for k in range(len(counts))], use_bin_type=True
+        )
+    if degree:
+        bands = [
+            matrix("SHRS", k, [(0, ONE_VALUE)] * 3 * (2 * b + 1))
+            for k in range(len(counts))
+            for b in range(1, degree + 1)
+        ]
+        chunks["SHRS"] = msgpack.packb(bands, use_bin_type=True)
+    return chunks
+
+
+def precision_files(header: dict, d: Path) -> list[tuple[str, Path, bool]]:
+    """(name, file, decodes) of version-4 files: 16 classes at the Gaussian-count floor, one widest table in
+    every matrix of 16 classes (each chunk's matrices share one bound), a chunk's tables at that shared bound
+    and one entry past it, 17 classes, and a matrix declaring more rows than its class has."""
+    h16 = precision_header(header, 16)
+    a, n, ones = h16["attributes"], limits.GAUSSIAN_FLOOR, [1] * 16
+    out = [
+        (
+            "16 classes of 4,096 identical Gaussians: the count floor",
+            write_gspc(d / "prec_floor.gspc", h16, n, precision_chunks(a, [n // 16] * 16)),
+            True,
+        )
+    ]
+    widest = {t: [limits.MODEL_TABLE_FLOOR] * 16 for t in ("OPAC", "SCAL", "ROTN", "SHDC", "SHRS")}
+    path = write_gspc(d / "prec_widest.gspc", h16, 16, precision_chunks(a, ones, widest))
+    out.append(
+        (f"16 classes, a 2^22-symbol table in every matrix ({path.stat().st_size:,} bytes)", path, False)
+    )
+    for past in (0, 1):
+        # OPAC's 16 one-row matrices with tables summing to the chunk's bound (its floor, 2^22), or one more.
+        total = limits.MODEL_TABLE_FLOOR + past
+        windows = [total // 16 + (k < total % 16) for k in range(16)]
+        chunks = precision_chunks(a, ones, {"OPAC": windows})
+        name = (
+            f"16 classes, OPAC's tables {'one entry past' if past else 'at'} the chunk's shared bound, 2^22"
+        )
+        out.append((name, write_gspc(d / f"prec_tables_{past}.gspc", h16, 16, chunks), not past))
+    h17 = precision_header(header, 17)
+    chunks = precision_chunks(h17["attributes"], [1] * 17)
+    out.append(("17 classes (16 class maps)", write_gspc(d / "prec_17.gspc", h17, 17, chunks), False))
+    chunks = precision_chunks(a, ones)
+    bins = msgpack.unpackb(chunks["SCAL"])
+    bins[3] = msgpack.packb([1 << 40, 3, b"", b""], use_bin_type=True)
+    chunks["SCAL"] = msgpack.packb(bins, use_bin_type=True)
+    name = "a class of 1 Gaussian whose SCAL matrix declares 2^40 rows"
+    out.append((name, write_gspc(d / "prec_rows.gspc", h16, 16, chunks), False))
     return out
 
 

@@ -2,10 +2,10 @@
 
     python tools/fuzz_inputs.py
 
-Runs every case of tests/hostile.py through the CLI in-process, as tests/test_hostile.py does: bad option
-values and environment, bad camera files and poses, .gspc files with mutated header fields or side
+Runs every case of tools/hostile_cases.py through the CLI in-process, as tests/test_hostile.py does: bad
+option values and environment, bad camera files and poses, .gspc files with mutated header fields or side
 information that asks too much, files crafted at each size-bounded limit of gspc/limits.py and just past it
-(tests/amplification.py), SOG and SPZ scenes, and outputs that are devices, folders or sockets. A clean
+(tools/amplification_cases.py), SOG and SPZ scenes, and outputs that are devices, folders or sockets. A clean
 outcome is the one the case expects: a refusal (exit 1, one ``error:`` line, no output, no warning) or, at a
 limit's edge, success; and no file other than the case's output is created, changed or removed. Per
 category it records the slowest case and the largest peak of Python and numpy allocations (tracemalloc) of
@@ -168,11 +168,11 @@ def report(tally: dict, bad: list[str], extra: dict, seconds: float) -> str:
         "",
         f"Command: `python tools/fuzz_inputs.py` ({seconds:.0f} s; one torch thread; a 2-vCPU VM shared with "
         f"other jobs, so times are loose upper bounds; {platform.python_implementation()} "
-        f"{platform.python_version()}, torch {torch.__version__}). Cases come from `tests/hostile.py` (the "
-        "generator `tests/test_hostile.py` runs; the files at each size-bounded limit from "
-        "`tests/amplification.py`); each goes through the CLI in-process and must end as it expects: "
-        "refused (exit status 1, one `error:` line last, no warning, no `internal error` or traceback, no "
-        "output file) "
+        f"{platform.python_version()}, torch {torch.__version__}). Cases come from "
+        "`tools/hostile_cases.py` (the generator `tests/test_hostile.py` runs; the files at each "
+        "size-bounded limit from `tools/amplification_cases.py`); each goes through the CLI in-process and "
+        "must end as it expects: refused (exit status 1, one `error:` line last, no warning, no `internal "
+        "error` or traceback, no output file) "
         "or, for a file at a limit's edge and input gspc reads, succeeded; in both cases no file other than "
         "the case's output may be created, changed or removed. The limits are in `gspc/limits.py` and spec "
         "10.10.",

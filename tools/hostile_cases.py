@@ -12,6 +12,7 @@ import copy
 import json
 import math
 import os
+import re
 import struct
 import zipfile
 from collections.abc import Iterator
@@ -394,6 +395,27 @@ def header_mutations(meta: dict) -> Iterator[tuple[str, dict]]:
     yield "side_info.views not a list", _set(meta, ("side_info", "views"), {"a": 1})
 
 
+def precision_mutations(meta: dict) -> Iterator[tuple[str, dict]]:
+    """(description, mutated header) of a version-4 header (spec 10.13): header_mutations' of its classes
+    array, its first map and that map's first SH step (the others are alike), and version 1 over its PREC
+    and bins; each one a header the decoder must refuse."""
+    alike = re.compile(r"attributes\.classes\.([1-9]|0\.sh_steps\.[1-9])")
+    for desc, m in header_mutations(meta):
+        if desc.startswith("attributes.classes") and not alike.match(desc):
+            yield desc, m
+    yield "attributes.version 1 over PREC and bins", _set(meta, ("attributes", "version"), 1)
+
+
+def precision_base(base: Path, tmp: Path) -> Path:
+    """A version-4 file of 3 precision classes of 4 identical Gaussians each, with the base file's header
+    otherwise (tools/amplification_cases.py): the file precision_mutations breaks."""
+    import amplification_cases as amp
+
+    header = amp.precision_header(container.read(base).header, 3)
+    chunks = amp.precision_chunks(header["attributes"], [4, 4, 4])
+    return amp.write_gspc(tmp / "precision_base.gspc", header, 12, chunks)
+
+
 def _views_10(records: list[dict], width: int, height: int, count: int) -> list[dict]:
     """Side-information views in the 1.0 header form, each ``width`` x ``height``, no residual."""
     cam = dict(records[0]["camera"])
@@ -491,6 +513,11 @@ def gspc_files(base: Path, tmp: Path) -> list[tuple[str, str, Path]]:
         p = d / f"s{i:04d}.gspc"
         container.write(p, meta, chunks)
         out.append(("side-information views and images", desc, p))
+    v4 = container.read(precision_base(base, tmp))
+    for i, (desc, meta) in enumerate(precision_mutations(v4.header)):
+        p = d / f"p{i:04d}.gspc"
+        container.write(p, meta, v4.chunks)
+        out.append(("header fields of version 4", desc, p))
     return out
 
 
@@ -577,6 +604,7 @@ def amplification_cases(base: Path, tmp: Path) -> Iterator[Case]:
         ("work: Gaussians per coded bit", amp.count_files),
         ("work: entropy-model tables", amp.table_files),
         ("work: entropy-model lists", amp.model_list_files),
+        ("work: precision classes (version 4)", amp.precision_files),
     ):
         for name, path, ok in make(header, d):
             args = ["decode", str(path), "-o", str(out), "--no-restore", "--no-refine"]

@@ -680,12 +680,12 @@ def tiny_scene(n: int, degree: int, seed: int, rest_fraction: float = 0.5):
     )
 
 
-def unbounded_scene(n: int, far: int, seed: int, far_growth: float):
+def unbounded_scene(n: int, far: int, seed: int, far_growth: float, degree: int = 1):
     """tiny_scene's blob (within about 2 of the origin) with ``far`` Gaussians 20-40 away, their size
     ``far_growth`` x their distance (0: the blob's): a contracted grid (10.1), with a far set when large."""
     import torch
 
-    scene = tiny_scene(n + far, 1, seed)
+    scene = tiny_scene(n + far, degree, seed)
     g = np.random.default_rng(seed + 100)
     d = g.normal(size=(far, 3))
     d /= np.linalg.norm(d, axis=1, keepdims=True)
@@ -697,11 +697,42 @@ def unbounded_scene(n: int, far: int, seed: int, far_growth: float):
 
 
 def encode_scene(scene) -> tuple[dict, dict[str, bytes]]:
-    """(meta["attributes"], attribute payloads) from gspc's attribute encoder at the low preset."""
+    """(meta["attributes"], attribute payloads) from gspc's uniform attribute encoder (versions 1 to 3) at
+    lambda 8, the low preset's before per-Gaussian precision: these vectors keep their bytes."""
     from gspc.codec.attributes import encode_attributes
+    from gspc.codec.params import CodecParams
+
+    enc = encode_attributes(scene, CodecParams(lam=8.0))
+    return enc.section.to_dict(), enc.chunks
+
+
+def synthetic_significance(n: int, degree: int, seed: int):
+    """A Significance (gspc/codec/precision.py) of ``n`` Gaussians from seeded random measures spread over
+    six orders of magnitude, as a real scene's are: the encoder plans classes and SH degrees from it. Made
+    without rendering, so the vectors do not move with the renderer or the views."""
+    from gspc.codec.precision import Significance
+    from gspc.scene import ATTRIBUTE_NAMES
+
+    g = np.random.default_rng(seed)
+    gradient = {name: 10.0 ** g.uniform(-4, 2, n) for name in ATTRIBUTE_NAMES}
+    return Significance(10.0 ** g.uniform(-7, -1, n), gradient, 10.0 ** g.uniform(-5, 1, (n, degree)), 20)
+
+
+def encode_classed(scene, exponents: tuple[int, int], seed: int) -> tuple[dict, dict[str, bytes]]:
+    """(meta["attributes"], attribute payloads) of attribute codec version 4 (spec 10.13): the low preset
+    with precision classes of step multipliers 2^exponents[0] .. 2^exponents[1], each band of SH kept where
+    its change of the views is at least its coded step."""
+    from dataclasses import replace
+
+    from gspc.codec.attributes import encode_attributes
+    from gspc.codec.precision import PrecisionParams
     from gspc.presets import QUALITY
 
-    enc = encode_attributes(scene, QUALITY["low"].attributes)
+    precision = PrecisionParams(exponents=exponents, bias=1.0, sh_keep=1.0)
+    params = replace(QUALITY["low"].attributes, precision=precision)
+    sig = synthetic_significance(scene.num_gaussians, scene.sh_degree, seed)
+    enc = encode_attributes(scene, params, significance=sig)
+    assert enc.section.version == 4
     return enc.section.to_dict(), enc.chunks
 
 
@@ -720,7 +751,7 @@ def scene_meta(attributes: dict, side_info: dict | None = None) -> dict:
 
 
 def attribute_entries(chunks: dict[str, bytes], **index) -> list[tuple[dict, bytes]]:
-    order = ["POSN", "OPAC", "SCAL", "ROTN", "SHDC", "SHRS"]
+    order = ["POSN", "PREC", "OPAC", "SCAL", "ROTN", "SHDC", "SHRS"]
     return [(entry(t, chunks[t], index=index.get(t, 0)), chunks[t]) for t in order if t in chunks]
 
 
@@ -923,8 +954,8 @@ def codec_vectors() -> list[Vector]:
         minor=0,
     )
 
-    def bad_codec(name: str, desc: str, meta: dict, chunks, *contains: str) -> None:
-        v = valid(name, desc, meta, chunks, minor=1)
+    def bad_codec(name: str, desc: str, meta: dict, chunks, *contains: str, minor: int = 1) -> None:
+        v = valid(name, desc, meta, chunks, minor=minor)
         v.codec = {"expect": "error", "error": "CodecError", "message_contains": list(contains)}
         vs.append(v)
 
@@ -1185,7 +1216,117 @@ def codec_vectors() -> list[Vector]:
         [*attribute_entries(c0), (entry("RESI", image), image)],
         "gain",
     )
+    precision_vectors(ok, bad_codec, a0, c0)
     return vs
+
+
+def precision_vectors(ok, bad_codec, a0: dict, c0: dict) -> None:
+    """Attribute codec version 4 (spec 10.13): decoded files on each kind of grid, and one refused file for
+    each of its (v) decisions in 10.11."""
+    from gspc.codec.entropy import encode_matrix
+
+    a7, c7 = encode_classed(tiny_scene(120, 3, 9), (-1, 2), 9)
+    ok(
+        "codec_precision_sh3",
+        f"120 Gaussians, SH degree 3: attribute codec version 4, {len(a7['classes']) + 1} precision classes "
+        "and per-Gaussian SH degrees 0..3 (PREC, each attribute chunk an array of bins) on a plain grid",
+        scene_meta(a7),
+        attribute_entries(c7),
+        minor=4,
+    )
+    a8, c8 = encode_classed(unbounded_scene(120, 50, 10, 0.5, degree=0), (-1, 1), 10)
+    assert "far_count" in a8["position"], "codec_precision_far_set must code a far set"
+    ok(
+        "codec_precision_far_set",
+        f"170 Gaussians, SH degree 0: attribute codec version 4, {len(a8['classes']) + 1} precision classes "
+        f"on a contracted grid with a far set of {a8['position']['far_count']} (PREC of one column, no SHRS)",
+        scene_meta(a8),
+        attribute_entries(c8),
+        minor=4,
+    )
+    a9, c9 = encode_classed(tiny_scene(60, 1, 11), (0, 0), 11)
+    assert a9["classes"] == [], "codec_precision_one_class must have class 0 only"
+    ok(
+        "codec_precision_one_class",
+        "60 Gaussians, SH degree 1: attribute codec version 4 with one class (an empty classes array): "
+        "each attribute chunk an array of one bin, SHRS of one band",
+        scene_meta(a9),
+        attribute_entries(c9),
+        minor=4,
+    )
+
+    def refused(name: str, desc: str, *contains: str, meta=None, **payloads) -> None:
+        chunks = {k: v for k, v in {**c7, **payloads}.items() if v is not None}
+        bad_codec(name, desc, meta or scene_meta(a7), attribute_entries(chunks), *contains, minor=4)
+
+    def prec(column: int, row: int, value: int) -> bytes:
+        """c7's PREC with one entry changed."""
+        from gspc.codec.entropy import decode_matrix
+
+        m = decode_matrix(c7["PREC"], (a7["n"], 2))
+        m[row, column] = value
+        return encode_matrix(m)
+
+    count = len(a7["classes"]) + 1
+    refused(
+        "codec_invalid_precision_class",
+        f"PREC names class {count} of {count} classes (0 .. {count - 1})",
+        "precision class",
+        PREC=prec(0, 5, count),
+    )
+    refused(
+        "codec_invalid_precision_sh_degree",
+        "PREC names SH degree 4 in a file of SH degree 3",
+        "SH degree",
+        PREC=prec(1, 5, 4),
+    )
+    prec0 = encode_matrix(np.zeros((a0["n"], 1), np.int64))
+    bad_codec(
+        "codec_invalid_prec_below_version_4",
+        "a PREC chunk (every Gaussian class 0) in a file of attribute codec version 1",
+        scene_meta(a0),
+        attribute_entries({**c0, "PREC": prec0}),
+        "PREC",
+    )
+    refused("codec_invalid_prec_missing", "attribute codec version 4 without a PREC chunk", "PREC", PREC=None)
+    maps = [a7["classes"][0]] * 16
+    refused(
+        "codec_invalid_class_maps",
+        "attribute codec version 4 with 16 classes maps (at most 15)",
+        "at most 15",
+        meta=scene_meta(dict(a7, classes=maps)),
+    )
+    lacking = [{k: v for k, v in a7["classes"][0].items() if k != "dc_step"}, *a7["classes"][1:]]
+    refused(
+        "codec_invalid_class_map_key",
+        "attribute codec version 4 whose classes[0] lacks dc_step",
+        "dc_step",
+        meta=scene_meta(dict(a7, classes=lacking)),
+    )
+    # 10.0: the ECMs of one chunk share one table bound; two of OPAC's get an unused wide model (column 0,
+    # bucket 14: column 0's intra class is always 0), each within its own ECM's bound.
+    bins = msgpack.unpackb(c7["OPAC"])
+    others = sum(table_entries(ecm_parts(b)[2]) for b in bins if ecm_parts(b)[0])
+    for extra, good in ((0, True), (1, False)):
+        half = ((1 << 22) - others + extra) // 2
+        widths = (half, (1 << 22) - others + extra - half)
+        wide = [with_model(b, 0, 14, [2, 0, w - 1, 0, 0, 0]) for b, w in zip(bins, widths)]
+        desc = (
+            f"OPAC's {len(bins)} ECMs with tables that sum to 2^22{' + 1' if extra else ''} entries (unused "
+            f"models of {widths[0]} and {widths[1]} symbols in classes 0 and 1)"
+        )
+        chunks = attribute_entries({**c7, "OPAC": msgpack.packb([*wide, *bins[2:]], use_bin_type=True)})
+        if good:
+            ok("codec_precision_tables_floor", desc, scene_meta(a7), chunks, minor=4)
+        else:
+            bad_codec("codec_invalid_precision_tables", desc, scene_meta(a7), chunks, "entries", minor=4)
+    bins = msgpack.unpackb(c7["SCAL"])
+    refused(
+        "codec_invalid_precision_bins",
+        f"SCAL an array of {count + 1} bins for {count} classes (an empty ECM added)",
+        "bins",
+        SCAL=msgpack.packb([*bins, msgpack.packb([0, 3, b"", b""], use_bin_type=True)], use_bin_type=True),
+    )
 
 
 def all_vectors() -> list[Vector]:

@@ -27,6 +27,17 @@ import torch
 from gspc.codec import positions as pos
 from gspc.codec.entropy import SYMBOL_LIMIT, decode_matrix, encode_matrix
 from gspc.codec.params import CodecParams
+from gspc.codec.precision import (
+    Plan,
+    PrecisionMap,
+    RateSteps,
+    Significance,
+    decode_precision,
+    encode_precision,
+    pack_bins,
+    plan_precision,
+    unpack_bins,
+)
 from gspc.codec.quantisers import (
     OPACITY_FLOOR,
     SQRT_HALF,
@@ -35,8 +46,13 @@ from gspc.codec.quantisers import (
     out_of_range,
 )
 from gspc.errors import CodecError, InputError, ValueRangeError
-from gspc.format.attribute_section import AttributeSection, check_attribute_chunks
-from gspc.format.chunks import OPAC, POSN, ROTN, SCAL, SHDC, SHRS
+from gspc.format.attribute_section import (
+    AttributeSection,
+    ClassSteps,
+    PositionGrid,
+    check_attribute_chunks,
+)
+from gspc.format.chunks import ATTRIBUTE_TYPES, OPAC, POSN, PREC, ROTN, SCAL, SHDC, SHRS
 from gspc.scene import GaussianScene, num_sh_rest
 
 
@@ -47,6 +63,11 @@ class EncodedAttributes:
     decoded: GaussianScene  # G~, from decode_attributes on the chunks
     kept: np.ndarray  # indices into the input scene, in decoded (curve) order
     lam: float  # the rate knob it was coded at
+
+    @property
+    def precision(self) -> PrecisionMap | None:
+        """Each Gaussian's class and SH degree at version 4 (what the decoder reads), else None."""
+        return decoded_precision(self.chunks, self.section)
 
     @property
     def num_bytes(self) -> int:
@@ -95,12 +116,44 @@ def prune_mask(scene: GaussianScene, params: CodecParams, visible: np.ndarray | 
     return keep
 
 
+def class_steps(
+    params: CodecParams, degree: int, exponent: int = 0, groups: tuple[str, ...] = ()
+) -> ClassSteps:
+    """The quantisers at ``params``' rate, the steps of ``groups`` times ``2^exponent``: a precision
+    class."""
+    lam = params.lam
+
+    def m(group: str) -> float:
+        return 2.0**exponent if group in groups else 1.0
+
+    # Even levels make a zero component exact: axis-aligned Gaussians are common and odd levels cost
+    # them half a step of rotation error (lego: +1.2 dB at equal bytes).
+    rotation = params.rotation_step * params.geometry_lam * m("quats")
+    return ClassSteps(
+        opacity_levels=max(1, int(round(1.0 / (params.opacity_step * lam * m("opacities"))))),
+        scale_step=float(params.scale_step * params.geometry_lam * m("log_scales")),
+        rotation_levels=2 * max(1, int(math.ceil(SQRT_HALF / rotation))),
+        dc_step=float(params.dc_step * lam * m("sh_dc")),
+        sh_steps=tuple(s * m("sh_rest") for s in _sh_steps(params, degree)),
+    )
+
+
 def encode_attributes(
-    scene: GaussianScene, params: CodecParams, visible: np.ndarray | None = None
+    scene: GaussianScene,
+    params: CodecParams,
+    visible: np.ndarray | None = None,
+    significance: Significance | None = None,
 ) -> EncodedAttributes:
-    """Encode a scene; ``decoded`` is what :func:`decode_attributes` returns for these chunks."""
+    """Encode a scene; ``decoded`` is what :func:`decode_attributes` returns for these chunks. With
+    ``params.precision`` and the ``significance`` of the scene's Gaussians, per-Gaussian precision
+    (version 4, gspc/codec/precision.py); otherwise every Gaussian at the rate's steps."""
     scene.validate()
-    keep_idx = np.flatnonzero(prune_mask(scene, params, visible))
+    keep = prune_mask(scene, params, visible)
+    plan = None
+    if params.precision is not None and significance is not None:
+        plan = _plan(scene, params, significance, keep)
+        keep = plan.keep
+    keep_idx = np.flatnonzero(keep)
     if keep_idx.size == 0:
         raise CodecError("every Gaussian was pruned (transparent or unseen); use the keep flags to code them")
     means = _np(scene.means, keep_idx)
@@ -110,33 +163,39 @@ def encode_attributes(
     except CodecError as err:  # a grid the format's bounds refuse (spec 10.1)
         raise InputError(f"the scene's positions cannot be coded: {err}") from None
     kept = keep_idx[order]
+    if plan is not None:
+        chunks, section = _encode_classed(scene, params, plan, kept, grid)
+        chunks = {POSN: pos.encode_positions(voxels, grid), **chunks}
+    else:
+        chunks, section = _encode_uniform(scene, params, kept, grid)
+        chunks = {POSN: pos.encode_positions(voxels, grid), **chunks}
+    chunks = {t: chunks[t] for t in ATTRIBUTE_TYPES if t in chunks}  # the order the file holds them in
+    decoded = decode_attributes(chunks, section)
+    return EncodedAttributes(chunks=chunks, section=section, decoded=decoded, kept=kept, lam=params.lam)
 
+
+def _encode_uniform(
+    scene: GaussianScene, params: CodecParams, kept: np.ndarray, grid: PositionGrid
+) -> tuple[dict[str, bytes], AttributeSection]:
+    """Versions 1 to 3: one class, every Gaussian at the rate's steps."""
     lam = params.lam
-    opacity_levels = max(1, int(round(1.0 / (params.opacity_step * lam))))
-    # Even levels make a zero component exact: axis-aligned Gaussians are common and odd levels cost
-    # them half a step of rotation error (lego: +1.2 dB at equal bytes).
-    rot_levels = 2 * max(1, int(math.ceil(SQRT_HALF / (params.rotation_step * params.geometry_lam))))
-    scale_step = float(params.scale_step * params.geometry_lam)
-    dc_step = float(params.dc_step * lam)
-    sh_steps = _sh_steps(params, scene.sh_degree)
+    base = class_steps(params, scene.sh_degree)
     section = AttributeSection(
         n=int(kept.size),
         sh_degree=int(scene.sh_degree),
         position=grid,
-        opacity_levels=opacity_levels,
-        scale_step=scale_step,
-        rotation_levels=rot_levels,
-        dc_step=dc_step,
-        sh_steps=tuple(sh_steps),
+        opacity_levels=base.opacity_levels,
+        scale_step=base.scale_step,
+        rotation_levels=base.rotation_levels,
+        dc_step=base.dc_step,
+        sh_steps=base.sh_steps,
     )
-
     quant = AttributeQuantisers.from_section(section, params.sh_deadzone)
     opac_q = quant.opacity.quantise(_np(scene.opacities, kept))
     scales, dc = _np(scene.log_scales, kept), _np(scene.sh_dc, kept)
-    _check_range("log scale", scales, scale_step, lam)
-    _check_range("SH DC", dc, dc_step, lam)
+    _check_range("log scale", scales, base.scale_step, lam)
+    _check_range("SH DC", dc, base.dc_step, lam)
     chunks = {
-        POSN: pos.encode_positions(voxels, grid),
         OPAC: encode_matrix(opac_q[:, None]),
         SCAL: encode_matrix(quant.scale.quantise(scales)),
         ROTN: encode_matrix(quant.rotation.quantise(_np(scene.quats, kept))),
@@ -144,11 +203,11 @@ def encode_attributes(
     }
     if scene.sh_degree > 0:
         # Faint Gaussians' view-dependent colour hardly shows: drop it (flag 0), an encoder-only choice.
-        faint = opac_q.astype(np.float64) < min(0.5, params.sh_faint_alpha * lam) * opacity_levels
+        faint = opac_q.astype(np.float64) < min(0.5, params.sh_faint_alpha * lam) * base.opacity_levels
         # Rows of the float32 SH rest are picked and widened block by block (int32 symbols: a million
         # Gaussians' 45 coefficients take 180 MB).
         rest, rows = scene.sh_rest.detach().cpu().numpy(), kept[~faint]
-        _check_range("SH rest", rest, np.asarray(sh_steps)[None, :, None], lam, rows)
+        _check_range("SH rest", rest, np.asarray(base.sh_steps)[None, :, None], lam, rows)
         q = quant.sh_rest.quantise(rest, rows)
         nonzero = (q != 0).any(axis=1)
         flags = np.zeros(kept.size, np.int64)
@@ -157,8 +216,73 @@ def encode_attributes(
             [encode_matrix(flags[:, None]), encode_matrix(q[nonzero])], use_bin_type=True
         )
         del q, nonzero
-    decoded = decode_attributes(chunks, section)
-    return EncodedAttributes(chunks=chunks, section=section, decoded=decoded, kept=kept, lam=params.lam)
+    return chunks, section
+
+
+def _plan(scene: GaussianScene, params: CodecParams, sig: Significance, candidates: np.ndarray) -> Plan:
+    """gspc/codec/precision.py's plan at this rate, for every input Gaussian."""
+    base = class_steps(params, scene.sh_degree)
+    alpha = torch.sigmoid(scene.opacities.detach().double()).cpu().numpy()
+    steps = RateSteps(
+        base.opacity_levels,
+        base.scale_step,
+        2.0 * SQRT_HALF / base.rotation_levels,
+        base.dc_step,
+        tuple(base.sh_steps[b * b - 1] for b in range(1, scene.sh_degree + 1)),
+    )
+    faint = min(0.5, params.sh_faint_alpha * params.lam)
+    return plan_precision(sig, alpha, steps, params.precision, candidates, faint, params.lam)
+
+
+def _encode_classed(
+    scene: GaussianScene, params: CodecParams, plan: Plan, kept: np.ndarray, grid: PositionGrid
+) -> tuple[dict[str, bytes], AttributeSection]:
+    """Version 4: each Gaussian's class and SH degree as planned (gspc/codec/precision.py), each class's
+    rows coded as matrices of their own."""
+    lam, prec, degree = params.lam, params.precision, scene.sh_degree
+    exponent = plan.exponent[kept]
+    # Class 0 is the rate's own steps; the others follow in increasing step.
+    exps = [0, *sorted(set(np.unique(exponent).tolist()) - {0})]
+    classes = np.zeros(len(kept), np.int64)
+    for i, e in enumerate(exps):
+        classes[exponent == e] = i
+    class_list = [class_steps(params, degree, e, prec.groups) for e in exps]
+    n = int(kept.size)
+    degrees = plan.degree[kept] if degree > 0 else np.zeros(n, np.int64)
+    base = class_list[0]
+    pmap = PrecisionMap(classes, degrees)
+    section = AttributeSection(
+        n=n,
+        sh_degree=int(degree),
+        position=grid,
+        opacity_levels=base.opacity_levels,
+        scale_step=base.scale_step,
+        rotation_levels=base.rotation_levels,
+        dc_step=base.dc_step,
+        sh_steps=base.sh_steps,
+        precision=True,
+        classes=tuple(class_list[1:]),
+    )
+    parts: dict[str, list[bytes]] = {OPAC: [], SCAL: [], ROTN: [], SHDC: [], SHRS: []}
+    rest = scene.sh_rest.detach().cpu().numpy()
+    for k, steps_k in enumerate(class_list):
+        rows = kept[pmap.rows(k)]
+        quant = AttributeQuantisers.from_steps(steps_k, params.sh_deadzone)
+        scales, dc = _np(scene.log_scales, rows), _np(scene.sh_dc, rows)
+        _check_range("log scale", scales, steps_k.scale_step, lam)
+        _check_range("SH DC", dc, steps_k.dc_step, lam)
+        parts[OPAC].append(encode_matrix(quant.opacity.quantise(_np(scene.opacities, rows))[:, None]))
+        parts[SCAL].append(encode_matrix(quant.scale.quantise(scales)))
+        parts[ROTN].append(encode_matrix(quant.rotation.quantise(_np(scene.quats, rows))))
+        parts[SHDC].append(encode_matrix(quant.dc.quantise(dc)))
+        for b in range(1, degree + 1):
+            band_rows = kept[pmap.rows(k)[degrees[pmap.rows(k)] >= b]]
+            _check_range("SH rest", rest, np.asarray(steps_k.sh_steps)[None, :, None], lam, band_rows)
+            q = quant.sh_rest.quantise(rest, band_rows)
+            parts[SHRS].append(encode_matrix(q[:, 3 * (b * b - 1) : 3 * ((b + 1) ** 2 - 1)]))
+    chunks = {PREC: encode_precision(pmap, degree)}
+    chunks.update({t: pack_bins(p) for t, p in parts.items() if t != SHRS or degree > 0})
+    return chunks, section
 
 
 def _check_range(name: str, values: np.ndarray, steps, lam: float, rows: np.ndarray | None = None) -> None:
@@ -184,6 +308,17 @@ def decode_attributes(chunks: dict[str, bytes], section: AttributeSection) -> Ga
     check_attribute_chunks(chunks, section)
     voxels = pos.decode_positions(chunks[POSN], grid, n)
     means = pos.positions(voxels, grid)
+    if section.precision:
+        quats, scales, opac, dc, rest = _decode_classed(chunks, section)
+    else:
+        quats, scales, opac, dc, rest = _decode_uniform(chunks, section)
+    t = torch.from_numpy
+    return GaussianScene(t(means), t(quats), t(scales), t(opac), t(dc), t(rest), degree)
+
+
+def _decode_uniform(chunks: dict[str, bytes], section: AttributeSection) -> tuple[np.ndarray, ...]:
+    """Versions 1 to 3: (quats, log scales, opacity logits, DC, SH rest) at the section's one class."""
+    n, degree = section.n, section.sh_degree
     quant = AttributeQuantisers.from_section(section)
     opac = quant.opacity.dequantise(_matrix(chunks, OPAC, n, 1)[:, 0])
     scales = quant.scale.dequantise(_matrix(chunks, SCAL, n, 3))
@@ -204,8 +339,41 @@ def decode_attributes(chunks: dict[str, bytes], section: AttributeSection) -> Ga
         flags = flags[:, 0].astype(bool)
         q = decode_matrix(rest_payload, (int(flags.sum()), 3 * k))
         rest[flags] = quant.sh_rest.dequantise(q)
-    t = torch.from_numpy
-    return GaussianScene(t(means), t(quats), t(scales), t(opac), t(dc), t(rest), degree)
+    return quats, scales, opac, dc, rest
+
+
+def _decode_classed(chunks: dict[str, bytes], section: AttributeSection) -> tuple[np.ndarray, ...]:
+    """Version 4 (spec 10.13): every class's rows from their own matrices, SH rest band by band up to each
+    Gaussian's degree."""
+    n, degree = section.n, section.sh_degree
+    pmap = decode_precision(chunks[PREC], section)
+    classes = section.all_classes
+    opac = np.empty(n, np.float32)
+    scales, dc = np.empty((n, 3), np.float32), np.empty((n, 3), np.float32)
+    quats = np.empty((n, 4), np.float32)
+    rest = np.zeros((n, num_sh_rest(degree), 3), np.float32)
+    bins = {t: unpack_bins(chunks[t], t, len(classes)) for t in (OPAC, SCAL, ROTN, SHDC)}
+    rest_bins = unpack_bins(chunks[SHRS], SHRS, len(classes) * degree) if degree > 0 else []
+    for k, steps_k in enumerate(classes):
+        rows = pmap.rows(k)
+        quant = AttributeQuantisers.from_steps(steps_k)
+        opac[rows] = quant.opacity.dequantise(decode_matrix(bins[OPAC][k], (len(rows), 1))[:, 0])
+        scales[rows] = quant.scale.dequantise(decode_matrix(bins[SCAL][k], (len(rows), 3)))
+        quats[rows] = quant.rotation.dequantise(decode_matrix(bins[ROTN][k], (len(rows), 4)))
+        dc[rows] = quant.dc.dequantise(decode_matrix(bins[SHDC][k], (len(rows), 3)))
+        for b in range(1, degree + 1):
+            band_rows = rows[pmap.degrees[rows] >= b]
+            q = decode_matrix(rest_bins[k * degree + b - 1], (len(band_rows), 3 * (2 * b + 1)))
+            band = np.asarray(steps_k.sh_steps[b * b - 1 : (b + 1) ** 2 - 1])[None, :, None]
+            rest[band_rows, b * b - 1 : (b + 1) ** 2 - 1] = (
+                q.reshape(-1, 2 * b + 1, 3).astype(np.float64) * band
+            )
+    return quats, scales, opac, dc, rest
+
+
+def decoded_precision(chunks: dict[str, bytes], section: AttributeSection) -> PrecisionMap | None:
+    """The per-Gaussian classes and SH degrees of a version-4 file (None below version 4)."""
+    return decode_precision(chunks[PREC], section) if section.precision else None
 
 
 # Attribute bytes fall by about a quarter per doubling of lambda (bird fit, lambda 1-8: 15.1, 11.5, 8.6, 6.4
@@ -221,6 +389,7 @@ def search_lambda(
     rel_tol: float = 0.03,
     max_iter: int = 12,
     first: EncodedAttributes | None = None,
+    significance: Significance | None = None,
 ) -> EncodedAttributes:
     """The encoding with the smallest lambda whose size is at most ``target_bytes``.
 
@@ -242,7 +411,7 @@ def search_lambda(
             enc = first
         else:
             try:
-                enc = encode_attributes(scene, params.with_lambda(math.exp(x)), visible)
+                enc = encode_attributes(scene, params.with_lambda(math.exp(x)), visible, significance)
             except ValueRangeError:
                 # Too fine for the scene's largest values: a larger lambda, as if the size were too big.
                 if x >= hi or k == max_iter - 1:

@@ -12,10 +12,13 @@ boxes hold the unit quaternion with the sign that makes its largest component po
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import torch
 
 from gspc.codec.positions import cell_half_widths
+from gspc.codec.precision import PrecisionMap
 from gspc.codec.quantisers import AttributeQuantisers, Box
 from gspc.format.attribute_section import AttributeSection
 from gspc.scene import GaussianScene
@@ -23,29 +26,60 @@ from gspc.scene import GaussianScene
 CELL_BLOCK = 1 << 16  # rows per block: the float64 boxes of a million Gaussians at once took 1.4 GB
 
 
-def quantisation_cells(decoded: GaussianScene, section: AttributeSection) -> dict[str, Box]:
-    """The cell of every attribute of ``decoded`` (what ``decode_attributes`` returned for ``section``), in
-    the scene's dtype; computed in float64 block by block of rows."""
+def quantisation_cells(
+    decoded: GaussianScene, section: AttributeSection, precision: PrecisionMap | None = None
+) -> dict[str, Box]:
+    """The cell of every attribute of ``decoded`` (what ``decode_attributes`` returned for ``section``, and
+    at version 4 the file's ``precision``), in the scene's dtype; computed in float64 block by block of
+    rows."""
+    if section.precision and precision is None:
+        raise ValueError("a version-4 section's cells need its precision map (gspc/codec/precision.py)")
     pos_half = cell_half_widths(decoded.means.detach().cpu().numpy(), section.position)
-    quant = AttributeQuantisers.from_section(section)
     half = torch.from_numpy(np.ascontiguousarray(pos_half)).to(decoded.means.device)
-    cell_of = {
-        "means": lambda x, a, b: _box(x.double(), half if len(half) == 1 else half[a:b]),
-        "log_scales": lambda x, a, b: quant.scale.cell(x),
-        "sh_dc": lambda x, a, b: quant.dc.cell(x),
-        "sh_rest": lambda x, a, b: quant.sh_rest.cell(x),
-        "opacities": lambda x, a, b: quant.opacity.cell(x),
-        "quats": lambda x, a, b: quant.rotation.cell(x),
-    }
+    classes = section.all_classes
+    quants = [AttributeQuantisers.from_steps(c) for c in classes]
     cells: dict[str, Box] = {}
-    for name, cell in cell_of.items():
+    for name in ("means", "log_scales", "sh_dc", "sh_rest", "opacities", "quats"):
         t = getattr(decoded, name).detach()
         lo, hi = torch.empty_like(t), torch.empty_like(t)
         for a in range(0, len(t), CELL_BLOCK):
             b = min(a + CELL_BLOCK, len(t))
-            lo[a:b], hi[a:b] = cell(t[a:b], a, b)  # assignment rounds to the scene's dtype
+            if name == "means":
+                lo[a:b], hi[a:b] = _box(t[a:b].double(), half if len(half) == 1 else half[a:b])
+                continue
+            if precision is None:  # one class: its quantiser's cells
+                lo[a:b], hi[a:b] = _cell(quants[0], name, t[a:b])
+                continue
+            cls = torch.from_numpy(precision.classes[a:b]).to(t.device)
+            for k, quant in enumerate(quants):
+                rows = torch.nonzero(cls == k).squeeze(1) + a
+                if len(rows) == 0:
+                    continue
+                if name == "sh_rest":
+                    box = quant.sh_rest.cell(t[rows], every_row_coded=True)
+                else:
+                    box = _cell(quant, name, t[rows])
+                lo[rows], hi[rows] = box[0].to(t.dtype), box[1].to(t.dtype)
+            if name == "sh_rest":
+                _open_dropped_bands(lo, hi, precision.degrees, a, b)
         cells[name] = (lo, hi)
     return cells
+
+
+def _cell(quant: AttributeQuantisers, name: str, x: torch.Tensor) -> Box:
+    q = {"log_scales": quant.scale, "sh_dc": quant.dc, "sh_rest": quant.sh_rest}
+    q |= {"opacities": quant.opacity, "quats": quant.rotation}
+    return q[name].cell(x)
+
+
+def _open_dropped_bands(lo: torch.Tensor, hi: torch.Tensor, degrees: np.ndarray, a: int, b: int) -> None:
+    """Bands above a Gaussian's SH degree were dropped by the encoder, whatever they held: no bound; bands
+    up to it were coded, even where every symbol is 0 (a whole step, as the dead zone allows)."""
+    deg = torch.from_numpy(degrees[a:b]).to(lo.device)
+    for band in range(1, int(math.isqrt(lo.shape[1] + 1))):
+        coefs = slice(band * band - 1, (band + 1) ** 2 - 1)
+        dropped = torch.nonzero(deg < band).squeeze(1) + a
+        lo[dropped, coefs], hi[dropped, coefs] = -torch.inf, torch.inf
 
 
 def _box(x: torch.Tensor, half: torch.Tensor) -> Box:

@@ -368,28 +368,49 @@ def _unpack_models(packed: bytes) -> list:
     return msgpack.unpackb(raw, raw=False)
 
 
+def _read_matrix(payload: bytes, shape: tuple[int, int] | None) -> tuple[int, int, list, bytes]:
+    """(rows, columns, checked model list, words) of a matrix payload, every rule of spec 10.0 checked that
+    needs no symbol decoded (an empty matrix: no models, no words)."""
+    ecm = msgpack.unpackb(payload, raw=False, strict_map_key=False)
+    if not (isinstance(ecm, list) and len(ecm) == 4):
+        raise CodecError("entropy-coded matrix is not an array of 4 elements")
+    m, nc, packed, words = ecm
+    if not (_is_int(m) and _is_int(nc) and isinstance(packed, bytes) and isinstance(words, bytes)):
+        raise CodecError("entropy-coded matrix has fields of the wrong types")
+    if shape is not None and (m, nc) != tuple(shape):
+        raise CodecError(f"entropy-coded matrix is {m}x{nc}, expected {shape[0]}x{shape[1]}")
+    if m < 0 or nc < 0:
+        raise CodecError(f"entropy-coded matrix has a negative shape {m}x{nc}")
+    if m == 0:
+        if packed or words:
+            raise CodecError("an entropy-coded matrix of 0 rows has models or words")
+        return m, nc, [], words
+    if len(words) % 4:
+        raise CodecError(f"range coder words take {len(words)} bytes, not a multiple of 4")
+    return m, nc, check_models(_unpack_models(packed), nc, len(payload)), words
+
+
+def matrix_table_entries(payload: bytes) -> int:
+    """Entries of the probability tables a matrix payload's models build, read and checked as
+    :func:`decode_matrix` reads them, no table built: the matrices of one chunk at attribute codec version 4
+    share one bound (spec 10.10, gspc/limits.py max_model_entries), summed from these first."""
+    try:
+        _, _, header, _ = _read_matrix(payload, None)
+    except CodecError:
+        raise
+    except Exception as err:  # malformed payloads surface as one-line codec errors
+        raise CodecError(f"corrupt entropy-coded payload ({type(err).__name__}: {err})") from None
+    return sum(table_entries(spec) for _, specs in header for spec in specs)
+
+
 def decode_matrix(payload: bytes, shape: tuple[int, int] | None = None) -> np.ndarray:
     """Inverse of :func:`encode_matrix`. With ``shape``, a matrix of another shape is refused before
     anything of its size is allocated (spec 10.0: the caller knows the shape)."""
     try:
-        ecm = msgpack.unpackb(payload, raw=False, strict_map_key=False)
-        if not (isinstance(ecm, list) and len(ecm) == 4):
-            raise CodecError("entropy-coded matrix is not an array of 4 elements")
-        m, nc, packed, words = ecm
-        if not (_is_int(m) and _is_int(nc) and isinstance(packed, bytes) and isinstance(words, bytes)):
-            raise CodecError("entropy-coded matrix has fields of the wrong types")
-        if shape is not None and (m, nc) != tuple(shape):
-            raise CodecError(f"entropy-coded matrix is {m}x{nc}, expected {shape[0]}x{shape[1]}")
-        if m < 0 or nc < 0:
-            raise CodecError(f"entropy-coded matrix has a negative shape {m}x{nc}")
+        m, nc, header, words = _read_matrix(payload, shape)
         if m == 0:
-            if packed or words:
-                raise CodecError("an entropy-coded matrix of 0 rows has models or words")
             return np.zeros((0, nc), np.int64)
-        if len(words) % 4:
-            raise CodecError(f"range coder words take {len(words)} bytes, not a multiple of 4")
         dec = constriction.stream.queue.RangeDecoder(np.frombuffer(words, dtype="<u4").copy())
-        header = check_models(_unpack_models(packed), nc, len(payload))
         levels = hierarchy(m)
         q = np.zeros((m, nc), np.int64)
         prev_q = np.zeros(m, np.int64)

@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, replace
 
+from gspc.codec.precision import PrecisionParams
 from gspc.errors import InputError
 
 
@@ -44,6 +45,9 @@ class CodecParams:
     # which tolerates coarse geometry, -0.05 dB at lam 12-16 and -0.2 at lam 32-64.
     geometry_knee: float = 8.0
     geometry_lam_exponent: float = 0.5
+    # Per-Gaussian precision (attribute codec version 4, gspc/codec/precision.py) where the encoder has
+    # measured what each Gaussian does to its views; None: every Gaussian at the rate's steps.
+    precision: PrecisionParams | None = None
 
     @property
     def geometry_lam(self) -> float:

@@ -17,7 +17,7 @@ import torch
 
 from gspc.codec.entropy import SYMBOL_LIMIT
 from gspc.errors import CodecError
-from gspc.format.attribute_section import AttributeSection
+from gspc.format.attribute_section import AttributeSection, ClassSteps
 
 SQRT_HALF = 0.7071067811865476  # float64 nearest to 1/sqrt(2)
 _LN2 = 0.6931471805599453
@@ -198,13 +198,14 @@ class SHRestQuantiser:
             out[a : a + SH_REST_BLOCK] = q[a : a + SH_REST_BLOCK].reshape(-1, k, 3).astype(np.float64) * steps
         return out
 
-    def cell(self, decoded: torch.Tensor) -> Box:
-        """A whole step (the dead zone may round towards zero). A Gaussian without SH rest (all zero) may
-        have been faint, whose SH rest the encoder drops whatever it was: no bound."""
+    def cell(self, decoded: torch.Tensor, every_row_coded: bool = False) -> Box:
+        """A whole step (the dead zone may round towards zero). Below version 4 a Gaussian without SH rest
+        (all zero) may have been faint, whose SH rest the encoder drops whatever it was: no bound, unless
+        ``every_row_coded`` (version 4 says which bands were coded: gspc/codec/cells.py)."""
         rest = decoded.detach().double()
         steps = torch.tensor([float(s) for s in self.steps], dtype=torch.float64, device=rest.device)
         half = steps[None, :, None].expand_as(rest)
-        coded = (rest != 0).flatten(1).any(1)[:, None, None]
+        coded = (rest != 0).flatten(1).any(1)[:, None, None] | every_row_coded
         return _around(rest, torch.where(coded, half, torch.inf))
 
 
@@ -220,11 +221,17 @@ class AttributeQuantisers:
 
     @classmethod
     def from_section(cls, section: AttributeSection, sh_deadzone: float = 0.0) -> AttributeQuantisers:
-        """The quantisers an attribute codec header section states (checked where it was built)."""
+        """The quantisers an attribute codec header section states (checked where it was built); at version
+        4, those of its class 0."""
+        return cls.from_steps(section.base_class(), sh_deadzone)
+
+    @classmethod
+    def from_steps(cls, steps: ClassSteps, sh_deadzone: float = 0.0) -> AttributeQuantisers:
+        """The quantisers of one precision class."""
         return cls(
-            OpacityQuantiser(section.opacity_levels),
-            UniformQuantiser(section.scale_step),
-            SmallestThreeQuantiser(section.rotation_levels),
-            UniformQuantiser(section.dc_step),
-            SHRestQuantiser(section.sh_steps, sh_deadzone),
+            OpacityQuantiser(steps.opacity_levels),
+            UniformQuantiser(steps.scale_step),
+            SmallestThreeQuantiser(steps.rotation_levels),
+            UniformQuantiser(steps.dc_step),
+            SHRestQuantiser(steps.sh_steps, sh_deadzone),
         )

@@ -20,6 +20,7 @@ from gspc.cameras import Camera
 from gspc.codec import residuals
 from gspc.codec.attributes import EncodedAttributes, search_lambda
 from gspc.codec.params import CodecParams
+from gspc.codec.precision import Significance
 from gspc.encoder.side import SideCandidate
 from gspc.metrics import mean_psnr
 from gspc.progress import Progress
@@ -130,6 +131,7 @@ class CheckInputs:
     attributes: EncodedAttributes
     params: CodecParams
     visible: np.ndarray | None
+    significance: Significance | None  # the rival codes per-Gaussian precision from it, as the file does
     view_cameras: list[Camera]  # the side-information views, in their stored form
     check_cameras: list[Camera]  # views carrying none, where the check scores
     original: list[torch.Tensor]  # renders of G at view_cameras
@@ -182,7 +184,8 @@ def check_side_info(inp: CheckInputs, progress: Progress | None = None) -> Check
     bar = max(before, alt_psnr) + inp.margin_db
     targets = restored_targets(inp.coded, side.records, side.images, inp.restorer)
     run = decoder_refinement(
-        enc.decoded.to(inp.device), enc.section, inp.view_cameras, targets, inp.iterations, inp.background
+        enc.decoded.to(inp.device), enc.section, inp.view_cameras, targets, inp.iterations, inp.background,
+        precision=enc.precision,
     )
     trial = inp.policy.trial_length(inp.iterations)
     run.run(trial, deadline, _stage_report(progress, "check refine (trial)", 0, trial))
@@ -249,6 +252,7 @@ def _rivals(
             enc.num_bytes + extra,
             inp.params,
             visible=inp.visible,
+            significance=inp.significance,
             rel_tol=inp.policy.rival_tolerance,
             first=enc,
         )

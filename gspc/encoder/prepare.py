@@ -13,10 +13,13 @@ from gspc.cameras import Camera
 from gspc.codec import residuals
 from gspc.codec.attributes import EncodedAttributes, encode_attributes, search_lambda
 from gspc.codec.params import CodecParams
+from gspc.codec.precision import Significance
 from gspc.encoder.side import SideCandidate, side_candidate
+from gspc.encoder.significance import evenly_spaced, significance
 from gspc.limits import default_refine_iterations
 from gspc.options import EncodeOptions
 from gspc.presets import quality_preset, refine_iterations_for
+from gspc.progress import Progress
 from gspc.scene import GaussianScene
 from gspc.views import limit_size, sample_views, synthesize_views
 from gspc.visibility import visible_mask
@@ -35,7 +38,14 @@ def codec_params(opts: EncodeOptions) -> CodecParams:
         params = replace(params, lam=opts.lam)
     if opts.keep_invisible:
         params = replace(params, keep_invisible=True)
+    if not opts.precision:
+        params = replace(params, precision=None)
     return params
+
+
+# Views the significance measure renders, spread over the encoder's cameras: 20 rank Gaussians as well as
+# all 161 of the bird capture (bench/significance.md), and each costs one render forward and backward.
+SIGNIFICANCE_VIEWS = 20
 
 
 @dataclass
@@ -43,21 +53,32 @@ class CodedAttributes:
     encoded: EncodedAttributes  # chunks, meta and G~ as the decoder decodes it
     params: CodecParams
     visible: np.ndarray  # per input Gaussian: seen by some camera
+    significance: Significance | None = None  # what each Gaussian does to the views, where measured
 
 
 def code_attributes(
-    scene: GaussianScene, cameras: list[Camera], params: CodecParams, target_size: int | None = None
+    scene: GaussianScene,
+    cameras: list[Camera],
+    params: CodecParams,
+    target_size: int | None = None,
+    background: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    progress: Progress | None = None,
 ) -> CodedAttributes:
     """Prune what no camera sees and code the rest (at ``target_size`` bytes when given), on the CPU: the
-    visibility mask decides what is coded, so it is numpy like the codec."""
+    visibility mask decides what is coded, so it is numpy like the codec. Where the parameters spend
+    precision per Gaussian, its significance is measured first at SIGNIFICANCE_VIEWS of the cameras."""
     visible = visible_mask(
         scene.means.detach().cpu().numpy(), scene.log_scales.detach().cpu().numpy(), cameras
     )
+    sig = None
+    if params.precision is not None:
+        views = evenly_spaced(cameras, SIGNIFICANCE_VIEWS)
+        sig = significance(scene.to("cpu"), views, background, progress)
     if target_size is not None:
-        enc = search_lambda(scene, target_size, params, visible=visible)
+        enc = search_lambda(scene, target_size, params, visible=visible, significance=sig)
     else:
-        enc = encode_attributes(scene, params, visible=visible)
-    return CodedAttributes(enc, params, visible)
+        enc = encode_attributes(scene, params, visible=visible, significance=sig)
+    return CodedAttributes(enc, params, visible, sig)
 
 
 @dataclass(frozen=True)

@@ -1,16 +1,18 @@
 """What each Gaussian does to the views: the encoder's measures for spending precision where it shows.
 
-Two measures, both accumulated over the encoder's cameras at the resolution they are given (the caller
-decides whether that is the capture's native size or ``--max-side``):
+All accumulated over the encoder's cameras at the resolution they are given, from ONE forward and backward
+render per view (gspc/codec/precision.py's :class:`Significance` holds them):
 
-- ``weight``: the blending weight a Gaussian takes over all pixels, sum_views sum_pixels alpha_i T_i (its
-  footprint times opacity times the transmittance in front of it). It is the gradient of the summed
-  composite with respect to a per-Gaussian feature of zero, so one backward pass per view gives it exactly,
+- ``weight``: the blending weight a Gaussian takes over a view, sum_pixels alpha_i T_i (its footprint times
+  opacity times the transmittance in front of it), as a fraction of the view's pixels. It is the gradient of
+  the summed image with respect to the Gaussian's projected colour, so the backward gives it exactly,
   occlusion included.
 - ``gradient``: per attribute group, sum_views |d sum(image) / d attribute| summed over the group's
   components: how far a change of that group moves the picture (C3DGS's sensitivity).
+- ``sh_band_change``: per SH band, sum_views |sum over the band's coefficients of gradient x coefficient|:
+  the first-order change of the view if the band were dropped.
 
-Neither is ever written to a file: precision classes chosen from them are what a decoder would read, so a
+None is ever written to a file: the precision classes chosen from them are what a decoder reads, so a
 decoder never recomputes these. tools/bench_significance.py measures which of them predicts where the
 attribute codec's error shows (bench/significance.md).
 """
@@ -24,67 +26,96 @@ import numpy as np
 import torch
 
 from gspc.cameras import Camera
-from gspc.render import render
+from gspc.codec.precision import Significance
+from gspc.progress import Progress
 from gspc.render.project import project
 from gspc.render.rasterize import composite
 from gspc.scene import ATTRIBUTE_NAMES, GaussianScene
 
+__all__ = ["Significance", "ViewMeasures", "evenly_spaced", "measure_view", "significance"]
+
 
 @dataclass(frozen=True)
-class Significance:
-    """Per-Gaussian measures over a set of views, each (N,) float64."""
+class ViewMeasures:
+    """One view's share of a :class:`Significance`, each per Gaussian."""
 
-    weight: np.ndarray  # sum of blending weights alpha T over every pixel of every view
-    gradient: dict[str, np.ndarray]  # attribute name -> sum of |d sum(image) / d attribute|
-
-    def ranking(self, measure: str) -> np.ndarray:
-        """Gaussian indices, most significant first (ties: lower index first), for "weight" or
-        "gradient:<attribute>"."""
-        values = self.weight if measure == "weight" else self.gradient[measure.split(":", 1)[1]]
-        return np.lexsort((np.arange(len(values)), -values))
+    weight: torch.Tensor  # (N,) sum_pixels alpha T over the view's pixels, as a fraction of them
+    gradient: dict[
+        str, torch.Tensor
+    ]  # attribute -> (N,) |d sum(image) / d attribute|, summed over components
+    sh_band_change: torch.Tensor  # (N, D)
 
 
-def blend_weights(scene: GaussianScene, camera: Camera) -> torch.Tensor:
-    """(N,) sum over the view's pixels of each Gaussian's blending weight alpha_i T_i."""
-    with torch.no_grad():
-        p = project(
-            scene.means, scene.quats, scene.log_scales, scene.opacities, scene.sh_dc, scene.sh_rest,
-            camera, 0,
-        )
-    # Four columns, as render() composites colour and depth: the compiled compositor takes that layout.
-    probe = torch.zeros(len(p.index), 4, dtype=scene.means.dtype, requires_grad=True)
-    acc, _ = composite(
-        p.means2d, p.conics, p.opacities, probe, p.depths, p.extents, camera.width, camera.height
-    )
-    (grad,) = torch.autograd.grad(acc.sum(), probe)
-    # The projection may keep only the Gaussians in front of the camera (p.index): the rest weigh 0.
-    out = torch.zeros(scene.num_gaussians, dtype=grad.dtype)
-    return out.index_copy_(0, p.index, grad[:, 0])
-
-
-def attribute_gradients(
-    scene: GaussianScene, camera: Camera, background: Sequence[float]
-) -> dict[str, torch.Tensor]:
-    """Attribute name -> (N,) |d sum(image) / d attribute| summed over the attribute's components."""
+def measure_view(scene: GaussianScene, camera: Camera, background: Sequence[float]) -> ViewMeasures:
+    """Every measure of one view, from one render and its backward."""
     leaves = {k: v.detach().clone().requires_grad_(True) for k, v in scene.tensors().items()}
-    probe = GaussianScene(**leaves, sh_degree=scene.sh_degree)
-    bg = torch.tensor(background, dtype=scene.means.dtype)
-    image = render(probe, camera, background=bg).image
-    grads = torch.autograd.grad(image.sum(), list(leaves.values()), allow_unused=True)
+    p = project(
+        leaves["means"],
+        leaves["quats"],
+        leaves["log_scales"],
+        leaves["opacities"],
+        leaves["sh_dc"],
+        leaves["sh_rest"],
+        camera,
+        scene.sh_degree,
+    )
+    # Colour and depth composited together, as render() does: the compiled compositor takes that layout.
+    features = torch.cat([p.colors, p.depths[:, None]], 1)
+    acc, alpha = composite(
+        p.means2d, p.conics, p.opacities, features, p.depths, p.extents, camera.width, camera.height
+    )
+    bg = torch.tensor(background, dtype=acc.dtype)
+    image = acc[..., :3] + (1 - alpha)[..., None] * bg
+    grads = torch.autograd.grad(image.sum(), [*leaves.values(), p.colors], allow_unused=True)
     n = scene.num_gaussians
     zero = torch.zeros(n, dtype=torch.float64)
-    return {k: zero if g is None else g.abs().reshape(n, -1).sum(1).double() for k, g in zip(leaves, grads)}
+    gradient = {
+        k: zero if g is None else g.abs().reshape(n, -1).sum(1).double() for k, g in zip(leaves, grads[:-1])
+    }
+    # d sum(image) / d colour_i is sum_pixels alpha_i T_i in each channel; the projection may keep only the
+    # Gaussians in front of the camera (p.index): the rest weigh 0.
+    weight = torch.zeros(n, dtype=torch.float64)
+    weight.index_copy_(0, p.index, grads[-1][:, 0].double())
+    weight /= camera.width * camera.height
+    d = scene.sh_degree
+    change = torch.zeros(n, d, dtype=torch.float64)
+    g_rest = grads[ATTRIBUTE_NAMES.index("sh_rest")]
+    if d > 0 and g_rest is not None:
+        product = (g_rest * scene.sh_rest.detach()).double()
+        for b in range(1, d + 1):
+            change[:, b - 1] = product[:, b * b - 1 : (b + 1) ** 2 - 1].sum((1, 2)).abs()
+    return ViewMeasures(weight, gradient, change)
+
+
+def evenly_spaced(cameras: Sequence[Camera], count: int) -> list[Camera]:
+    """``count`` cameras spread evenly over the list (all of them when there are fewer): 20 rank Gaussians as
+    well as 161 on the bird capture (bench/significance.md)."""
+    if len(cameras) <= count:
+        return list(cameras)
+    return [cameras[int(i)] for i in np.linspace(0, len(cameras) - 1, count).round().astype(int)]
 
 
 def significance(
-    scene: GaussianScene, cameras: Sequence[Camera], background: Sequence[float] = (0.0, 0.0, 0.0)
+    scene: GaussianScene,
+    cameras: Sequence[Camera],
+    background: Sequence[float] = (0.0, 0.0, 0.0),
+    progress: Progress | None = None,
 ) -> Significance:
-    """Both measures, accumulated over ``cameras``."""
-    n = scene.num_gaussians
+    """Every measure, accumulated over ``cameras``."""
+    n, d = scene.num_gaussians, scene.sh_degree
     weight = torch.zeros(n, dtype=torch.float64)
     gradient = {k: torch.zeros(n, dtype=torch.float64) for k in ATTRIBUTE_NAMES}
-    for cam in cameras:
-        weight += blend_weights(scene, cam).double()
-        for k, g in attribute_gradients(scene, cam, background).items():
+    change = torch.zeros(n, d, dtype=torch.float64)
+    for i, cam in enumerate(cameras):
+        if progress:
+            progress("significance", i, len(cameras))
+        m = measure_view(scene, cam, background)
+        weight += m.weight
+        change += m.sh_band_change
+        for k, g in m.gradient.items():
             gradient[k] += g
-    return Significance(weight.numpy(), {k: v.numpy() for k, v in gradient.items()})
+    if progress:
+        progress("significance", len(cameras), len(cameras))
+    return Significance(
+        weight.numpy(), {k: v.numpy() for k, v in gradient.items()}, change.numpy(), len(cameras)
+    )

@@ -14,7 +14,7 @@ import math
 from dataclasses import dataclass
 
 from gspc.errors import CodecError
-from gspc.format.chunks import ATTRIBUTE_TYPES, SHRS
+from gspc.format.chunks import ATTRIBUTE_TYPES, PREC, SHRS
 from gspc.limits import max_coded_gaussians
 
 FORMAT_VERSION = 1
@@ -23,7 +23,13 @@ FORMAT_VERSION = 1
 # on a coarser grid; written only where one pays.
 CONTRACTED_VERSION = 2
 FAR_VERSION = 3
-VERSIONS = (FORMAT_VERSION, CONTRACTED_VERSION, FAR_VERSION)
+# Version 4: per-Gaussian precision classes and SH degrees (chunk PREC, spec 10.13) on any of the three grids,
+# which its position keys tell apart.
+PRECISION_VERSION = 4
+VERSIONS = (FORMAT_VERSION, CONTRACTED_VERSION, FAR_VERSION, PRECISION_VERSION)
+# Precision classes per file at version 4 (class 0 and at most 15 more): each class's rows are their own
+# matrices in every chunk, so the count bounds the number of matrices a file may ask for.
+MAX_CLASSES = 16
 MAX_GAUSSIANS = 1 << 26
 # The count is also bounded by the attribute payloads' bytes (gspc/limits.py max_coded_gaussians), checked
 # where the payloads are (gspc/codec/attributes.py decode_attributes).
@@ -189,9 +195,12 @@ class PositionGrid:
         """The ``position`` map of a section at ``version``: each key that version has, and no other."""
         if not isinstance(grid, dict):
             raise _fail("position", grid, "a map")
-        if (version != FORMAT_VERSION) != ("radius" in grid or "centre" in grid):
+        contracted, has_far = "radius" in grid or "centre" in grid, "far_count" in grid or "far_shift" in grid
+        if version == PRECISION_VERSION:  # any grid: its keys say which (spec 10.0)
+            version = FAR_VERSION if has_far else CONTRACTED_VERSION if contracted else FORMAT_VERSION
+        if (version != FORMAT_VERSION) != contracted:
             raise CodecError("attribute codec version and position grid disagree on contraction")
-        if (version == FAR_VERSION) != ("far_count" in grid or "far_shift" in grid):
+        if (version == FAR_VERSION) != has_far:
             raise CodecError("attribute codec version and position grid disagree on a far set")
         bits = _integer(grid, "bits", "position.bits")
         lo = _floats(grid, "lo", "position.lo", 3)
@@ -208,9 +217,61 @@ class PositionGrid:
 
 
 @dataclass(frozen=True)
+class ClassSteps:
+    """One precision class's quantisers (spec 10.0): opacity levels, log-scale step, rotation levels, DC step
+    and one step per SH rest coefficient."""
+
+    opacity_levels: int
+    scale_step: float
+    rotation_levels: int
+    dc_step: float
+    sh_steps: tuple[float, ...]
+
+    def __post_init__(self) -> None:
+        # Levels up to 2^48, as every other integer of the codec (spec 10.0): each enters binary64 exactly.
+        if not (1 <= self.opacity_levels <= 1 << 48 and 1 <= self.rotation_levels <= 1 << 48):
+            raise CodecError(
+                f"attribute codec header has impossible quantiser levels ({self.opacity_levels}, "
+                f"{self.rotation_levels})"
+            )
+        _positive((self.scale_step,), "scale_step")
+        _positive((self.dc_step,), "dc_step")
+        _positive(self.sh_steps, "sh_steps")
+
+    def to_dict(self) -> dict:
+        return {
+            "opacity_levels": self.opacity_levels,
+            "scale_step": self.scale_step,
+            "rotation_levels": self.rotation_levels,
+            "dc_step": self.dc_step,
+            "sh_steps": list(self.sh_steps),
+        }
+
+    @classmethod
+    def from_dict(cls, meta: dict, degree: int, where: str = "") -> ClassSteps:
+        """The five quantiser keys of ``meta`` (the section itself, or one of its ``classes`` maps)."""
+        opacity_levels = _integer(meta, "opacity_levels", where + "opacity_levels")
+        rotation_levels = _integer(meta, "rotation_levels", where + "rotation_levels")
+        (scale_step,) = _floats(meta, "scale_step", where + "scale_step")
+        (dc_step,) = _floats(meta, "dc_step", where + "dc_step")
+        sh = _get(meta, "sh_steps", where + "sh_steps")
+        if not isinstance(sh, list | tuple):
+            raise _fail(where + "sh_steps", sh, "an array of floats")
+        num_sh = (degree + 1) ** 2 - 1
+        if len(sh) != num_sh:
+            raise CodecError(
+                f"attribute codec header has {len(sh)} {where}sh_steps for SH degree {degree} "
+                f"(needs {num_sh})"
+            )
+        sh_steps = _floats(meta, "sh_steps", where + "sh_steps", num_sh)
+        return cls(opacity_levels, scale_step, rotation_levels, dc_step, sh_steps)
+
+
+@dataclass(frozen=True)
 class AttributeSection:
     """What the attribute decoder needs (spec 10.0): the count, SH degree, position grid and every
-    quantiser's levels or steps."""
+    quantiser's levels or steps; at version 4 (``precision``) also the further precision classes
+    (``classes``: class 1 first; class 0 is the section's own quantisers)."""
 
     n: int
     sh_degree: int
@@ -220,6 +281,8 @@ class AttributeSection:
     rotation_levels: int
     dc_step: float
     sh_steps: tuple[float, ...]
+    precision: bool = False  # version 4: a PREC chunk gives each Gaussian a class and an SH degree
+    classes: tuple[ClassSteps, ...] = ()
 
     def __post_init__(self) -> None:
         if not 1 <= self.n <= MAX_GAUSSIANS:
@@ -232,15 +295,13 @@ class AttributeSection:
                 f"attribute codec header has {len(self.sh_steps)} sh_steps for SH degree {self.sh_degree} "
                 f"(needs {k})"
             )
-        # Levels up to 2^48, as every other integer of the codec (spec 10.0): each enters binary64 exactly.
-        if not (1 <= self.opacity_levels <= 1 << 48 and 1 <= self.rotation_levels <= 1 << 48):
-            raise CodecError(
-                f"attribute codec header has impossible quantiser levels ({self.opacity_levels}, "
-                f"{self.rotation_levels})"
-            )
-        _positive((self.scale_step,), "scale_step")
-        _positive((self.dc_step,), "dc_step")
-        _positive(self.sh_steps, "sh_steps")
+        self.base_class()  # checks the levels and steps
+        if self.classes and not self.precision:
+            raise CodecError("attribute codec header has precision classes below version 4")
+        if len(self.classes) > MAX_CLASSES - 1:
+            raise _fail("classes", f"{len(self.classes)} maps", f"at most {MAX_CLASSES - 1} maps")
+        if any(len(c.sh_steps) != k for c in self.classes):
+            raise CodecError(f"attribute codec header has a precision class without {k} sh_steps")
         far = self.position.far
         if far is not None and not 1 <= far.count <= self.n - 1:
             raise CodecError(
@@ -249,21 +310,31 @@ class AttributeSection:
 
     @property
     def version(self) -> int:
-        return self.position.version
+        return PRECISION_VERSION if self.precision else self.position.version
+
+    def base_class(self) -> ClassSteps:
+        """Class 0: the section's own quantisers."""
+        return ClassSteps(
+            self.opacity_levels, self.scale_step, self.rotation_levels, self.dc_step, self.sh_steps
+        )
+
+    @property
+    def all_classes(self) -> tuple[ClassSteps, ...]:
+        """Every precision class, class 0 first (one class below version 4)."""
+        return (self.base_class(), *self.classes)
 
     def to_dict(self) -> dict:
         """The map the encoder writes (key order is part of the bytes: keep it)."""
-        return {
+        out = {
             "version": self.version,
             "n": self.n,
             "sh_degree": self.sh_degree,
             "position": self.position.to_dict(),
-            "opacity_levels": self.opacity_levels,
-            "scale_step": self.scale_step,
-            "rotation_levels": self.rotation_levels,
-            "dc_step": self.dc_step,
-            "sh_steps": list(self.sh_steps),
+            **self.base_class().to_dict(),
         }
+        if self.precision:
+            out["classes"] = [c.to_dict() for c in self.classes]
+        return out
 
     @classmethod
     def from_dict(cls, meta: object) -> AttributeSection:
@@ -277,15 +348,32 @@ class AttributeSection:
         n = _integer(meta, "n", "n")
         degree = _integer(meta, "sh_degree", "sh_degree")
         grid = PositionGrid.from_dict(_get(meta, "position", "position"), version)
-        opacity_levels = _integer(meta, "opacity_levels", "opacity_levels")
-        rotation_levels = _integer(meta, "rotation_levels", "rotation_levels")
-        (scale_step,) = _floats(meta, "scale_step", "scale_step")
-        (dc_step,) = _floats(meta, "dc_step", "dc_step")
-        sh_steps = _get(meta, "sh_steps", "sh_steps")
-        if not isinstance(sh_steps, list | tuple):
-            raise _fail("sh_steps", sh_steps, "an array of floats")
-        sh = _floats(meta, "sh_steps", "sh_steps", len(sh_steps))
-        return cls(n, degree, grid, opacity_levels, scale_step, rotation_levels, dc_step, sh)
+        if not 0 <= degree <= MAX_SH_DEGREE:  # before any sh_steps array is read against it
+            raise _fail("sh_degree", degree, f"an SH degree in 0..{MAX_SH_DEGREE}")
+        base = ClassSteps.from_dict(meta, degree)
+        classes: tuple[ClassSteps, ...] = ()
+        if version == PRECISION_VERSION:
+            maps = _get(meta, "classes", "classes")
+            if not isinstance(maps, list | tuple):
+                raise _fail("classes", maps, "an array of maps")
+            if len(maps) > MAX_CLASSES - 1:
+                raise _fail("classes", f"{len(maps)} maps", f"at most {MAX_CLASSES - 1} maps")
+            for i, m in enumerate(maps):
+                if not isinstance(m, dict):
+                    raise _fail(f"classes[{i}]", m, "a map")
+            classes = tuple(ClassSteps.from_dict(m, degree, f"classes[{i}].") for i, m in enumerate(maps))
+        return cls(
+            n,
+            degree,
+            grid,
+            base.opacity_levels,
+            base.scale_step,
+            base.rotation_levels,
+            base.dc_step,
+            base.sh_steps,
+            version == PRECISION_VERSION,
+            classes,
+        )
 
 
 def attribute_chunks(chunks: list) -> dict[str, bytes]:
@@ -305,8 +393,10 @@ def check_attribute_chunks(chunks: dict[str, bytes], section: AttributeSection) 
     n, degree = section.n, section.sh_degree
     if degree == 0 and SHRS in chunks:
         raise CodecError("chunk SHRS in a file of SH degree 0")
+    if not section.precision and PREC in chunks:
+        raise CodecError(f"chunk PREC in a file of attribute codec version {section.version}")
     for t in ATTRIBUTE_TYPES:
-        if t not in chunks and (t != SHRS or degree > 0):
+        if t not in chunks and (t != SHRS or degree > 0) and (t != PREC or section.precision):
             raise CodecError(f"chunk {t} is missing")
     payload_bytes = sum(len(chunks[t]) for t in chunks)
     if n > max_coded_gaussians(payload_bytes):  # gspc/limits.py: a minimum of coded bits per Gaussian

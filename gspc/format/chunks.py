@@ -22,6 +22,7 @@ SCAL = "SCAL"
 ROTN = "ROTN"
 SHDC = "SHDC"
 SHRS = "SHRS"
+PREC = "PREC"
 SIDE = "SIDE"
 RESI = "RESI"
 
@@ -34,11 +35,12 @@ REGISTRY: dict[str, ChunkType] = {
         ChunkType(ROTN, "smallest-three quaternions", "10.4"),
         ChunkType(SHDC, "quantised SH DC", "10.5"),
         ChunkType(SHRS, "flags and quantised SH rest (absent at SH degree 0)", "10.6"),
+        ChunkType(PREC, "each Gaussian's precision class and SH degree (attribute codec version 4)", "10.13"),
         ChunkType(RESI, "one residual image per view (format 1.0; read only)", "10.7"),
         ChunkType(SIDE, "every side-information view and residual image (format 1.1 on)", "10.9"),
     )
 }
 
 # The attribute codec's chunks, in the order the encoder writes them.
-ATTRIBUTE_TYPES: tuple[str, ...] = (POSN, OPAC, SCAL, ROTN, SHDC, SHRS)
+ATTRIBUTE_TYPES: tuple[str, ...] = (POSN, PREC, OPAC, SCAL, ROTN, SHDC, SHRS)
 KNOWN_TYPES: frozenset[str] = frozenset(REGISTRY)

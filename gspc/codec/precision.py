@@ -1,0 +1,230 @@
+"""Per-Gaussian precision (attribute codec version 4, spec 10.13): which quantiser class and SH degree each
+Gaussian gets, and which Gaussians are worth their bytes at all.
+
+The decoder reads a :class:`PrecisionMap` from the ``PREC`` chunk and never recomputes it. The encoder plans
+one (:func:`plan_precision`) from a :class:`Significance`, what gspc/encoder/significance.py measured of each
+Gaussian over the encoder's views, and the rate's :class:`PrecisionParams`:
+
+- **classes**: a Gaussian's expected contribution to the views' squared error from quantisation is about
+  ``sum_g (sensitivity_g x step_g)^2`` over its attribute groups. Bit allocation under a rate constraint
+  gives each Gaussian a step multiplier proportional to ``1 / sqrt`` of that (each halving of a step costs
+  about one bit per component): so classes are powers of two of the rate's steps, the exponent following
+  half the log2 of the Gaussian's sensitivity relative to the scene's median, within the params' range.
+- **SH degree**: a band is kept where dropping it would change the views (its first-order change of the
+  renders, ``sh_band_change``) by more than its coded step does;
+- **removal**: a Gaussian that paints a small fraction of what the median Gaussian paints over the views
+  (its blending weight) is dropped: its bytes buy less than theirs.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import msgpack
+import numpy as np
+
+from gspc.codec.entropy import decode_matrix, encode_matrix, matrix_table_entries
+from gspc.errors import CodecError, ValueRangeError
+from gspc.format.attribute_section import AttributeSection
+from gspc.limits import max_model_entries
+
+# The attribute groups whose steps the classes scale, with the Significance gradient each is weighed by.
+CLASSED_GROUPS = ("opacities", "log_scales", "quats", "sh_dc", "sh_rest")
+
+
+@dataclass(frozen=True)
+class Significance:
+    """Per input Gaussian, what it does to the encoder's views (gspc/encoder/significance.py), each float64.
+
+    ``weight``: sum over views of its blending weight sum_pixels alpha T, each view's as a fraction of the
+    view's pixels. ``gradient``: attribute name -> sum over views of |d sum(image) / d attribute| (summed over
+    the attribute's components). ``sh_band_change``: (N, D) sum over views of |the first-order change of
+    sum(image) when SH band b + 1 is set to zero|. ``views``: how many views were summed.
+    """
+
+    weight: np.ndarray
+    gradient: dict[str, np.ndarray]
+    sh_band_change: np.ndarray
+    views: int
+
+    def ranking(self, measure: str) -> np.ndarray:
+        """Gaussian indices, most significant first (ties: lower index first), for "weight" or
+        "gradient:<attribute>"."""
+        values = self.weight if measure == "weight" else self.gradient[measure.split(":", 1)[1]]
+        return np.lexsort((np.arange(len(values)), -values))
+
+
+@dataclass(frozen=True)
+class PrecisionParams:
+    """How the encoder spends precision per Gaussian (an encoder choice: none of it is in the file).
+
+    Class step multipliers are ``2^e`` for integer ``e`` in ``exponents`` (``e = 0``: the rate's own steps,
+    class 0); a Gaussian's ``e`` is ``round(bias - log2(sensitivity / median) / 2)``. ``sh_keep``: a band is
+    kept where its change of the views is at least this many of its coded steps (0 keeps every band).
+    ``prune``: a Gaussian whose blending weight over the views is below ``prune`` times the median
+    Gaussian's is removed (0: never).
+    """
+
+    exponents: tuple[int, int] = (-1, 2)  # (finest, coarsest)
+    bias: float = 0.0
+    sh_keep: float = 0.0
+    prune: float = 0.0
+    groups: tuple[str, ...] = field(default=CLASSED_GROUPS)
+
+
+@dataclass(frozen=True)
+class PrecisionMap:
+    """Per Gaussian in decoded order: its precision class (0 .. C - 1) and its SH degree (0 .. sh_degree)."""
+
+    classes: np.ndarray  # (N,) int64
+    degrees: np.ndarray  # (N,) int64
+
+    def rows(self, k: int) -> np.ndarray:
+        """The Gaussians of class ``k``, in decoded order."""
+        return np.flatnonzero(self.classes == k)
+
+
+def encode_precision(pmap: PrecisionMap, sh_degree: int) -> bytes:
+    """The PREC payload: one ECM N x 1 of classes, N x 2 with the SH degrees beside them at SH degree > 0."""
+    cols = [pmap.classes] if sh_degree == 0 else [pmap.classes, pmap.degrees]
+    return encode_matrix(np.stack(cols, 1).astype(np.int64))
+
+
+def decode_precision(payload: bytes, section: AttributeSection) -> PrecisionMap:
+    """The PREC payload of a version-4 section, each value checked against the section."""
+    n, degree = section.n, section.sh_degree
+    m = decode_matrix(payload, (n, 1 if degree == 0 else 2))
+    classes = m[:, 0].astype(np.int64)
+    if ((classes < 0) | (classes >= len(section.all_classes))).any():
+        raise CodecError(f"chunk PREC names a precision class outside 0..{len(section.all_classes) - 1}")
+    degrees = np.zeros(n, np.int64) if degree == 0 else m[:, 1].astype(np.int64)
+    if ((degrees < 0) | (degrees > degree)).any():
+        raise CodecError(f"chunk PREC names an SH degree outside 0..{degree}")
+    return PrecisionMap(classes, degrees)
+
+
+def pack_bins(parts: list[bytes]) -> bytes:
+    """A chunk of one matrix per bin (spec 10.13); never one the decoder refuses for its tables (spec 10.10):
+    tables wider than the chunk's bytes warrant come from steps far finer than the values' spread."""
+    payload = msgpack.packb(parts, use_bin_type=True)
+    entries = sum(matrix_table_entries(p) for p in parts)
+    if entries > max_model_entries(len(payload)):
+        raise ValueRangeError(
+            f"a chunk's matrices need {entries:,} table entries for {len(payload):,} bytes, more than a "
+            "decoder accepts; a larger lambda codes it"
+        )
+    return payload
+
+
+def unpack_bins(payload: bytes, name: str, count: int) -> list[bytes]:
+    """A chunk that is a msgpack array of exactly ``count`` bins (spec 10.13)."""
+    try:
+        parts = msgpack.unpackb(payload, raw=False)
+    except Exception:
+        raise CodecError(f"chunk {name} is malformed") from None
+    if not (isinstance(parts, list) and len(parts) == count and all(isinstance(p, bytes) for p in parts)):
+        raise CodecError(f"chunk {name} is not an array of {count} msgpack bins")
+    # The chunk's matrices share one table bound (spec 10.10), checked before any table is built: each
+    # matrix's own bound has a floor, and 16 classes would multiply it (a 10 KB file took 30 s).
+    entries, limit = sum(matrix_table_entries(p) for p in parts), max_model_entries(len(payload))
+    if entries > limit:
+        raise CodecError(
+            f"chunk {name}'s entropy models build {entries:,} table entries from {len(payload):,} bytes "
+            f"(limit {limit:,})"
+        )
+    return parts
+
+
+# ---------------------------------------------------------------------------------------------
+# The encoder's plan
+
+
+@dataclass(frozen=True)
+class Plan:
+    """Per input Gaussian: worth coding at this rate (``keep``), its class's step exponent and SH degree."""
+
+    keep: np.ndarray  # (N,) bool
+    exponent: np.ndarray  # (N,) int64
+    degree: np.ndarray  # (N,) int64
+
+
+@dataclass(frozen=True)
+class RateSteps:
+    """The rate's own steps (class 0) of the groups the plan weighs, in the domain of the gradients."""
+
+    opacity_levels: int
+    scale_step: float
+    rotation_step: float  # of a smallest-three component
+    dc_step: float
+    sh_band_steps: tuple[float, ...]  # band 1 .. D
+
+
+def plan_precision(
+    sig: Significance,
+    alpha: np.ndarray,
+    steps: RateSteps,
+    params: PrecisionParams,
+    candidates: np.ndarray,
+    faint_alpha: float,
+    lam: float,
+) -> Plan:
+    """The encoder's choice for every input Gaussian (``alpha`` its activated opacity; ``candidates``: those
+    the codec would code at all). See the module's docstring; ``faint_alpha``: below it, no SH rest."""
+    n = len(alpha)
+    if len(sig.weight) != n:
+        raise CodecError(f"significance of {len(sig.weight)} Gaussians for {n} Gaussians")
+    # An opacity level is a step of alpha, so of the logit (the gradient's variable) 1 / (L alpha (1 -
+    # alpha)).
+    group_steps = {
+        "opacities": 1.0 / (steps.opacity_levels * np.maximum(alpha * (1 - alpha), 1e-3)),
+        "log_scales": steps.scale_step,
+        "quats": steps.rotation_step,
+        "sh_dc": steps.dc_step,
+        "sh_rest": steps.sh_band_steps[0] if steps.sh_band_steps else 0.0,
+    }
+    sens = np.zeros(n)
+    for g in params.groups:
+        sens += (sig.gradient[g] * group_steps[g]) ** 2
+    keep = candidates.copy()
+    if params.prune > 0 and keep.any():
+        # Blending weight, not a first-order change of the views: removing one of several Gaussians that
+        # paint the same surface changes little, removing all of them removes the surface (a statue lost
+        # 9 dB that way, bench/precision.md); a weight is what a Gaussian paints, however redundant.
+        floor = params.prune * float(np.median(sig.weight[keep]))
+        keep &= sig.weight >= floor
+    exponent = class_exponents(sens, params, keep)
+    d = len(steps.sh_band_steps)
+    degree = np.full(n, d, np.int64)
+    if d > 0:
+        multipliers = 2.0 ** exponent.astype(np.float64) if "sh_rest" in params.groups else np.ones(n)
+        bands = np.asarray(steps.sh_band_steps)
+        degree = sh_degrees(sig.sh_band_change[:, :d], bands, multipliers, params.sh_keep)
+        degree[alpha < faint_alpha] = 0
+    return Plan(keep, exponent, degree)
+
+
+def class_exponents(sens: np.ndarray, params: PrecisionParams, among: np.ndarray | None = None) -> np.ndarray:
+    """Each Gaussian's step exponent ``e`` (multiplier 2^e) from its sensitivity (see PrecisionParams),
+    relative to the median of those ``among`` (all by default)."""
+    lo, hi = params.exponents
+    ref = sens if among is None else sens[among]
+    positive = ref[ref > 0]
+    if positive.size == 0:
+        return np.full(len(sens), hi, np.int64)
+    median = float(np.median(positive))
+    rel = np.log2(np.maximum(sens, median * 2.0**-60) / median)
+    return np.clip(np.rint(params.bias - rel / 2), lo, hi).astype(np.int64)
+
+
+def sh_degrees(
+    change: np.ndarray, band_steps: np.ndarray, multipliers: np.ndarray, sh_keep: float
+) -> np.ndarray:
+    """Each Gaussian's SH degree: the highest band whose first-order change of the views (``change``, N x D)
+    is at least ``sh_keep`` x its coded step (``band_steps`` (D,) x the Gaussian's class multiplier); every
+    band below it is kept with it."""
+    n, d = change.shape
+    if sh_keep <= 0 or d == 0:
+        return np.full(n, d, np.int64)
+    keep = change >= sh_keep * band_steps[None, :] * multipliers[:, None]
+    highest = np.where(keep.any(1), d - np.argmax(keep[:, ::-1], axis=1), 0)
+    return highest.astype(np.int64)

@@ -1,0 +1,144 @@
+"""Attribute codec version 4: per-Gaussian precision classes and SH degrees (gspc/codec/precision.py)."""
+
+import msgpack
+import numpy as np
+import pytest
+import torch
+from scenes import random_scene
+
+from gspc.codec.attributes import decode_attributes, decoded_precision, encode_attributes
+from gspc.codec.cells import quantisation_cells
+from gspc.codec.params import CodecParams
+from gspc.codec.precision import (
+    PrecisionMap,
+    PrecisionParams,
+    Significance,
+    class_exponents,
+    encode_precision,
+    sh_degrees,
+)
+from gspc.errors import CodecError
+from gspc.format.attribute_section import AttributeSection
+from gspc.format.chunks import OPAC, PREC, SHRS
+from gspc.scene import ATTRIBUTE_NAMES, scene_equal
+
+
+def _significance(n: int, degree: int, seed: int = 0) -> Significance:
+    """Measures spread over six orders of magnitude, as a real scene's are (bench/significance.md)."""
+    rng = np.random.default_rng(seed)
+    grad = {k: 10.0 ** rng.uniform(-4, 2, n) for k in ATTRIBUTE_NAMES}
+    return Significance(10.0 ** rng.uniform(-7, -1, n), grad, 10.0 ** rng.uniform(-5, 1, (n, degree)), 20)
+
+
+PARAMS = CodecParams(lam=4.0, precision=PrecisionParams(exponents=(-1, 2), bias=1.0, sh_keep=1.0))
+
+
+@pytest.mark.parametrize("degree", [0, 1, 3])
+def test_round_trip_is_exact_and_classes_reach_the_decoder(degree):
+    scene = random_scene(600, sh_degree=degree, seed=degree)
+    sig = _significance(600, degree, seed=degree)
+    enc = encode_attributes(scene, PARAMS, significance=sig)
+    assert enc.section.version == 4 and PREC in enc.chunks
+    assert (SHRS in enc.chunks) == (degree > 0)
+    dec = decode_attributes(enc.chunks, enc.section)
+    assert scene_equal(dec, enc.decoded)
+    # Through the header's bytes too: the section the file carries reads back equal.
+    again = AttributeSection.from_dict(enc.section.to_dict())
+    assert again == enc.section and scene_equal(decode_attributes(enc.chunks, again), dec)
+    pmap = decoded_precision(enc.chunks, enc.section)
+    assert len(np.unique(pmap.classes)) > 1
+    if degree:
+        assert len(np.unique(pmap.degrees)) > 1
+        for b in range(1, degree + 1):  # bands above a Gaussian's degree decode as zero
+            above = pmap.degrees < b
+            assert (dec.sh_rest[torch.from_numpy(above), b * b - 1 : (b + 1) ** 2 - 1] == 0).all()
+
+
+def test_each_class_keeps_its_error_within_its_own_steps():
+    scene = random_scene(800, sh_degree=1, seed=4)
+    enc = encode_attributes(scene, PARAMS, significance=_significance(800, 1, seed=4))
+    pmap = decoded_precision(enc.chunks, enc.section)
+    orig = scene.log_scales.detach()[torch.from_numpy(enc.kept)]
+    err = (enc.decoded.log_scales - orig).abs().max(1).values.numpy()
+    steps = [c.scale_step for c in enc.section.all_classes]
+    for k, step in enumerate(steps):
+        rows = pmap.rows(k)
+        assert rows.size and err[rows].max() <= step / 2 + 1e-6
+    assert max(steps) / min(steps) == 8.0  # exponents -1 .. 2
+
+
+def test_cells_follow_each_gaussians_class():
+    scene = random_scene(500, sh_degree=2, seed=6)
+    enc = encode_attributes(scene, PARAMS, significance=_significance(500, 2, seed=6))
+    pmap = decoded_precision(enc.chunks, enc.section)
+    cells = quantisation_cells(enc.decoded, enc.section, pmap)
+    orig = scene.map(lambda x: x.detach()[torch.from_numpy(enc.kept)])
+    for name in ("log_scales", "sh_dc", "opacities"):
+        lo, hi = cells[name]
+        x = getattr(orig, name)
+        assert ((x >= lo - 1e-5) & (x <= hi + 1e-5)).all(), name
+    lo, hi = cells["log_scales"]
+    width = (hi - lo)[:, 0].numpy()
+    for k, c in enumerate(enc.section.all_classes):
+        assert np.allclose(width[pmap.rows(k)], c.scale_step, rtol=1e-5)
+    # SH bands above a Gaussian's degree were dropped by the encoder: no bound there.
+    lo, hi = cells["sh_rest"]
+    above = torch.from_numpy(pmap.degrees < 2)
+    assert torch.isinf(hi[above, 3:8]).all() and torch.isfinite(hi[~above, 3:8]).all()
+
+
+def test_without_significance_or_precision_the_uniform_codec_is_written():
+    scene = random_scene(300, sh_degree=1, seed=1)
+    plain = encode_attributes(scene, CodecParams(lam=4.0))
+    assert encode_attributes(scene, PARAMS).chunks == plain.chunks  # no measure: nothing to plan from
+    assert plain.section.version == 1 and PREC not in plain.chunks
+
+
+def test_exponents_follow_half_the_log_of_sensitivity():
+    sens = np.array([1.0, 4.0, 16.0, 0.25, 1 / 16, 0.0])
+    e = class_exponents(sens, PrecisionParams(exponents=(-2, 2)))
+    # median of the positive values is 1: four times as sensitive, half the step
+    assert e.tolist() == [0, -1, -2, 1, 2, 2]
+
+
+def test_sh_degree_is_the_highest_band_worth_its_step():
+    change = np.array([[5.0, 0.1, 3.0], [0.1, 0.1, 0.1], [2.0, 2.0, 0.0]])
+    d = sh_degrees(change, np.array([1.0, 1.0, 1.0]), np.ones(3), 1.0)
+    assert d.tolist() == [3, 0, 2]
+    assert sh_degrees(change, np.ones(3), np.ones(3), 0.0).tolist() == [3, 3, 3]
+
+
+@pytest.mark.parametrize(
+    "edit, words",
+    [
+        (lambda a: a.update(classes=[{}]), "opacity_levels"),
+        (lambda a: a.update(classes=[a["classes"][0]] * 16), "at most 15"),
+        (lambda a: a.pop("classes"), "classes"),
+        (lambda a: a.update(version=1), "chunk PREC in a file of attribute codec version 1"),
+    ],
+)
+def test_hostile_class_headers_are_refused(edit, words):
+    scene = random_scene(300, sh_degree=1, seed=2)
+    enc = encode_attributes(scene, PARAMS, significance=_significance(300, 1, seed=2))
+    a = enc.section.to_dict()
+    edit(a)
+    with pytest.raises(CodecError, match=words):
+        section = AttributeSection.from_dict(a)
+        decode_attributes(enc.chunks, section)
+
+
+def test_hostile_class_payloads_are_refused():
+    scene = random_scene(300, sh_degree=1, seed=2)
+    enc = encode_attributes(scene, PARAMS, significance=_significance(300, 1, seed=2))
+    n, c = enc.section.n, len(enc.section.all_classes)
+    bad = PrecisionMap(np.full(n, c), np.zeros(n, np.int64))
+    with pytest.raises(CodecError, match="precision class outside"):
+        decode_attributes({**enc.chunks, PREC: encode_precision(bad, 1)}, enc.section)
+    bad = PrecisionMap(np.zeros(n, np.int64), np.full(n, 2))
+    with pytest.raises(CodecError, match="SH degree outside"):
+        decode_attributes({**enc.chunks, PREC: encode_precision(bad, 1)}, enc.section)
+    with pytest.raises(CodecError, match="array of"):
+        short = msgpack.packb(msgpack.unpackb(enc.chunks[OPAC])[:-1], use_bin_type=True)
+        decode_attributes({**enc.chunks, OPAC: short}, enc.section)
+    with pytest.raises(CodecError, match="missing"):
+        decode_attributes({k: v for k, v in enc.chunks.items() if k != PREC}, enc.section)
