@@ -2,7 +2,7 @@
 on the same scenes, in one run, and the low preset through the whole encoder.
 
     npm install --prefix /tmp/gspc-spz-npm @playcanvas/splat-transform@3.7.0
-    GSPC_THREADS=1 python tools/bench_precision.py --variants today --trees today=. -o bench/precision.md
+    GSPC_THREADS=1 python tools/bench_precision.py -o bench/precision.md
 
 Every PSNR is of 8-bit renders against the original scene's renders at views the encoder did not use, at the
 scenes' resolution (1x) and at twice it (2x: width, height, fx, fy, cx, cy doubled), so that precision is not
@@ -40,7 +40,7 @@ import sys
 import tempfile
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -61,7 +61,8 @@ from scenes import Shells, with_shells
 from gspc.cameras import Camera
 from gspc.codec.attributes import EncodedAttributes, encode_attributes
 from gspc.codec.params import CodecParams
-from gspc.encoder.significance import Significance, significance
+from gspc.encoder.prepare import SIGNIFICANCE_VIEWS
+from gspc.encoder.significance import Significance, evenly_spaced, significance
 from gspc.format import container
 from gspc.format.chunks import SIDE
 from gspc.io import read_scene
@@ -73,8 +74,6 @@ from gspc.visibility import visible_mask
 
 ROOT = Path(__file__).resolve().parents[1]
 STATUES = "angel,angel-kneeling,angel-with-candlestick,massa,trumpet"
-MEASURE_VIEWS = 20  # bench/significance.md: 20 evenly spaced views rank as well as all 161 of the bird's
-LOW, HIGH = quality_preset("low").attributes.lam, quality_preset("high").attributes.lam
 TARGETS = {"bird": 0.36, "statue": 0.55, "file B/G": 6.0, "shells dB": 0.3}
 
 
@@ -82,13 +81,15 @@ TARGETS = {"bird": 0.36, "statue": 0.55, "file B/G": 6.0, "shells dB": 0.3}
 # Variants of the attribute codec
 
 
-def _today(lam: float) -> CodecParams:
-    """Today's codec: the presets' parameters at ``lam``, without per-Gaussian precision classes (a field the
-    codec's version 4 adds; None there is today's codec)."""
-    params = quality_preset("low").attributes.with_lambda(lam)
-    if any(f.name == "precision" for f in fields(params)):
-        params = replace(params, precision=None)
-    return params
+def _uniform(lam: float) -> CodecParams:
+    """The codec before per-Gaussian precision (versions 1-3): the presets' parameters at ``lam`` without
+    precision classes."""
+    return replace(quality_preset("low").attributes.with_lambda(lam), precision=None)
+
+
+def _classed(preset: str) -> Callable[[float], CodecParams]:
+    """Version 4: ``preset``'s parameters, its per-Gaussian precision included, at any lambda."""
+    return lambda lam: quality_preset(preset).attributes.with_lambda(lam)
 
 
 @dataclass(frozen=True)
@@ -97,11 +98,30 @@ class Variant:
     about: str
     params: Callable[[float], CodecParams]  # lambda -> the codec's parameters
     takes_significance: bool  # encode_attributes(..., significance=...) with the scene's measure
+    presets: tuple[tuple[str, float], ...]  # (preset, its lambda) for the shells' table
 
 
 VARIANTS: dict[str, Variant] = {
     "today": Variant(
-        "today", "attribute codec version 3, uniform steps (gspc/codec/params.py)", _today, False
+        "today",
+        "the uniform codec (precision None, as versions 1-3; low preset lambda 8 as before version 4)",
+        _uniform,
+        False,
+        (("low", 8.0), ("high", 1.0)),
+    ),
+    "v4-low": Variant(
+        "v4-low",
+        "version 4 with the low preset's precision parameters (gspc/presets.py LOW_PRECISION), any lambda",
+        _classed("low"),
+        True,
+        (("low", quality_preset("low").attributes.lam),),
+    ),
+    "v4-high": Variant(
+        "v4-high",
+        "version 4 with the high preset's precision parameters (HIGH_PRECISION), any lambda",
+        _classed("high"),
+        True,
+        (("high", quality_preset("high").attributes.lam),),
     ),
 }
 
@@ -156,13 +176,13 @@ class Bench:
         return cls(name, kind, path, scene, setup.train_cams, views, visible)
 
     def measure_significance(self) -> None:
-        """The significance measure over MEASURE_VIEWS evenly spaced encoder cameras, timed."""
+        """The significance measure at evenly spaced encoder cameras (as gspc/encoder/prepare.py), timed."""
         cams = self.encoder_cams
-        pick = np.linspace(0, len(cams) - 1, min(MEASURE_VIEWS, len(cams))).round().astype(int)
+        views = evenly_spaced(cams, SIGNIFICANCE_VIEWS)
         t0 = time.perf_counter()
-        self.measure = significance(self.scene, [cams[i] for i in pick], self.views.background)
+        self.measure = significance(self.scene, views, self.views.background)
         self.measure_s = time.perf_counter() - t0
-        self.measure_views = f"{len(pick)} of {len(cams)} at {cams[0].width}x{cams[0].height}"
+        self.measure_views = f"{len(views)} of {len(cams)} at {cams[0].width}x{cams[0].height}"
 
 
 @dataclass(frozen=True)
@@ -325,7 +345,7 @@ def shells_section(
         benches.append(inside)
         added = world.num_gaussians - obj.num_gaussians
         for v in chosen:
-            for lam, preset in ((LOW, "low"), (HIGH, "high")):
+            for preset, lam in v.presets:
                 a, w = coded_point(alone, v, lam), coded_point(inside, v, lam)
                 per_obj, per_added = a.bytes / obj.num_gaussians, (w.bytes - a.bytes) / added
                 rows.append(
@@ -345,10 +365,11 @@ def main(
     covers: str = typer.Option(
         "1,0.1", help="the shells' sky cover (tools/scenes.py Shells.cover), each a world"
     ),
-    variants: str = typer.Option("today", help=f"codec variants: {', '.join(VARIANTS)}"),
+    variants: str = typer.Option("today,v4-low,v4-high", help=f"codec variants: {', '.join(VARIANTS)}"),
     lams: str = typer.Option("0.5,1,2,4,8,16,32", help="lambdas of every variant's sweep"),
     trees: str = typer.Option(
-        "today=.", help="whole-encoder runs: LABEL=REF,... ('.': this checkout; '' to skip)"
+        "today=c049147,v4=.",
+        help="whole-encoder runs: LABEL=REF,... ('.': this checkout; c049147: before version 4; '' to skip)",
     ),
     npm_dir: Path = typer.Option(Path("/tmp/gspc-spz-npm"), help="where splat-transform is installed"),
     out: Path = typer.Option(ROOT / "bench" / "precision.md", "-o"),
@@ -488,7 +509,7 @@ def report(results, chosen, lam_list, shell_rows, shell_text, file_rows, trees, 
     lines += [
         "## The significance measure's time",
         "",
-        f"`significance()` (gspc/encoder/significance.py) over {MEASURE_VIEWS} evenly spaced encoder "
+        f"`significance()` (gspc/encoder/significance.py) over {SIGNIFICANCE_VIEWS} evenly spaced encoder "
         "cameras, timed alone (what an encoder that uses it adds).",
         "",
         "| scene | Gaussians | views | seconds |",
