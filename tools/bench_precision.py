@@ -241,10 +241,23 @@ def code_tree(ref: str, tmp: Path) -> Path:
 
 
 def run_gspc(tree: Path, *args: str) -> float:
-    """``gspc ARGS`` by the code in ``tree``, one thread; wall seconds (Python start and imports included)."""
+    """``gspc ARGS`` by the code in ``tree``, one thread; wall seconds (Python start and imports included).
+    It runs in ``tree``: ``python -m`` puts its working directory first on the path, before PYTHONPATH and
+    the editable install, so a run from this checkout would import this checkout's gspc whatever the tree."""
     env = dict(os.environ, PYTHONPATH=str(tree), GSPC_THREADS="1")
+    where = subprocess.run(
+        [sys.executable, "-c", "import gspc; print(gspc.__file__)"],
+        env=env,
+        cwd=tree,
+        capture_output=True,
+        text=True,
+    )
+    if Path(where.stdout.strip()).resolve().parent != (tree / "gspc").resolve():
+        raise RuntimeError(f"gspc imported from {where.stdout.strip()!r}, not from {tree}")
     t0 = time.perf_counter()
-    res = subprocess.run([sys.executable, "-m", "gspc.cli", *args], env=env, capture_output=True, text=True)
+    res = subprocess.run(
+        [sys.executable, "-m", "gspc.cli", *args], env=env, cwd=tree, capture_output=True, text=True
+    )
     if res.returncode != 0:
         raise RuntimeError(f"gspc {' '.join(args)} failed: {res.stdout[-300:]} {res.stderr[-300:]}")
     return time.perf_counter() - t0
