@@ -38,18 +38,19 @@ class Preset:
 # coded, 50.25 after 257, where 857 reached 50.05. The high preset's side information is mostly skipped
 # (residuals under the threshold); its length was cut in the same proportion.
 # The encoder also weighs residuals at half this resolution (gspc/encoder/policy.py, CheckPolicy).
-# Per-Gaussian precision (attribute codec version 4, gspc/codec/precision.py), measured codec alone
-# (tools/bench_precision.py, bench/precision.md): classes 2^-1 .. 2^2 of the rate's steps centred 1.5 octaves
-# coarse, SH bands kept where they move the views by 4 of their steps, Gaussians painting under a fifth of
-# the median's blending weight removed. At equal PSNR against the uniform codec: lego 0.77x the bytes, the
-# statue massa 0.7x, the bird capture 0.5x (most of it removal). The low preset's lambda rose from 8 to 9:
-# the classed codec's PSNR per lambda differs by scene (equal to the uniform lambda 8 at lambda 6.4 on lego,
-# 13 on massa, about 9.5 on the bird). The high preset removes nothing and keeps more SH.
-LOW_PRECISION = PrecisionParams(exponents=(-1, 2), bias=1.5, sh_keep=4.0, prune=0.2)
-HIGH_PRECISION = PrecisionParams(exponents=(-1, 2), bias=1.0, sh_keep=2.0, prune=0.0)
+# Per-Gaussian precision (attribute codec version 4, gspc/codec/precision.py), chosen codec alone on lego,
+# the statue massa, the bird capture and massa inside shells of sky-sized Gaussians (tools/bench_precision.py,
+# bench/precision.md): step classes 2^-3 .. 2^2 of the rate's, centred 1.5 octaves coarse; SH bands kept
+# where they move the views by 4 of their steps; Gaussians painting under a fifth of the median's blending
+# weight removed. A finest class of 2^-1 coded lego 4% smaller at equal PSNR but lost 6 dB on the shells
+# (2^-4: 2% larger, +1.3 dB there). The classed codec reaches a PSNR at other lambdas than the uniform one,
+# and differently by scene (the uniform lambda 8's PSNR at lambda ~7.5 on lego, ~15 on massa); the low
+# preset's lambda rose from 8 to 10. The high preset removes nothing and keeps more SH.
+LOW_PRECISION = PrecisionParams(exponents=(-3, 2), bias=1.5, sh_keep=4.0, prune=0.2)
+HIGH_PRECISION = PrecisionParams(exponents=(-3, 2), bias=1.0, sh_keep=2.0, prune=0.0)
 QUALITY: dict[str, Preset] = {
     "low": Preset(
-        attributes=CodecParams(lam=9.0, precision=LOW_PRECISION),
+        attributes=CodecParams(lam=10.0, precision=LOW_PRECISION),
         residual_codec="jxl",
         residual_distance=8.0,
         residual_scale=2,

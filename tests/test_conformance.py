@@ -175,7 +175,7 @@ def test_spec_hexdump_is_the_minimal_file() -> None:
     assert dump == (VECTORS / "valid_minimal.gspc").read_bytes()
     # The example is a 1.0 file; this writer differs only in the minor version and so in the file CRC.
     ours = pack({}, [])
-    assert ours[:10] == dump[:10] and ours[12:44] == dump[12:44] and ours[10:12] == b"\x03\x00"
+    assert ours[:10] == dump[:10] and ours[12:44] == dump[12:44] and ours[10:12] == b"\x04\x00"
     assert len(dump) == 48
 
 
@@ -267,7 +267,7 @@ def test_describe(tmp_path: Path) -> None:
     path = tmp_path / "s.gspc"
     container.write(path, {"codec": "x"}, [Chunk("POSN", b"p" * 100), Chunk("RESI", b"r" * 9, index=0)])
     info = container.describe(path)
-    assert info["version"] == container.VERSION == (1, 3)
+    assert info["version"] == container.VERSION == (1, 4)
     assert [(c["type"], c["index"], c["size"], c["required"]) for c in info["chunks"]] == [
         ("POSN", 0, 100, True),
         ("RESI", 0, 9, True),

@@ -42,7 +42,7 @@ def encoded(tmp_path_factory):
 def test_encode_report_and_views(encoded):
     _, out, rep = encoded
     c = container.read(out)
-    assert c.version == (1, 3) and "views" not in c.header["side_info"]
+    assert c.version == (1, 4) and "views" not in c.header["side_info"]
     assert [ch.type for ch in c.chunks].count("SIDE") == 1 and c.find("RESI", 0) is None
     views, images = side_of(c)
     assert len(views) == 2  # 40% of 5 views

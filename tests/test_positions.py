@@ -146,7 +146,7 @@ def test_an_unbounded_scene_round_trips_through_the_file(tmp_path):
     write_ply(scene, src)
     encode(src, out, opts=EncodeOptions(side_info=False, synth_views=4, keep_invisible=True, precision=False))
     meta = AttributeSection.from_dict(container.read(out).header["attributes"])
-    assert meta.version == 2 and meta.position.is_contracted and container.read(out).version == (1, 3)
+    assert meta.version == 2 and meta.position.is_contracted and container.read(out).version == (1, 4)
     decode(out, dec, DecodeOptions(refine=False, restore=False))
     got = read_scene(dec).means.numpy().astype(np.float64)
     ref = scene.means.numpy().astype(np.float64)

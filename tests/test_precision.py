@@ -142,3 +142,32 @@ def test_hostile_class_payloads_are_refused():
         decode_attributes({**enc.chunks, OPAC: short}, enc.section)
     with pytest.raises(CodecError, match="missing"):
         decode_attributes({k: v for k, v in enc.chunks.items() if k != PREC}, enc.section)
+
+
+def test_gaussians_no_measured_view_shows_keep_the_rates_steps_and_their_place():
+    """The measure renders a sample of the views: unmeasured Gaussians are neither removed nor coarsened."""
+    scene = random_scene(400, sh_degree=2, seed=8)
+    sig = _significance(400, 2, seed=8)
+    unseen = np.zeros(400, bool)
+    unseen[::7] = True
+    sig.weight[unseen] = 0.0
+    for g in sig.gradient.values():
+        g[unseen] = 0.0
+    sig.sh_band_change[unseen] = 0.0
+    prec = PrecisionParams(exponents=(-1, 2), bias=1.0, sh_keep=1.0, prune=0.5)
+    params = CodecParams(lam=4.0, precision=prec)
+    enc = encode_attributes(scene, params, significance=sig)
+    pmap = decoded_precision(enc.chunks, enc.section)
+    rows = unseen[enc.kept]
+    assert rows.sum() == unseen.sum()  # none removed
+    assert (pmap.classes[rows] == 0).all() and (pmap.degrees[rows] == 2).all()
+    assert len(enc.kept) < 400  # the measured faint ones were removed
+
+
+def test_the_high_preset_removes_nothing():
+    from gspc.presets import QUALITY
+
+    scene = random_scene(300, sh_degree=1, seed=3)
+    enc = encode_attributes(scene, QUALITY["high"].attributes, significance=_significance(300, 1, seed=3))
+    plain = encode_attributes(scene, CodecParams(lam=1.0))
+    assert enc.section.version == 4 and np.array_equal(np.sort(enc.kept), np.sort(plain.kept))

@@ -189,7 +189,7 @@ def _hard_cases() -> dict[str, tuple]:
     )
     # Centres on tile borders and corners (the axis camera puts x = -0.8, 0, 0.8 and y = -0.4, 0.4 at
     # z = 0 on pixel 8, 16, 24 column and row edges), thin and rotated, near-opaque: the exact tile lists
-    # and each pair's walk along rows from its leftmost column.
+    # and each pair's walk of whole tile rows.
     grid = torch.tensor([[x, y, 0.0] for x in (-0.8, 0.0, 0.8) for y in (-0.4, 0.4)], dtype=F64)
     thin = torch.tensor([-0.6, -6.0, -6.0], dtype=F64)
     cases["tile_borders"] = dict(
@@ -344,8 +344,8 @@ def test_compiled_tile_lists_equal_the_torch_ones(exact):
 
 
 def test_compiled_row_spans_cover_every_drawn_pixel():
-    # The pixels a pair visits (per row: the ellipse's span, widened by SPAN_MARGIN) hold every pixel whose
-    # alpha reaches 1/255, also for thin, rotated and sub-pixel ellipses.
+    # The rows a pair walks, and per row the span that walk_counts counts (widened by SPAN_MARGIN), hold
+    # every pixel whose alpha reaches 1/255, also for thin, rotated and sub-pixel ellipses.
     g = torch.Generator().manual_seed(4)
     for _ in range(200):
         sx, sy = (torch.rand(2, generator=g, dtype=F64) * 4.0 + 0.3).tolist()
@@ -390,10 +390,11 @@ def projected_and_grads(scene, cam, deg: int, kernel: str):
     p = proj.project(*params, cam, deg, kernel=kernel)
     g = torch.Generator().manual_seed(5)
     drawn = p.drawn.to(p.means2d.dtype)
+    # Weights drawn per scene row (a projection may cover a subset of them: p.index).
     loss = sum(
         (
             t
-            * torch.randn(t.shape, generator=g, dtype=F64).to(t.dtype)
+            * torch.randn((len(s.means), *t.shape[1:]), generator=g, dtype=F64)[p.index].to(t.dtype)
             * drawn.reshape(-1, *[1] * (t.dim() - 1))
         ).sum()
         for t in (p.means2d, p.conics, p.opacities, p.colors, p.depths)
@@ -414,10 +415,14 @@ def test_compiled_projection_matches_pytorch(behind, dtype):
     tol = 1e-12 if dtype == F64 else 2e-5
     a, ga = projected_and_grads(scene, camera(), 1, "torch")
     b, gb = projected_and_grads(scene, camera(), 1, "compiled")
-    assert torch.equal(a.index, b.index) and torch.equal(a.drawn, b.drawn)
-    assert (~b.drawn).sum() > behind and b.means2d.dtype == dtype
+    # The PyTorch code copies out the rows in front of the camera when many are behind; the compiled kernels
+    # take every row (a.index is a subset of b.index = all rows).
+    assert torch.equal(b.index, torch.arange(len(scene.means)))
+    assert not b.drawn[~torch.isin(b.index, a.index)].any()
+    assert torch.equal(a.drawn, b.drawn[a.index]) and b.means2d.dtype == dtype
+    assert (~b.drawn).sum() > behind and (len(a.index) < len(b.index)) == (behind == 40)
     for name in ("means2d", "conics", "opacities", "depths", "extents"):
-        assert_close(getattr(b, name), getattr(a, name), tol, name)
+        assert_close(getattr(b, name)[a.index], getattr(a, name), tol, name)
     assert_close(b.colors[b.drawn], a.colors[a.drawn], tol, "colors")  # (the never-drawn: 0, unread)
     assert not b.colors[~b.drawn].any()
     for name, x, y in zip(ATTRIBUTE_NAMES, gb, ga, strict=True):
@@ -483,3 +488,58 @@ def test_exact_tile_lists_hold_every_drawn_pixel_and_are_in_the_box(case):
     assert needed and needed <= listed
     if case in ("mixed", "thin_rotated"):
         assert len(listed) < 0.9 * len(in_box)  # the corners of boxes go (thin rotated ones: most tiles)
+
+
+def test_row_walk_values_stay_exact_over_whole_tile_rows():
+    # A pair's walk multiplies its way across every pixel of the tile rows its ellipse reaches, however far
+    # from the ellipse (composite_cpu._row_start): thin, rotated, opaque ellipses that only graze a tile's
+    # corner, and large faint ones. Every value must match o exp(-q / 2) evaluated directly, to round-off,
+    # and never under- or overflow.
+    g = np.random.default_rng(8)
+    checked = 0
+    for _ in range(1000):
+        sx, sy = np.exp(g.normal(0.0, 1.5, 2))
+        rot = g.uniform(0, math.pi)
+        c, s = math.cos(rot), math.sin(rot)
+        cov = np.array([[c, -s], [s, c]]) @ np.diag([sx * sx, sy * sy]) @ np.array([[c, s], [-s, c]])
+        cov += 0.3 * np.eye(2)
+        a, b, cc = np.linalg.inv(cov)[[0, 0, 1], [0, 1, 1]]
+        o = float(g.choice([0.99, 1.0, g.uniform(0.005, 1.0)]))
+        one = np.ones((1, 1))
+        record = composite_cpu.pack(
+            np.zeros(1, np.int64), one * [0.0, 0.0], one * [1, 0, 1], one[0] * o, one * [0, 0, 0, 0]
+        )
+        thr = float(record[0, 6])
+        mx, my = g.uniform(-20.0, 28.0, 2)
+        ell = composite_cpu._ellipse(np.array([mx, my, a, b, cc, o, thr]))
+        # Only tiles whose pixel centres the ellipse reaches are walked (the exact tile lists).
+        px, py = np.meshgrid(np.arange(8) + 0.5, np.arange(8) + 0.5)
+        dx, dy = px - mx, py - my
+        q = a * dx * dx + 2 * b * dx * dy + cc * dy * dy
+        if not (q <= thr).any():
+            continue
+        checked += 1
+        row_lo, row_hi = composite_cpu._row_range(ell, 0)
+        er, vr = np.empty(8), np.empty(8)
+        ec = composite_cpu._row_start(ell, row_lo, 0, 0, er, vr)
+        for row in range(row_lo, row_hi + 1):
+            expected = o * np.exp(-0.5 * q[row])
+            assert np.all(np.isfinite(er)) and np.all(er > 1e-200), (row, er)
+            np.testing.assert_allclose(er, expected, rtol=1e-12, atol=0)
+            er, vr = er * vr, vr * ec
+    assert checked > 150
+
+
+def test_colour_only_loss_on_black_matches_reference():
+    # A loss of the colour image alone on a black background (refinement's, on most scenes) leaves depth's
+    # and alpha's gradients all zero, and the compiled backward then leaves their terms out of its walk.
+    scene = random_scene(150, 2, seed=21, spread=0.6)
+    grads = {}
+    for name, fn in (("compiled", partial(render, backend="torch")), ("reference", render_reference)):
+        s = scene.detach()
+        params = [s.tensors()[k].requires_grad_(True) for k in ATTRIBUTE_NAMES]
+        out = fn(s, camera(), background=[0.0, 0.0, 0.0])
+        wi, _ = loss_weights(H, W)
+        grads[name] = torch.autograd.grad((out.image * wi).sum(), params)
+    for name, a, b in zip(ATTRIBUTE_NAMES, grads["compiled"], grads["reference"], strict=True):
+        assert_close(a, b, 1e-10, f"d/d {name}")

@@ -5,7 +5,6 @@ reference's coder, symbol by symbol; whole files from gspc's encoder must decode
 """
 
 import re
-from dataclasses import replace
 from pathlib import Path
 
 import constriction
@@ -20,6 +19,7 @@ from scenes import random_scene
 
 from gspc.codec.attributes import decode_attributes, encode_attributes
 from gspc.codec.entropy import _categorical, decode_matrix, encode_matrix, fixed_point_table
+from gspc.codec.params import CodecParams
 from gspc.codec.precision import PrecisionParams
 from gspc.errors import CodecError
 from gspc.format import container
@@ -148,9 +148,8 @@ def test_spec_reader_decodes_a_contracted_position_grid():
     assert_same(sr.read_scene(data)[0], enc.decoded)
 
 
-PRECISION = replace(
-    QUALITY["low"].attributes, precision=PrecisionParams(exponents=(-1, 2), bias=1.0, sh_keep=1.0)
-)
+# Coarse classes (no finer steps than the rate's), so that far Gaussians stay coarse enough for a far set.
+PRECISION = CodecParams(lam=8.0, precision=PrecisionParams(exponents=(0, 2), bias=1.0, sh_keep=1.0))
 
 
 @pytest.mark.parametrize("degree, grid", [(0, 1), (1, 2), (2, 3), (3, 1), (0, 3)])

@@ -164,7 +164,7 @@ def refine_row(s: Setup, inp: Inputs, schedule: Schedule, reference, trial: int 
     return out
 
 
-def bench_refinement(s: Setup, lines: list[str], only_ends: bool = False) -> dict:
+def bench_refinement(s: Setup, lines: list[str], only_ends: bool = False, decoder_only: bool = False) -> dict:
     inp = decode_inputs(s)
     reference = render_images(s.scene, s.held_out, s.background)
     coded = render_images(inp.decoded, s.held_out, s.background)
@@ -180,6 +180,8 @@ def bench_refinement(s: Setup, lines: list[str], only_ends: bool = False) -> dic
     ]
     if only_ends:
         rows = [rows[0], rows[-1]]
+    if decoder_only:
+        rows = [rows[-1]]
     lines += [
         f"### {s.name}",
         "",
@@ -276,6 +278,11 @@ def main() -> None:
     ap.add_argument("--check", action="store_true", help="also compare the check with the full check")
     ap.add_argument("--check-only", action="store_true", help="only the check's comparison")
     ap.add_argument("--only-ends", action="store_true", help="only the before and after rows")
+    ap.add_argument(
+        "--decoder-only",
+        action="store_true",
+        help="only the decoder's schedule (to time one gspc against another: run once per PYTHONPATH)",
+    )
     ap.add_argument("--end-to-end", action="store_true", help="only the default encode and decode, timed")
     ap.add_argument("--out", default=str(REPO / "bench" / "refine.md"))
     args = ap.parse_args()
@@ -309,7 +316,7 @@ def main() -> None:
             bench_end_to_end(s, lines)
             continue
         if not args.check_only:
-            bench_refinement(s, lines, args.only_ends)
+            bench_refinement(s, lines, args.only_ends, args.decoder_only)
         if args.check or args.check_only:
             bench_check(s, lines)
         Path(args.out).write_text("\n".join(lines) + "\n")

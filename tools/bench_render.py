@@ -1,18 +1,20 @@
 """Benchmark the CPU renderer: its work (tile pairs, pixel visits) and seconds per render, before and after.
 
     git archive BASE gspc | tar -x -C /tmp/gspc_before      # the renderer to compare against
-    python tools/bench_render.py --before /tmp/gspc_before [--out bench/render.md] [--repeats 3] \\
-        [--scene examples/lego/point_cloud.ply:examples/lego/cameras.json] [--scene statue.sog]
+    python tools/bench_render.py --before /tmp/gspc_before [--after DIR] [--out bench/render.md] \\
+        [--repeats 3] [--scene examples/lego/point_cloud.ply:examples/lego/cameras.json] [--scene statue.sog]
 
 Cases: synthetic scenes (CASES) and real ones (``--scene PLY_OR_SOG[:CAMERAS_JSON]``; without cameras,
-gspc.views.synthesize_views). Each case runs in fresh subprocesses, three variants alternating for
+gspc.views.synthesize_views). Each case runs in fresh subprocesses, the variants alternating for
 ``--repeats`` rounds so that all see the same machine load: "before" (the gspc under ``--before``, first on
-PYTHONPATH), "box" (this checkout with box tile lists instead of the exact ellipse test) and "after" (this
-checkout). Times are CPU seconds of one thread per render (mean over a case's views; the median of a
-round's calls, then of the rounds). The "after" process also counts the work: pairs in the tile lists,
-pairs walked before their tile stopped, and pixel visits, for its lists and for the previous renderer's
-(box lists, edge tiles walked whole); and every variant saves its images, so the table gives the largest
-difference from "before". A last table times this checkout on 1 and 2 threads (wall seconds).
+PYTHONPATH) and "after" (the one under ``--after``, default this checkout); ``--box`` adds "box" (after with
+box tile lists instead of the exact ellipse test). Times are CPU seconds of one thread per render (mean
+over a case's views; the median of a round's calls, then of the rounds): a no-grad forward, and a forward
+and backward of the image's sum (refinement's case: a loss of the image alone). The "after" process also
+counts the work: pairs in the tile lists, pairs walked before their tile stopped, and pixel visits (the
+pixels of each walked pair's rows that its alpha >= 1/255 ellipse reaches: what a render must evaluate
+whatever its kernel); and every variant saves its images, so the table gives the largest difference from
+"before". A last table times the after code on 1 and 2 threads (wall seconds).
 """
 
 from __future__ import annotations
@@ -90,22 +92,18 @@ def load_case(spec: dict):
 
 
 def count_work(scene, cams) -> dict:
-    """Per pixel, summed over the views: tile pairs, pairs walked, pixel visits; "old_*" the same for the
-    previous renderer's walk (box tile lists, edge tiles walked whole)."""
+    """Summed over the views: pixels, tile pairs, pairs walked, pixel visits."""
     from gspc.render.project import project
     from gspc.render.rasterize import walk_counts
 
-    sums = dict.fromkeys(("pixels", "pairs", "walked", "visits", "old_pairs", "old_walked", "old_visits"), 0)
+    sums = dict.fromkeys(("pixels", "pairs", "walked", "visits"), 0)
     for cam in cams:
         with torch.no_grad():
             p = project(*(scene.tensors()[k] for k in _ATTRS), cam, scene.sh_degree)
         args = (p.means2d, p.conics, p.opacities, torch.cat([p.colors, p.depths[:, None]], 1), p.depths)
-        new = walk_counts(*args, p.extents, cam.width, cam.height)
-        old = walk_counts(*args, p.extents, cam.width, cam.height, exact=False, whole_tiles=True)
-        for k in ("pairs", "walked", "visits"):
-            sums[k] += getattr(new, k)
-            sums["old_" + k] += getattr(old, k)
-        sums["pixels"] += new.pixels
+        counts = walk_counts(*args, p.extents, cam.width, cam.height)
+        for k in sums:
+            sums[k] += getattr(counts, k)
     return sums
 
 
@@ -137,8 +135,7 @@ def run_case(spec: dict, repeats: int, threads: int, variant: str, images: str |
         runs["fwd"].append((clock() - t0) / len(cams))
         t0 = clock()
         for cam in cams:
-            r = api.render(scene, cam, backend="torch")
-            (r.image.sum() + r.depth.sum()).backward()
+            api.render(scene, cam, backend="torch").image.sum().backward()
         runs["both"].append((clock() - t0) / len(cams))
     res = {"name": name, "views": len(cams), "size": f"{cams[0].width}x{cams[0].height}"}
     res |= {"gaussians": scene.num_gaussians} | {k: float(np.median(v)) for k, v in runs.items()}
@@ -185,30 +182,31 @@ def _scene_spec(arg: str) -> dict:
 
 
 def _work_columns(r: dict) -> str:
-    px = r["pixels"]
-    cells = [f"{r['old_' + k] / px:.2f} / {r[k] / px:.2f}" for k in ("pairs", "walked", "visits")]
-    return " | ".join(cells)
+    return " | ".join(f"{r[k] / r['pixels']:.2f}" for k in ("pairs", "walked", "visits"))
 
 
 def _table(rows: list[dict], variants: list[str]) -> list[str]:
+    """Seconds per render and ns per pixel visit (whole render / visits; backward = fwd+bwd - fwd) of each
+    variant; the work is the same for all (the tile lists and the rules do not change between them)."""
+    names = " / ".join(variants)
     head = (
-        "| case | Gaussians | views | pairs/px | walked pairs/px | visits/px | fwd s "
-        + " / ".join(variants)
-        + " | fwd+bwd s "
-        + " / ".join(variants)
-        + " | ns/visit fwd | ns/visit fwd+bwd | after/before fwd+bwd | max image diff |"
+        f"| case | Gaussians | views | pairs/px | walked pairs/px | visits/px | fwd s {names} "
+        f"| fwd+bwd s {names} | ns/visit fwd | ns/visit bwd | after/before fwd | after/before bwd "
+        "| after/before fwd+bwd | max image diff |"
     )
-    lines = [head, "|---" * 12 + "|"]
+    lines = [head, "|---" * 14 + "|"]
     for res in rows:
         a, b = res["after"], res[variants[0]]
-        old_v, new_v = a["old_visits"] / a["views"], a["visits"] / a["views"]
+        visits = a["visits"] / a["views"]
         fwd = " / ".join(f"{res[k]['fwd']:.4f}" for k in variants)
         both = " / ".join(f"{res[k]['both']:.4f}" for k in variants)
-        nsf = f"{b['fwd'] / old_v * 1e9:.1f} / {a['fwd'] / new_v * 1e9:.1f}"
-        nsb = f"{b['both'] / old_v * 1e9:.1f} / {a['both'] / new_v * 1e9:.1f}"
+        nsf = " / ".join(f"{res[k]['fwd'] / visits * 1e9:.1f}" for k in variants)
+        nsb = " / ".join(f"{(res[k]['both'] - res[k]['fwd']) / visits * 1e9:.1f}" for k in variants)
+        bwd_ratio = (a["both"] - a["fwd"]) / (b["both"] - b["fwd"])
         lines.append(
             f"| {a['name']} {a['size']} | {a['gaussians']:,} | {a['views']} | {_work_columns(a)} | {fwd} | "
-            f"{both} | {nsf} | {nsb} | {a['both'] / b['both']:.2f} | {a['max_diff']:.1e} |"
+            f"{both} | {nsf} | {nsb} | {a['fwd'] / b['fwd']:.2f} | {bwd_ratio:.2f} | "
+            f"{a['both'] / b['both']:.2f} | {a['max_diff']:.1e} |"
         )
     return lines
 
@@ -218,6 +216,8 @@ def main() -> None:
     ap.add_argument("--out", default="bench/render.md")
     ap.add_argument("--repeats", type=int, default=3, help="alternating rounds per case")
     ap.add_argument("--before", help="folder holding the gspc package to compare against")
+    ap.add_argument("--after", default=REPO, help="folder holding the gspc package measured as after")
+    ap.add_argument("--box", action="store_true", help="also time after with box tile lists")
     ap.add_argument("--max-n", type=int, default=10**9, help="skip synthetic cases with more Gaussians")
     ap.add_argument("--scene", action="append", default=[], help="PLY_OR_SOG[:CAMERAS_JSON], repeatable")
     ap.add_argument("--no-threads", action="store_true", help="skip the 1 vs 2 threads table")
@@ -230,7 +230,8 @@ def main() -> None:
         spec = json.loads(args.case)
         print(json.dumps(run_case(spec, args.repeats, args.threads, args.variant, args.images)))
         return
-    variants = {"box": (REPO, 1, "box"), "after": (REPO, 1, "after")}
+    after = os.path.abspath(args.after)
+    variants = ({"box": (after, 1, "box")} if args.box else {}) | {"after": (after, 1, "after")}
     if args.before:
         variants = {"before": (os.path.abspath(args.before), 1, "before")} | variants
     specs = [{"n": n, "w": w, "h": h, "dist": d} for n, w, h, d in CASES if n <= args.max_n]
@@ -244,15 +245,17 @@ def main() -> None:
         if not args.no_threads:
             for n, w, h, d in THREADS_CASES:
                 spec = {"n": n, "w": w, "h": h, "dist": d}
-                pair = {"1": (REPO, 1, "wall"), "2": (REPO, 2, "wall")}
+                pair = {"1": (after, 1, "wall"), "2": (after, 2, "wall")}
                 threads.append(side_by_side(spec, args.repeats, pair, tmp))
                 print(json.dumps(threads[-1]), flush=True)
     names = list(variants)
     lines = [
         "# CPU renderer: work and seconds per render (one thread), before and after",
         "",
-        f"Command: `python tools/bench_render.py --before {args.before or '-'} --repeats {args.repeats}"
+        f"Command: `python tools/bench_render.py --before {args.before or '-'} --after {args.after} "
+        f"--repeats {args.repeats} --max-n {args.max_n}"
         + "".join(f" --scene {s}" for s in args.scene)
+        + (" --no-threads" if args.no_threads else "")
         + "`",
         "",
         f"Machine: {platform.machine()}, {os.cpu_count()} vCPUs, torch {torch.__version__}, one thread "
@@ -261,10 +264,11 @@ def main() -> None:
         f"over a case's views; the median over {args.repeats} rounds of each round's median of "
         f"{PER_PROCESS} calls, a fresh process per round and variant, variants alternating. Variants: "
         + ", ".join(names)
-        + " (tools/bench_render.py's docstring). Work columns: before / after per pixel (before = box "
-        "tile lists, edge tiles walked whole, as the previous renderer walks), counted by "
-        "gspc.render.rasterize.walk_counts; ns/visit = seconds / pixel visits, before / after. Max image "
-        "diff: the largest |after - before| of any pixel and channel over the views' forward images.",
+        + " (tools/bench_render.py's docstring); fwd+bwd: a forward and the backward of the image's sum. "
+        "Work columns: per pixel, counted by gspc.render.rasterize.walk_counts in the after process (the "
+        "same tile lists and rules in every variant); ns/visit = seconds / pixel visits, the backward's "
+        "= (fwd+bwd - fwd) / visits. Max image diff: the largest |variant - before| of any pixel and "
+        "channel over the views' forward images.",
         "",
         *_table(rows, names),
     ]

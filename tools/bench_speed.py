@@ -5,10 +5,11 @@
         [--statue massa] [--out bench/speed.md]
 
 Per scene: the default encode (low preset, the encoder's check as each version runs it) from the training
-cameras, then the default decode, each a fresh `gspc` process on one thread (GSPC_THREADS=1), the code
-under ``--after`` (default: this checkout) and ``--before`` in turn, each first on PYTHONPATH. Wall and CPU
-seconds per command; the decoded PLY scored by this checkout at held-out views that never carry side
-information, against the original's renders and, for fits, against the held-out photos.
+cameras, then the default decode, each a fresh `gspc` process on one thread (GSPC_THREADS=1), the code under
+``--after`` (default: this checkout) and ``--before`` in turn, each first on PYTHONPATH. Wall and CPU seconds
+per command, and the decode's stages as its report prints them; the decoded PLY scored by this checkout at
+held-out views that never carry side information, against the original's renders and, for fits, against the
+held-out photos.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from __future__ import annotations
 import argparse
 import os
 import platform
+import re
 import resource
 import subprocess
 import sys
@@ -32,21 +34,25 @@ from gspc.reconstruct import render_images
 
 REPO = Path(__file__).resolve().parents[1]
 CLI = "import sys; from gspc.cli import app; sys.argv[0] = 'gspc'; app()"
+# A row of the report's stage table ("│ refine │ 40.21 │").
+STAGE_ROW = re.compile(r"^\W*([a-z][a-z ]*?)\s+\W\s+(\d+\.\d\d)\s*\W*$", re.MULTILINE)
 
 
-def _run(code: Path, args: list[str]) -> tuple[float, float]:
-    """(wall, CPU) seconds of one gspc command run with the package at ``code``."""
+def _run(code: Path, args: list[str]) -> tuple[float, float, str]:
+    """(wall, CPU) seconds of one gspc command run with the package at ``code``, and its stages' seconds as
+    its report prints them ("render 3.1, refine 40.2")."""
     env = {**os.environ, "GSPC_THREADS": "1", "PYTHONPATH": str(code)}
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t = time.perf_counter()
     # Run from the root directory: ``python -c`` puts the working folder first on sys.path, and a gspc tree
     # there would shadow the one on PYTHONPATH.
-    subprocess.run(
+    run = subprocess.run(
         [sys.executable, "-c", CLI, *args], env=env, cwd="/", check=True, capture_output=True, text=True
     )
     wall = time.perf_counter() - t
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    stages = ", ".join(f"{k} {float(v):.1f}" for k, v in STAGE_ROW.findall(run.stdout) if k != "total")
+    return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime), stages
 
 
 def bench(s: Setup, variants: dict[str, Path], tmp: Path) -> list[str]:
@@ -65,7 +71,7 @@ def bench(s: Setup, variants: dict[str, Path], tmp: Path) -> list[str]:
         photo = f"{q['psnr_photo']:.2f}" if "psnr_photo" in q else "-"
         rows.append(
             f"| {s.name} | {name} | {gfile.stat().st_size:,} | {enc[0]:.0f} / {enc[1]:.0f} | "
-            f"{dec[0]:.0f} / {dec[1]:.0f} | {q['psnr']:.2f} | {photo} |"
+            f"{dec[0]:.0f} / {dec[1]:.0f} | {dec[2]} | {q['psnr']:.2f} | {photo} |"
         )
         print(rows[-1], flush=True)
     return rows
@@ -87,9 +93,9 @@ def main() -> None:
         f"Machine: {platform.machine()}, {os.cpu_count()} vCPUs, one thread per gspc process; load average "
         f"at the start {os.getloadavg()[0]:.1f}.",
         "",
-        "| scene | code | bytes | encode s wall / CPU | decode s wall / CPU | PSNR vs original's renders "
-        "| PSNR vs photos |",
-        "|---|---|---|---|---|---|---|",
+        "| scene | code | bytes | encode s wall / CPU | decode s wall / CPU | decode stages s (its report) "
+        "| PSNR vs original's renders | PSNR vs photos |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for s in setups:
         with tempfile.TemporaryDirectory() as tmp:

@@ -158,6 +158,10 @@ def encode_attributes(
         raise CodecError("every Gaussian was pruned (transparent or unseen); use the keep flags to code them")
     means = _np(scene.means, keep_idx)
     sizes = np.exp(np.median(_np(scene.log_scales, keep_idx).astype(np.float64), axis=1))
+    if plan is not None:
+        # The far set (spec 10.1) codes a Gaussian's position coarsely where its size allows; a Gaussian the
+        # plan gives finer steps needs its position as much finer (a shell of sky-sized Gaussians: +3.7 dB).
+        sizes = sizes * 2.0 ** np.minimum(plan.exponent[keep_idx], 0).astype(np.float64)
     try:
         voxels, order, grid = pos.curve_order(means, params.effective_position_bits, sizes)
     except CodecError as err:  # a grid the format's bounds refuse (spec 10.1)
@@ -180,16 +184,7 @@ def _encode_uniform(
     """Versions 1 to 3: one class, every Gaussian at the rate's steps."""
     lam = params.lam
     base = class_steps(params, scene.sh_degree)
-    section = AttributeSection(
-        n=int(kept.size),
-        sh_degree=int(scene.sh_degree),
-        position=grid,
-        opacity_levels=base.opacity_levels,
-        scale_step=base.scale_step,
-        rotation_levels=base.rotation_levels,
-        dc_step=base.dc_step,
-        sh_steps=base.sh_steps,
-    )
+    section = AttributeSection.of_classes(int(kept.size), int(scene.sh_degree), grid, (base,), False)
     quant = AttributeQuantisers.from_section(section, params.sh_deadzone)
     opac_q = quant.opacity.quantise(_np(scene.opacities, kept))
     scales, dc = _np(scene.log_scales, kept), _np(scene.sh_dc, kept)
@@ -249,20 +244,8 @@ def _encode_classed(
     class_list = [class_steps(params, degree, e, prec.groups) for e in exps]
     n = int(kept.size)
     degrees = plan.degree[kept] if degree > 0 else np.zeros(n, np.int64)
-    base = class_list[0]
     pmap = PrecisionMap(classes, degrees)
-    section = AttributeSection(
-        n=n,
-        sh_degree=int(degree),
-        position=grid,
-        opacity_levels=base.opacity_levels,
-        scale_step=base.scale_step,
-        rotation_levels=base.rotation_levels,
-        dc_step=base.dc_step,
-        sh_steps=base.sh_steps,
-        precision=True,
-        classes=tuple(class_list[1:]),
-    )
+    section = AttributeSection.of_classes(n, int(degree), grid, tuple(class_list), True)
     parts: dict[str, list[bytes]] = {OPAC: [], SCAL: [], ROTN: [], SHDC: [], SHRS: []}
     rest = scene.sh_rest.detach().cpu().numpy()
     for k, steps_k in enumerate(class_list):

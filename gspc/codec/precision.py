@@ -185,20 +185,26 @@ def plan_precision(
     sens = np.zeros(n)
     for g in params.groups:
         sens += (sig.gradient[g] * group_steps[g]) ** 2
+    # The measure renders a sample of the encoder's views: a Gaussian none of them shows may still show in
+    # the others (a shell of sky-sized Gaussians lost 820 of 3,500 to removal and most of the rest to the
+    # coarsest class that way). Unmeasured, it keeps the rate's own steps and every SH band.
+    measured = sig.weight > 0
     keep = candidates.copy()
-    if params.prune > 0 and keep.any():
+    if params.prune > 0 and (keep & measured).any():
         # Blending weight, not a first-order change of the views: removing one of several Gaussians that
         # paint the same surface changes little, removing all of them removes the surface (a statue lost
         # 9 dB that way, bench/precision.md); a weight is what a Gaussian paints, however redundant.
-        floor = params.prune * float(np.median(sig.weight[keep]))
-        keep &= sig.weight >= floor
-    exponent = class_exponents(sens, params, keep)
+        floor = params.prune * float(np.median(sig.weight[keep & measured]))
+        keep &= (sig.weight >= floor) | ~measured
+    exponent = class_exponents(sens, params, keep & measured)
+    exponent[~measured] = 0
     d = len(steps.sh_band_steps)
     degree = np.full(n, d, np.int64)
     if d > 0:
         multipliers = 2.0 ** exponent.astype(np.float64) if "sh_rest" in params.groups else np.ones(n)
         bands = np.asarray(steps.sh_band_steps)
         degree = sh_degrees(sig.sh_band_change[:, :d], bands, multipliers, params.sh_keep)
+        degree[~measured] = d
         degree[alpha < faint_alpha] = 0
     return Plan(keep, exponent, degree)
 

@@ -308,6 +308,17 @@ class AttributeSection:
                 f"attribute codec header has an impossible far set (far_count {far.count} of {self.n})"
             )
 
+    @classmethod
+    def of_classes(
+        cls, n: int, sh_degree: int, position: PositionGrid, classes: tuple[ClassSteps, ...], precision: bool
+    ) -> AttributeSection:
+        """The section of ``classes`` (class 0 first; one class below version 4)."""
+        b = classes[0]
+        return cls(
+            n, sh_degree, position, b.opacity_levels, b.scale_step, b.rotation_levels, b.dc_step, b.sh_steps,
+            precision, tuple(classes[1:]),
+        )  # fmt: skip
+
     @property
     def version(self) -> int:
         return PRECISION_VERSION if self.precision else self.position.version

@@ -22,7 +22,7 @@ from gspc.format.chunks import KNOWN_TYPES  # the registry of chunk types; the d
 
 MAGIC = b"\x89GSPC\r\n\x1a"
 END_MARKER = b"GEND"
-VERSION = (1, 3)  # what this module writes; it reads every 1.x
+VERSION = (1, 4)  # what this module writes; it reads every 1.x
 PREAMBLE = struct.Struct("<8sHHII")  # magic, major, minor, header_length, header_crc
 TRAILER = struct.Struct("<4sI")  # end marker, file_crc
 ALIGN = 8

@@ -3,10 +3,11 @@
 Why a second implementation: the torch walk evaluates every listed Gaussian at all 64 pixels of its tile
 in many full-size passes (one per elementwise op), while most pairs reach few of them (bench/render.md's
 100k-Gaussian 400x300 case: 2.6 million pixel visits for 482,545 pairs, 5.4 of 64 each). Here each
-(tile, Gaussian) pair visits only the pixels of the rows and columns its alpha >= 1/255 ellipse reaches
-(along a row, exp(-q / 2) by two multiplications per pixel), and every pixel's state (transmittance, what
-the Gaussians after it still add) stays in cache instead of full-size arrays. The torch walk remains for
-other devices (and as the tests' second opinion).
+(tile, Gaussian) pair walks only the tile rows its alpha >= 1/255 ellipse reaches, a row's TILE pixels as
+one vector operation (exp(-q / 2) by one multiplication per pixel from the row above; the rules' alpha test
+skips the pixels outside the ellipse), and every pixel's state (transmittance, what the Gaussians after it
+still add) stays in cache (on the stack) instead of full-size arrays. The torch walk remains for other
+devices (and as the tests' second opinion).
 
 Rules (rasterize.py's docstring, reference.py): alpha = min(0.99, o exp(-q / 2)), q = d^T conic d,
 d = pixel centre - mean; alpha < 1/255 skipped; a pixel stops before the Gaussian that would take its
@@ -26,6 +27,7 @@ import math
 import numba
 import numpy as np
 
+from gspc.render.intrinsics import prefetch, stack_array
 from gspc.render.kernels import JIT, set_threads
 from gspc.render.rules import (
     ALPHA_MAX,
@@ -47,7 +49,10 @@ FIELDS = 7  # pack(): mean x, mean y, conic a, b, c, opacity, threshold; then th
 # 100k-Gaussian frame-filling case and the lego fit).
 FEATURES = 5
 GRADS = 6  # gradient columns before the features: d mean x, d mean y, d a, d b, d c, d opacity
+AHEAD = 4  # pairs: each pair's record is prefetched while the pair AHEAD before it is walked
 STATS = 2  # composite_forward's counts per tile: pairs walked, pixel visits
+if TILE != 8:  # _lane_total adds up exactly 8 columns
+    raise ImportError("the compiled compositor is written for 8x8 tiles")
 # Divisors (kernels.JIT has no zero checks): conic a and its determinant are bounded away from 0 by the
 # low-pass filter, 1 - alpha >= 0.01 by the cap, opacity >= 1/255 for a listed Gaussian.
 
@@ -88,36 +93,44 @@ def _row_range(ell, y0):
     return max(int(lo), 0), min(int(hi), TILE - 1)
 
 
-@numba.njit(inline="always", error_model="numpy")
-def _pair_start(ell, row, x0, y0):
-    """Where a pair's walk starts: (col0, e, s, v, factors): col0 a column left of every pixel the ellipse
-    reaches in this tile (its leftmost point's, less a margin, or 0); at (col0, ``row``), e = o exp(-q / 2),
-    s its factor to the next column, v its factor to the next row; factors = (exp(-a), exp(-b), exp(-c)).
+# A tile's per-pixel state, one block of PIXELS each: the forward's transmittance and its FEATURES sums;
+# the backward's transmittance, R and dL/d image (FEATURES).
+_forward_state = stack_array(PIXELS * (1 + FEATURES))
+_backward_state = stack_array(PIXELS * (2 + FEATURES))
+# A pair's walk, one value per tile column: e = o exp(-q / 2) on the current row, its factor to the next row,
+# and (backward) dx = pixel centre x - mean x.
+_row_values = stack_array(TILE)
+_row_factors = stack_array(TILE)
+_row_dx = stack_array(TILE)
+# The backward's per-column partial sums of a pair (LANE_SUMS of them), added up when the pair is done:
+# w g_k for each feature k, and gp, gp dy, gp dy^2 (gp = dL/d power; dx is a column's constant).
+LANE_SUMS = FEATURES + 3
+_lane_sums = stack_array(LANE_SUMS * TILE)
 
-    Why: every row of the pair then starts at col0, one row down from the last (e, s, v times v, exp(-b),
-    exp(-c)), and reaches its first pixel by multiplications along the row (e times s, s times exp(-a)): a
-    pair needs six exponentials, not two per row, and no row needs a division. Every point so walked lies
-    inside the tile, at most a tile's width from the ellipse, where exp(-q / 2) > 1e-150 (q <= 128 / 0.3 by
-    the low-pass filter): nothing under- or overflows in float64, and the error stays at round-off.
-    """
-    mx, my, a, b, c, o, ath, det, inv_a = (
-        ell[0],
-        ell[1],
-        ell[2],
-        ell[3],
-        ell[4],
-        ell[5],
-        ell[6],
-        ell[7],
-        ell[8],
-    )
-    half_x = math.sqrt(max(ath, 0.0) * c * inv_a / det)  # |dx| <= sqrt(thr Sigma_xx)
-    col0 = max(int(math.ceil(mx - half_x - 2.0 * SPAN_MARGIN - 0.5 - x0)), 0)
-    dx, dy = x0 + col0 + 0.5 - mx, y0 + row + 0.5 - my
+
+@numba.njit(inline="always", error_model="numpy")
+def _row_start(ell, row, x0, y0, er, vr):
+    """Start a pair's walk at ``row`` of the tile at (x0, y0): er[col] = o exp(-q / 2) at its pixel centres,
+    vr[col] the factor that moves er[col] one row down; returns exp(-c), the factor that moves vr[col] one row
+    down (q = a dx^2 + 2 b dx dy + c dy^2 is quadratic, so both factors are exponentials of linear terms).
+
+    Why: each row of the pair is then TILE multiplications from the last and a pair needs six exponentials,
+    not one per pixel. Every pixel of the tile in the rows walked is within a tile's diagonal of the ellipse
+    (the ellipse reaches a pixel centre of those rows), where exp(-q / 2) > 1e-150 (q <= ~600 by the
+    low-pass filter): nothing under- or overflows in float64 and the error stays at round-off."""
+    mx, my, a, b, c, o = ell[0], ell[1], ell[2], ell[3], ell[4], ell[5]
+    dx, dy = x0 + 0.5 - mx, y0 + row + 0.5 - my
     e = o * math.exp(-0.5 * (a * dx * dx + 2.0 * b * dx * dy + c * dy * dy))
-    s = math.exp(-(a * dx + b * dy) - 0.5 * a)
-    v = math.exp(-(b * dx + c * dy) - 0.5 * c)
-    return col0, e, s, v, (math.exp(-a), math.exp(-b), math.exp(-c))
+    s = math.exp(-(a * dx + b * dy) - 0.5 * a)  # e's factor to the next column
+    v = math.exp(-(b * dx + c * dy) - 0.5 * c)  # e's factor to the next row
+    ea, eb = math.exp(-a), math.exp(-b)
+    for col in range(TILE):
+        er[col] = e
+        vr[col] = v
+        e *= s
+        s *= ea
+        v *= eb
+    return math.exp(-c)
 
 
 @numba.njit(inline="always", error_model="numpy")
@@ -126,21 +139,16 @@ def _features(rec):
 
 
 @numba.njit(inline="always", error_model="numpy")
-def _visit(trans, pix, raw):
-    """One Gaussian at one pixel by the rules: (alpha, T before it, whether the pixel stops here); alpha 0
-    when it is not composited (pixel stopped, alpha < 1/255, or it would take T below 1e-4). Updates T."""
-    tr = trans[pix]
-    if tr < 0.0:  # stopped earlier
-        return 0.0, tr, False
+def _visit(tr, raw):
+    """One Gaussian at one pixel by the rules, without branches (so that a row's pixels run as one vector
+    operation): (alpha, T after it, whether the pixel stops here); alpha 0 where it is not composited (pixel
+    stopped earlier, T < 0, alpha < 1/255, or it would take T below 1e-4); a stopped pixel's T becomes -1."""
     alpha = min(ALPHA_MAX, raw)
-    if alpha < ALPHA_MIN:
-        return 0.0, tr, False
     after = tr * (1.0 - alpha)
-    if after < T_MIN:
-        trans[pix] = -1.0
-        return 0.0, tr, True
-    trans[pix] = after
-    return alpha, tr, False
+    ok = (tr >= 0.0) & (alpha >= ALPHA_MIN)
+    stop = ok & (after < T_MIN)
+    used = ok & (after >= T_MIN)
+    return (alpha if used else 0.0), (after if used else (-1.0 if stop else tr)), stop
 
 
 @numba.njit(inline="always", error_model="numpy")
@@ -162,152 +170,211 @@ def _inside(x0, y0, pix, size):
     return x0 + pix % TILE < size[0] and y0 + pix // TILE < size[1]
 
 
+@numba.njit(inline="always", error_model="numpy")
+def _row_visits(ell, y0, x0, row_lo, row_hi):
+    """The pixels of rows row_lo..row_hi whose centre can lie inside the pair's ellipse (the work that
+    walk_counts reports; the walk itself evaluates whole rows)."""
+    visits = 0
+    for row in range(row_lo, row_hi + 1):
+        lo, hi = _row_span(ell, y0 + row + 0.5 - ell[1], x0)
+        visits += max(hi - lo + 1, 0)
+    return visits
+
+
 @numba.njit(**JIT)
-def _tile_forward(t, gaussians, gauss, start, count, tiles_x, size, image, stats):
-    """Tile t of composite_forward."""
+def _tile_forward(t, gaussians, gauss, start, count, tiles_x, size, image, stats, counting):
+    """Tile t of composite_forward. Each pair walks the rows its ellipse reaches, every pixel of a row (a
+    pixel outside the ellipse has alpha < 1/255, which the rules skip), as one vector operation; indices are
+    unsigned so that no negative-index wraparound stands in the way."""
     n = count[t]
     if n == 0:
         return
-    trans = np.empty(PIXELS)
-    x0, y0, live = _tile_pixels(t, tiles_x, size, trans)
-    acc = np.zeros((FEATURES, PIXELS))
+    state = numba.carray(_forward_state(), (PIXELS * (1 + FEATURES),))  # T, then the sums
+    x0, y0, live = _tile_pixels(t, tiles_x, size, state)
+    state[PIXELS:] = 0.0
+    er = numba.carray(_row_values(), (TILE,))
+    vr = numba.carray(_row_factors(), (TILE,))
     visits = 0
     p = start[t]
     while p < start[t] + n and live > 0:
+        if p + AHEAD < start[t] + n:
+            prefetch(gaussians, np.int64(gauss[p + AHEAD]))
         rec = gaussians[gauss[p]]
         p += 1
         ell = _ellipse(rec)
         f0, f1, f2, f3, f4 = _features(rec)
         row_lo, row_hi = _row_range(ell, y0)
-        col0, e_row, s_row, v_row, (ea, eb, ec) = _pair_start(ell, row_lo, x0, y0)
+        if counting:
+            visits += _row_visits(ell, y0, x0, row_lo, row_hi)
+        ec = _row_start(ell, row_lo, x0, y0, er, vr)
         for row in range(row_lo, row_hi + 1):
-            lo, hi = _row_span(ell, y0 + row + 0.5 - ell[1], x0)
-            visits += max(hi - lo + 1, 0)
-            e, step = e_row, s_row
-            e_row, s_row, v_row = e_row * v_row, s_row * eb, v_row * ec
-            for col in range(col0, hi + 1):
-                raw = e
-                e *= step
-                step *= ea
-                if col < lo:
-                    continue
-                pix = row * TILE + col
-                alpha, tr, stopped = _visit(trans, pix, raw)
-                live -= stopped
-                if alpha == 0.0:
-                    continue
-                w = alpha * tr
-                acc[0, pix] += w * f0
-                acc[1, pix] += w * f1
-                acc[2, pix] += w * f2
-                acc[3, pix] += w * f3
-                acc[4, pix] += w * f4
+            base = np.uint64(row * TILE)
+            stops = 0
+            for col in range(TILE):
+                c = np.uint64(col)
+                pix = base + c
+                raw = er[c]
+                er[c] = raw * vr[c]
+                vr[c] *= ec
+                alpha, after, stop = _visit(state[pix], raw)
+                w = alpha * state[pix]
+                state[pix] = after
+                stops += stop
+                state[pix + np.uint64(PIXELS)] += w * f0
+                state[pix + np.uint64(2 * PIXELS)] += w * f1
+                state[pix + np.uint64(3 * PIXELS)] += w * f2
+                state[pix + np.uint64(4 * PIXELS)] += w * f3
+                state[pix + np.uint64(5 * PIXELS)] += w * f4
+            live -= stops
     stats[t, 0], stats[t, 1] = p - start[t], visits
     for pix in range(PIXELS):
         if _inside(x0, y0, pix, size):
             for k in range(FEATURES):
-                image[y0 + pix // TILE, x0 + pix % TILE, k] = acc[k, pix]
+                image[y0 + pix // TILE, x0 + pix % TILE, k] = state[(k + 1) * PIXELS + pix]
 
 
 @numba.njit(**JIT)
-def _forward_serial(gaussians, gauss, start, count, tiles_x, size, image, stats):
+def _forward_serial(gaussians, gauss, start, count, tiles_x, size, image, stats, counting):
     for t in range(len(start)):
-        _tile_forward(t, gaussians, gauss, start, count, tiles_x, size, image, stats)
+        _tile_forward(t, gaussians, gauss, start, count, tiles_x, size, image, stats, counting)
 
 
 @numba.njit(parallel=True, **JIT)
-def _forward_parallel(gaussians, gauss, start, count, tiles_x, size, image, stats):
+def _forward_parallel(gaussians, gauss, start, count, tiles_x, size, image, stats, counting):
     for t in numba.prange(len(start)):
-        _tile_forward(t, gaussians, gauss, start, count, tiles_x, size, image, stats)
+        _tile_forward(t, gaussians, gauss, start, count, tiles_x, size, image, stats, counting)
 
 
 @numba.njit(**JIT)
-def _tile_backward(t, gaussians, gauss, start, count, tiles_x, size, grad_image, image, dest, grads):
-    """Tile t of composite_backward."""
+def _tile_backward(
+    t, gaussians, gauss, start, count, tiles_x, size, grad_image, image, rows, per_pair, grads, used
+):
+    """Tile t of composite_backward, walked as _tile_forward walks it. A pair's sums over its pixels are
+    kept per tile column (vector lanes) and added up when the pair is done."""
     n = count[t]
     if n == 0:
         return
-    trans = np.empty(PIXELS)
-    x0, y0, live = _tile_pixels(t, tiles_x, size, trans)
-    gpix = np.zeros((FEATURES, PIXELS))  # dL/d image, 0 beyond it
-    remaining = np.zeros(PIXELS)  # R: what the Gaussians not yet walked add to grad . output
+    state = numba.carray(_backward_state(), (PIXELS * (2 + FEATURES),))  # T, R, then dL/d image
+    x0, y0, live = _tile_pixels(t, tiles_x, size, state)
+    state[PIXELS:] = 0.0  # dL/d image is 0 beyond the image
     for pix in range(PIXELS):
         if _inside(x0, y0, pix, size):
             y, x = y0 + pix // TILE, x0 + pix % TILE
             for k in range(FEATURES):
-                gpix[k, pix] = grad_image[y, x, k]
-                remaining[pix] += grad_image[y, x, k] * image[y, x, k]
+                state[(2 + k) * PIXELS + pix] = grad_image[y, x, k]
+                state[PIXELS + pix] += grad_image[y, x, k] * image[y, x, k]  # R: grad . output
+    er = numba.carray(_row_values(), (TILE,))
+    vr = numba.carray(_row_factors(), (TILE,))
+    dxs = numba.carray(_row_dx(), (TILE,))
+    lanes = numba.carray(_lane_sums(), (LANE_SUMS * TILE,))
+    rem_at, g_at = np.uint64(PIXELS), np.uint64(2 * PIXELS)
+    depth_used, alpha_used = used[3], used[4]
     for p in range(start[t], start[t] + n):
+        if p + AHEAD < start[t] + n:
+            prefetch(gaussians, np.int64(gauss[p + AHEAD]))
         rec = gaussians[gauss[p]]
         ell = _ellipse(rec)
         a, b, c, o = ell[2], ell[3], ell[4], ell[5]
         f0, f1, f2, f3, f4 = _features(rec)
-        d_mx = d_my = d_a = d_b = d_c = d_pow = 0.0
-        d0 = d1 = d2 = d3 = d4 = 0.0
         row_lo, row_hi = _row_range(ell, y0)
-        col0, e_row, s_row, v_row, (ea, eb, ec) = _pair_start(ell, row_lo, x0, y0)
+        ec = _row_start(ell, row_lo, x0, y0, er, vr)
+        for col in range(TILE):
+            dxs[col] = x0 + col + 0.5 - ell[0]
+        lanes[:] = 0.0
         for row in range(row_lo, row_hi + 1):
             dy = y0 + row + 0.5 - ell[1]
-            lo, hi = _row_span(ell, dy, x0)
-            e, step = e_row, s_row
-            e_row, s_row, v_row = e_row * v_row, s_row * eb, v_row * ec
-            r0 = r1 = r2 = 0.0  # this row's sums of gp, gp dx, gp dx^2 (dy is the row's constant)
-            for col in range(col0, hi + 1):
-                raw = e
-                e *= step
-                step *= ea
-                if col < lo:
-                    continue
-                pix = row * TILE + col
-                alpha, tr, stopped = _visit(trans, pix, raw)
-                live -= stopped
-                if alpha == 0.0:
-                    continue
+            dy2 = dy * dy
+            base = np.uint64(row * TILE)
+            stops = 0
+            for col in range(TILE):
+                cu = np.uint64(col)
+                pix = base + cu
+                raw = er[cu]
+                er[cu] = raw * vr[cu]
+                vr[cu] *= ec
+                tr = state[pix]
+                alpha, after, stop = _visit(tr, raw)
+                state[pix] = after
+                stops += stop
                 w = alpha * tr
-                g0, g1, g2, g3, g4 = gpix[0, pix], gpix[1, pix], gpix[2, pix], gpix[3, pix], gpix[4, pix]
-                gw = g0 * f0 + g1 * f1 + g2 * f2 + g3 * f3 + g4 * f4
-                d0, d1, d2, d3, d4 = d0 + w * g0, d1 + w * g1, d2 + w * g2, d3 + w * g3, d4 + w * g4
-                rem = remaining[pix] - w * gw
-                remaining[pix] = rem
-                if raw < ALPHA_MAX:  # above the cap alpha does not move
-                    gp = (gw * tr - rem / (1.0 - alpha)) * alpha  # dL/d power, power = ln o - q / 2
-                    dx = x0 + col + 0.5 - ell[0]
-                    r0 += gp
-                    r1 += gp * dx
-                    r2 += gp * dx * dx
-            # The row's d power / d (mean, conic): q = a dx^2 + 2 b dx dy + c dy^2, dx = px - mean x.
-            d_pow += r0
-            d_mx += a * r1 + b * dy * r0
-            d_my += b * r1 + c * dy * r0
-            d_a += r2
-            d_b += dy * r1
-            d_c += dy * dy * r0
-        out_row = grads[dest[p]]
-        out_row[0] += d_mx
-        out_row[1] += d_my
-        out_row[2] -= 0.5 * d_a
-        out_row[3] -= d_b
-        out_row[4] -= 0.5 * d_c
-        out_row[5] += d_pow / o
-        out_row[GRADS] += d0
-        out_row[GRADS + 1] += d1
-        out_row[GRADS + 2] += d2
-        out_row[GRADS + 3] += d3
-        out_row[GRADS + 4] += d4
+                g0, g1 = state[g_at + pix], state[g_at + np.uint64(PIXELS) + pix]
+                g2, g3 = state[g_at + np.uint64(2 * PIXELS) + pix], state[g_at + np.uint64(3 * PIXELS) + pix]
+                g4 = state[g_at + np.uint64(4 * PIXELS) + pix]
+                gw = g0 * f0 + g1 * f1 + g2 * f2
+                if depth_used:
+                    gw += g3 * f3
+                    lanes[np.uint64(3 * TILE) + cu] += w * g3
+                if alpha_used:
+                    gw += g4 * f4
+                    lanes[np.uint64(4 * TILE) + cu] += w * g4
+                lanes[cu] += w * g0
+                lanes[np.uint64(TILE) + cu] += w * g1
+                lanes[np.uint64(2 * TILE) + cu] += w * g2
+                rem = state[rem_at + pix] - w * gw
+                state[rem_at + pix] = rem
+                # dL/d power (power = ln o - q / 2); above the cap alpha does not move.
+                gp = (gw * tr - rem / (1.0 - alpha)) * alpha if raw < ALPHA_MAX else 0.0
+                lanes[np.uint64(5 * TILE) + cu] += gp
+                lanes[np.uint64(6 * TILE) + cu] += gp * dy
+                lanes[np.uint64(7 * TILE) + cu] += gp * dy2
+            live -= stops
+        # d power / d (mean, conic): q = a dx^2 + 2 b dx dy + c dy^2, dx = px - mean x, dy = py - mean y.
+        g_pow, g_dx, g_dx2 = _lane_moments(lanes, 5, dxs)
+        g_dy, g_dxdy, _ = _lane_moments(lanes, 6, dxs)
+        g_dy2 = _lane_total(lanes, 7)
+        out_row = grads[p] if per_pair else grads[rows[gauss[p]]]  # (composite_backward says which)
+        out_row[0] += a * g_dx + b * g_dy
+        out_row[1] += b * g_dx + c * g_dy
+        out_row[2] -= 0.5 * g_dx2
+        out_row[3] -= g_dxdy
+        out_row[4] -= 0.5 * g_dy2
+        out_row[5] += g_pow / o
+        for k in range(FEATURES):
+            out_row[GRADS + k] += _lane_total(lanes, k)
         if live == 0:  # the pairs after this one touch no pixel: their gradients are zero
             break
 
 
+@numba.njit(inline="always", error_model="numpy")
+def _lane_total(lanes, k):
+    """The sum of partial sum k over the tile columns (pairwise: a short dependency chain)."""
+    b = k * TILE
+    left = (lanes[b] + lanes[b + 1]) + (lanes[b + 2] + lanes[b + 3])
+    return left + ((lanes[b + 4] + lanes[b + 5]) + (lanes[b + 6] + lanes[b + 7]))
+
+
+@numba.njit(inline="always", error_model="numpy")
+def _lane_moments(lanes, k, dxs):
+    """sum_col v, sum_col v dx, sum_col v dx^2 of partial sum k (v) over the tile columns, column col's
+    pixels lying dxs[col] right of the mean."""
+    s0 = s1 = s2 = 0.0
+    for col in range(TILE):
+        v = lanes[k * TILE + col]
+        vd = v * dxs[col]
+        s0 += v
+        s1 += vd
+        s2 += vd * dxs[col]
+    return s0, s1, s2
+
+
 @numba.njit(**JIT)
-def _backward_serial(gaussians, gauss, start, count, tiles_x, size, grad_image, image, dest, grads):
+def _backward_serial(
+    gaussians, gauss, start, count, tiles_x, size, grad_image, image, rows, per_pair, grads, used
+):
     for t in range(len(start)):
-        _tile_backward(t, gaussians, gauss, start, count, tiles_x, size, grad_image, image, dest, grads)
+        _tile_backward(
+            t, gaussians, gauss, start, count, tiles_x, size, grad_image, image, rows, per_pair, grads, used
+        )
 
 
 @numba.njit(parallel=True, **JIT)
-def _backward_parallel(gaussians, gauss, start, count, tiles_x, size, grad_image, image, dest, grads):
+def _backward_parallel(
+    gaussians, gauss, start, count, tiles_x, size, grad_image, image, rows, per_pair, grads, used
+):
     for t in numba.prange(len(start)):
-        _tile_backward(t, gaussians, gauss, start, count, tiles_x, size, grad_image, image, dest, grads)
+        _tile_backward(
+            t, gaussians, gauss, start, count, tiles_x, size, grad_image, image, rows, per_pair, grads, used
+        )
 
 
 @numba.njit(inline="always", error_model="numpy")
@@ -444,19 +511,26 @@ def depth_order(depths: np.ndarray) -> np.ndarray:
 
 
 def composite_forward(
-    gaussians: np.ndarray, lists: tuple, tiles_x: int, size: tuple, image: np.ndarray, threads: int
+    gaussians: np.ndarray,
+    lists: tuple,
+    tiles_x: int,
+    size: tuple,
+    image: np.ndarray,
+    threads: int,
+    counting: bool = False,
 ) -> np.ndarray:
     """image (height, width, FEATURES) float64 = sum_i w_i feat_i per pixel of the image of ``size`` (width,
     height), for records from pack() and the tile lists (gauss, start, count) of gspc/render/rasterize.py's
     TileBins (tiles without pairs are left as they are: pass zeros); returns (tiles, STATS) counts: the pairs
-    each tile walked before its pixels stopped, and its pixel visits."""
+    each tile walked before its pixels stopped, and (``counting``; else 0) its pixel visits: the pixels of
+    each walked pair's rows that its ellipse reaches."""
     stats = np.zeros((len(lists[1]), STATS), np.int64)
     size = np.asarray(size, np.int64)
     if threads > 1:
         set_threads(threads)
-        _forward_parallel(gaussians, *lists, tiles_x, size, image, stats)
+        _forward_parallel(gaussians, *lists, tiles_x, size, image, stats, counting)
     else:
-        _forward_serial(gaussians, *lists, tiles_x, size, image, stats)
+        _forward_serial(gaussians, *lists, tiles_x, size, image, stats, counting)
     return stats
 
 
@@ -474,15 +548,19 @@ def composite_backward(
     """(num, GRADS + FEATURES): dL/d (mean x, mean y, conic a, b, c, opacity, features) of every Gaussian,
     record r being the caller's Gaussian rows[r] (the others get zeros), for dL/d image = grad_image
     (height, width, FEATURES) float64 and the forward's ``image``."""
-    dest = rows[lists[0]]  # the caller's row of each pair
     cols = GRADS + FEATURES
+    # Depth's and alpha's image gradients are often all zero (a loss of the colour image alone, on a black
+    # background): their terms are then left out of the walk (adding zeros changes no sum).
+    used = np.ones(FEATURES, np.bool_)
+    used[3:] = np.any(grad_image[..., 3:] != 0.0, axis=(0, 1))
     size = np.asarray(size, np.int64)
-    if threads <= 1:  # one thread: every pair adds straight into its Gaussian's row
+    if threads <= 1:  # one thread: every pair adds straight into its Gaussian's row, rows[gauss]
         grads = np.zeros((num, cols))
-        _backward_serial(gaussians, *lists, tiles_x, size, grad_image, image, dest, grads)
+        _backward_serial(gaussians, *lists, tiles_x, size, grad_image, image, rows, False, grads, used)
         return grads
     # Threads own tiles, and a Gaussian's pairs lie in several: each pair gets its own row, summed after.
     set_threads(threads)
-    per_pair = np.zeros((len(dest), cols))
-    _backward_parallel(gaussians, *lists, tiles_x, size, grad_image, image, np.arange(len(dest)), per_pair)
+    per_pair = np.zeros((len(lists[0]), cols))
+    _backward_parallel(gaussians, *lists, tiles_x, size, grad_image, image, rows, True, per_pair, used)
+    dest = rows[lists[0]]  # the caller's row of each pair
     return np.stack([np.bincount(dest, weights=col, minlength=num) for col in per_pair.T], 1)

@@ -23,7 +23,8 @@ FRUSTUM_SLACK = 1.3  # x/z, y/z are clamped to 1.3x the frustum before building 
 
 
 # Below this fraction of Gaussians in front of the camera, rows are copied out before projecting;
-# above it, the few behind are projected with a stand-in depth and marked never-drawn (cheaper).
+# above it, the few behind are projected with a stand-in depth and marked never-drawn (cheaper). The
+# PyTorch path only: the compiled kernels always take every row (they cull per Gaussian).
 SUBSET_BELOW = 0.9
 
 
@@ -105,6 +106,14 @@ def project(
     1/255, box off-screen) get extents -1 and zero gradients; the compositor skips them. ``kernel``:
     "auto" (compiled on the CPU, PyTorch elsewhere), "torch" or "compiled"; the same up to round-off.
     """
+    if pick_kernel(kernel, means) == "compiled":
+        # No subset here: the kernels cull the Gaussians behind the camera themselves (zero gradients, no
+        # colour), where copying out the rest and scattering their gradients back into zeros cost a
+        # tenth of a refinement iteration on the bird fit (bench/render.md).
+        out = _ProjectCompiled.apply(
+            means, quats, log_scales, opacity_logits, sh_dc, sh_rest, camera, sh_degree
+        )
+        return Projected(torch.arange(len(means), device=means.device), *out)
     R, t, centre = camera_tensors(camera, means)
     with torch.no_grad():
         in_front = means @ R[2] + t[2] > NEAR
@@ -117,11 +126,6 @@ def project(
         in_front = torch.ones_like(in_front[index])
     else:
         index = torch.arange(len(means), device=means.device)
-    if pick_kernel(kernel, means) == "compiled":
-        out = _ProjectCompiled.apply(
-            means, quats, log_scales, opacity_logits, sh_dc, sh_rest, camera, sh_degree
-        )
-        return Projected(index, *out)
 
     x, y, z = (means @ R.T + t).unbind(1)
     if n_front < len(x):  # stand-in depth for the culled: finite values, so their zero gradients stay 0

@@ -139,7 +139,7 @@ def walk_counts(
         records = _records(means2d, conics, opacities, features, order)
     size = (bins.tiles_x * TILE, bins.tiles_y * TILE) if whole_tiles else (width, height)
     image = np.zeros((size[1], size[0], kern.FEATURES))
-    stats = kern.composite_forward(records, _lists(bins), bins.tiles_x, size, image, 1)
+    stats = kern.composite_forward(records, _lists(bins), bins.tiles_x, size, image, 1, counting=True)
     walked, visits = (int(x) for x in stats.sum(0))
     return WalkCounts(width * height, len(bins.gauss), walked, visits)
 
