@@ -14,31 +14,19 @@ All PSNRs: 8-bit renders at the held-out views against the original scene's rend
 
 from __future__ import annotations
 
-import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
 import torch
 import typer
-from bench_setups import fit_setup, held_out_line
+from bench_setups import bytes_at, fit_setup, held_out_line, splat_transform
 
 from gspc.io import read_scene
 from gspc.io.cameras_json import save_cameras_json
 from gspc.metrics import mean_psnr
 from gspc.pipeline import DecodeOptions, EncodeOptions, decode, encode, render_images
-
-
-def bytes_at(curve: list[tuple[int, float]], target: float) -> float | None:
-    """Bytes of the codec curve (bytes, PSNR) at ``target`` PSNR, log-linear between neighbours."""
-    pts = sorted(curve, key=lambda t: t[1])
-    for (b0, p0), (b1, p1) in zip(pts, pts[1:]):
-        if p0 <= target <= p1 and p1 > p0:
-            w = (target - p0) / (p1 - p0)
-            return float(np.exp((1 - w) * np.log(b0) + w * np.log(b1)))
-    return None
 
 
 def main(
@@ -82,14 +70,10 @@ def main(
         )
         print(rows[-1], flush=True)
 
-    tool = [str(npm_dir / "node_modules" / ".bin" / "splat-transform"), "-w"]
     for peer in [x for x in peers.split(",") if x]:
         path = tmp / f"peer.{peer}"
         sog = ["-g", "cpu", "-i", str(sog_iterations)]
-        cmd = tool + (sog if peer == "sog" else []) + [str(ply), str(path)]
-        t0 = time.perf_counter()
-        res = subprocess.run(cmd, capture_output=True, text=True)
-        secs = time.perf_counter() - t0
+        res, secs = splat_transform(npm_dir, ply, path, *(sog if peer == "sog" else []))
         if res.returncode != 0:
             rows.append(f"| {peer} | failed: {res.stderr.strip()[-80:]} | | | | | |")
             continue

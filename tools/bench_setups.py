@@ -1,5 +1,6 @@
 """What the bench_* tools share: the benchmark scenes and their cameras (a fit's folder, or a scene with
-synthesised views), scoring a decoded scene at held-out views, and one encode-decode point.
+synthesised views), scoring a decoded scene at held-out views, one encode-decode point, the peers' writer
+(PlayCanvas splat-transform) and bytes at equal PSNR on a rate curve.
 
 The tools run as scripts (``python tools/bench_x.py``), so this module is importable beside them.
 """
@@ -9,6 +10,7 @@ from __future__ import annotations
 import json
 import os
 import platform
+import subprocess
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -18,6 +20,7 @@ import numpy as np
 import torch
 
 from gspc.cameras import Camera
+from gspc.encoder.prepare import encoder_cameras
 from gspc.format import container
 from gspc.format.chunks import RESI, SIDE
 from gspc.format.header import FileHeader
@@ -74,13 +77,50 @@ def held_out_line(scene, eval_cams: list[Camera]) -> str:
 
 
 def synth_setup(name: str, path: Path, views: int = 60, size: int = 320, n_eval: int = 12) -> Setup:
-    scene = read_scene(path)
-    cams = synthesize_views(scene, views, width=size, height=size)
-    # Evaluate on views the encoder will not sample: the complement of sample_views(0.4) over all views.
+    cams = synthesize_views(read_scene(path), views, width=size, height=size)
+    return Setup(name, path, cams, held_out_views(cams, n_eval), (0.0, 0.0, 0.0))
+
+
+def default_encode_setup(name: str, path: Path, n_eval: int = 12) -> Setup:
+    """The cameras ``gspc encode`` synthesises for a scene given without cameras (default options), and
+    ``n_eval`` of those its side information does not cover."""
+    cams = encoder_cameras(read_scene(path), None, EncodeOptions())
+    return Setup(name, path, cams, held_out_views(cams, n_eval), (0.0, 0.0, 0.0))
+
+
+def held_out_views(cams: list[Camera], n_eval: int) -> list[Camera]:
+    """``n_eval`` evenly spaced views the encoder will not sample: the complement of sample_views(0.4)."""
     side = set(sample_views(cams, 0.4))
     rest = [i for i in range(len(cams)) if i not in side]
-    pick = [rest[int(j)] for j in np.linspace(0, len(rest) - 1, n_eval).round()]
-    return Setup(name, path, cams, [cams[i] for i in pick], (0.0, 0.0, 0.0))
+    return [cams[rest[int(j)]] for j in np.linspace(0, len(rest) - 1, n_eval).round()]
+
+
+def bytes_at(curve: list[tuple[int, float]], target: float) -> float | None:
+    """Bytes of the codec curve (bytes, PSNR) at ``target`` PSNR, log-linear between neighbours."""
+    pts = sorted(curve, key=lambda t: t[1])
+    for (b0, p0), (b1, p1) in zip(pts, pts[1:]):
+        if p0 <= target <= p1 and p1 > p0:
+            w = (target - p0) / (p1 - p0)
+            return float(np.exp((1 - w) * np.log(b0) + w * np.log(b1)))
+    return None
+
+
+def splat_transform(
+    npm_dir: Path, src: Path, dst: Path, *args: str
+) -> tuple[subprocess.CompletedProcess, float]:
+    """PlayCanvas splat-transform (``npm install --prefix NPM_DIR @playcanvas/splat-transform@3.7.0``) writing
+    ``dst`` (its format from the suffix: .spz is SPZ v4 through Niantic's C++ in WASM) from ``src``, with
+    ``args`` before the paths: (the finished process, wall seconds)."""
+    tool = npm_dir / "node_modules" / ".bin" / "splat-transform"
+    t0 = time.perf_counter()
+    res = subprocess.run([str(tool), "-w", *args, str(src), str(dst)], capture_output=True, text=True)
+    return res, time.perf_counter() - t0
+
+
+def splat_transform_version(npm_dir: Path) -> str:
+    """The installed splat-transform's version, from its package.json."""
+    doc = npm_dir / "node_modules" / "@playcanvas" / "splat-transform" / "package.json"
+    return str(json.loads(doc.read_text())["version"])
 
 
 def score(scene_path: Path, s: Setup, reference: list[torch.Tensor]) -> dict[str, float]:

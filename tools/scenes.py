@@ -1,12 +1,16 @@
 """Small random scenes for tests and tools/fuzz_inputs.py: a plausible object (a blob of Gaussians around
 the origin), and unbounded scenes (an object with a background shell and far floaters) for the contracted
-grid and its far set."""
+grid and its far set; :func:`with_shells` surrounds a real object with shells of large Gaussians
+(tools/bench_precision.py)."""
+
+from dataclasses import dataclass
 
 import numpy as np
 import torch
 
 from gspc.cameras import Camera
 from gspc.scene import GaussianScene, make_scene
+from gspc.views import robust_bounds
 
 
 def random_scene(
@@ -79,3 +83,52 @@ def front_scene(n=50, seed=0) -> GaussianScene:
     sh_dc = torch.randn(n, 3, generator=g)
     sh_rest = 0.1 * torch.randn(n, 3, 3, generator=g)
     return make_scene(means, quats, log_scales, opacities, sh_dc, sh_rest)
+
+
+@dataclass(frozen=True)
+class Shells:
+    """Shells of large Gaussians around an object, as a far wall or sky, and far floaters; distances in the
+    object's radii (its robust box's half diagonal, as gspc/views.py synthesize_views frames it)."""
+
+    radii: tuple[float, ...] = (10.0, 30.0, 100.0)  # one shell at each
+    fraction: float = 0.02  # each shell holds this fraction of the object's count (at least one)
+    jitter: float = 0.1  # a shell Gaussian's distance: its shell's radius x U(1 - jitter, 1 + jitter)
+    floaters: int = 20
+    floater_radii: tuple[float, float] = (200.0, 1000.0)  # floaters' distances, log-uniform between
+    # Sizes grow in proportion to distance, by one factor for every added Gaussian: the one that makes a
+    # shell's Gaussians (by their longest axes) cover ``cover`` x its sphere (sum of pi sigma^2 over
+    # 4 pi d^2), so each shell is a sky behind the object rather than a scatter of stars.
+    cover: float = 1.0
+    seed: int = 0
+
+    def counts(self, n: int) -> tuple[int, ...]:
+        """Gaussians in each shell for an object of ``n``, then the floaters."""
+        return (*(max(1, round(self.fraction * n)) for _ in self.radii), self.floaters)
+
+
+def with_shells(obj: GaussianScene, shells: Shells = Shells()) -> GaussianScene:
+    """``obj`` (first, unchanged) followed by ``shells``: each added Gaussian copies a random object
+    Gaussian's attributes (so colours, opacities and shapes are real ones), is placed in a uniformly random
+    direction from the object's centre, and has its scales grown in proportion to its distance (see
+    :class:`Shells`). Deterministic in ``shells.seed``."""
+    rng = np.random.default_rng(shells.seed)
+    lo, hi = robust_bounds(obj)
+    centre, radius = (lo + hi) / 2, float(np.linalg.norm(hi - lo) / 2)
+    counts = shells.counts(obj.num_gaussians)
+    spread = (1 - shells.jitter, 1 + shells.jitter)
+    dist = [r * rng.uniform(*spread, c) for r, c in zip(shells.radii, counts)]
+    dist.append(np.exp(rng.uniform(*np.log(shells.floater_radii), counts[-1])))
+    d = np.concatenate(dist) * radius  # world distances from the centre
+    direction = rng.normal(size=(d.size, 3))
+    direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+    src = torch.from_numpy(rng.integers(0, obj.num_gaussians, d.size))
+    added = {k: v[src].detach().clone() for k, v in obj.tensors().items()}
+    added["means"] = torch.from_numpy(centre + direction * d[:, None]).to(obj.means.dtype)
+    # Each copy keeps its shape, its longest axis set to sigma = d * angle, where a shell's m Gaussians of
+    # that angle cover its sphere ``cover`` times: m pi angle^2 = 4 pi cover.
+    angle = np.sqrt(4.0 * shells.cover / counts[0])
+    longest = added["log_scales"].max(dim=1, keepdim=True).values
+    size = torch.from_numpy(np.log(d * angle)).to(obj.log_scales.dtype)
+    added["log_scales"] = added["log_scales"] - longest + size[:, None]
+    merged = {k: torch.cat([v.detach(), added[k]]) for k, v in obj.tensors().items()}
+    return GaussianScene(**merged, sh_degree=obj.sh_degree)
