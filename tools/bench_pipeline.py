@@ -1,14 +1,17 @@
 """End-to-end benchmark of gspc: attribute codec, side information, restoration and refinement.
 
     python tools/bench_pipeline.py --lego /work/fits/lego200_20k [--donut] [--statues massa] \
-        [--iterations 300] [--sweep 0,100,300,1000,3000] [--lams 3,6,12,24]
+        [--iterations 300] [--sweep 0,100,300,1000,3000] [--lams 3,6,12,24] \
+        [--before] [--gain-lams 3,5,7,9,13] [--no-side-rows]
 
 Per scene (lego fits: against the held-out photos and the original's renders; donut and statues:
 against the original's renders), all at views the side information did NOT cover:
 - rows: original; G~ only; G~ refined on I~ + R~; G~ refined on the restorer's output (if shipped);
 - a rate-distortion comparison at equal total bytes: the attribute codec alone over a lambda sweep
   versus gspc (codec + side information + refinement) at the same lambdas;
-- decode iterations against PSNR and seconds.
+- decode iterations against PSNR and seconds;
+- with --before, every preset also coded by the uniform attribute codec (precision off) at its lambda of
+  before, in the same run; with --gain-lams, each row's gain over the codec alone at equal bytes.
 Writes bench/pipeline.md and bench/pipeline_rd.png.
 """
 
