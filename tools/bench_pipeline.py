@@ -1,14 +1,17 @@
 """End-to-end benchmark of gspc: attribute codec, side information, restoration and refinement.
 
     python tools/bench_pipeline.py --lego /work/fits/lego200_20k [--donut] [--statues massa] \
-        [--iterations 300] [--sweep 0,100,300,1000,3000] [--lams 3,6,12,24]
+        [--iterations 300] [--sweep 0,100,300,1000,3000] [--lams 3,6,12,24] \
+        [--before] [--gain-lams 3,5,7,9,13] [--no-side-rows]
 
 Per scene (lego fits: against the held-out photos and the original's renders; donut and statues:
 against the original's renders), all at views the side information did NOT cover:
 - rows: original; G~ only; G~ refined on I~ + R~; G~ refined on the restorer's output (if shipped);
 - a rate-distortion comparison at equal total bytes: the attribute codec alone over a lambda sweep
   versus gspc (codec + side information + refinement) at the same lambdas;
-- decode iterations against PSNR and seconds.
+- decode iterations against PSNR and seconds;
+- with --before, every preset also coded by the uniform attribute codec (precision off) at its lambda of
+  before, in the same run; with --gain-lams, each row's gain over the codec alone at equal bytes.
 Writes bench/pipeline.md and bench/pipeline_rd.png.
 """
 
@@ -28,6 +31,9 @@ from gspc.io import read_scene
 from gspc.reconstruct import render_images
 from gspc.restore.restorer import available_restorers
 
+# The presets' attribute lambdas before per-Gaussian precision (attribute codec version 4) came in.
+BEFORE_LAMS = {"low": 8.0, "high": 1.0}
+
 
 def fmt_row(label: str, r: dict, n_in: int, photos: bool) -> str:
     cells = [label]
@@ -38,6 +44,7 @@ def fmt_row(label: str, r: dict, n_in: int, photos: bool) -> str:
         "∞" if p == float("inf") else f"{p:.2f}",
         f"{r['ssim']:.4f}",
         f"{r['bytes']:,}",
+        f"{r['side']:,}" + (f" (1/{r['scale']})" if r.get("scale") else ""),
         f"{r['bytes'] / n_in:.2f}",
         f"{r.get('encode_s', 0):.1f}",
         f"{r.get('decode_s', 0):.1f}",
@@ -55,6 +62,8 @@ def bench_scene(
     lines: list[str],
     curves: dict,
     gain_lams: list[float] | None = None,
+    before: bool = False,
+    side_rows: bool = True,
 ) -> None:
     scene = read_scene(s.scene_path)
     n_in = scene.num_gaussians
@@ -76,11 +85,19 @@ def bench_scene(
     head = (
         ["row"]
         + (["PSNR photos", "SSIM photos"] if photos else [])
-        + ["PSNR vs original", "SSIM vs original", "bytes", "B/Gaussian", "encode s", "decode s"]
+        + [
+            "PSNR vs original",
+            "SSIM vs original",
+            "bytes",
+            "side info B",
+            "B/Gaussian",
+            "encode s",
+            "decode s",
+        ]
     )
     lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     orig = score(s.scene_path, s, ref)
-    orig.update(bytes=s.scene_path.stat().st_size)
+    orig.update(bytes=s.scene_path.stat().st_size, side=0)
     lines.append(
         fmt_row("original (PLY)" if s.scene_path.suffix == ".ply" else "original", orig, n_in, photos)
     )
@@ -92,19 +109,30 @@ def bench_scene(
         print(lines[-1], flush=True)
 
     for q in ("low", "high"):
-        r = run_point(s, tmp, ref, quality=q, refine=False, restore=False, tag=f"{q}_plain")
-        add(f"{q}: G~ only", r)
-        r = run_point(s, tmp, ref, quality=q, iterations=iterations, tag=f"{q}_none")
-        add(f"{q}: G~ refined on I~ + R~ (refine: {r['refine']})", r)
-        if q == "low" and r["side"]:  # the quantisation cells' share of the gain
-            r = run_point(s, tmp, ref, quality=q, iterations=iterations, cells=False, tag=f"{q}_free")
-            add(f"{q}: G~ refined on I~ + R~ (refine: {r['refine']})", r)
-        for name in restorers:
-            r = run_point(s, tmp, ref, quality=q, iterations=iterations, restorer=name, tag=f"{q}_{name}")
-            add(f"{q}: G~ refined on restorer '{name}' (refine: {r['refine']})", r)
+        # Before and after in one run, interleaved: "before" is the uniform attribute codec (precision off)
+        # at the lambda the preset had before per-Gaussian precision (gspc/presets.py).
+        for code, kw in ([("before", dict(precision=False, lam=BEFORE_LAMS[q]))] if before else []) + [
+            ("after" if before else "", {})
+        ]:
+            p = f"{q} {code}".strip()
+            r = run_point(s, tmp, ref, quality=q, refine=False, restore=False, tag=f"{p}_plain", **kw)
+            add(f"{p}: G~ only", r)
+            if side_rows:
+                r = run_point(s, tmp, ref, quality=q, iterations=iterations, tag=f"{p}_none", **kw)
+                add(f"{p}: G~ refined on I~ + R~ (refine: {r['refine']})", r)
+                if q == "low" and r["side"]:  # the quantisation cells' share of the gain
+                    r = run_point(
+                        s, tmp, ref, quality=q, iterations=iterations, cells=False, tag=f"{p}_free", **kw
+                    )
+                    add(f"{p}: G~ refined on I~ + R~ (refine: {r['refine']})", r)
+            for name in restorers:
+                r = run_point(
+                    s, tmp, ref, quality=q, iterations=iterations, restorer=name, tag=f"{p}_{name}", **kw
+                )
+                add(f"{p}: G~ refined on restorer '{name}' (refine: {r['refine']})", r)
     lines.append("")
     if gain_lams:
-        _equal_bytes_gains(s, tmp, ref, gain_lams, rows, lines)
+        curves[s.name] = _equal_bytes_gains(s, tmp, ref, gain_lams, rows, lines, before)
 
     if lams:
         lines += [
@@ -183,46 +211,75 @@ def bench_scene(
         lines.append("")
 
 
-def _equal_bytes_gains(
-    s: Setup, tmp: Path, ref, lams: list[float], rows: list[tuple[str, dict]], lines: list[str]
-) -> None:
-    """Each row's PSNR against the codec-alone curve (attributes only, at ``lams``) at the row's bytes."""
+def _codec_curve(s: Setup, tmp: Path, ref, lams: list[float], precision: bool) -> list[tuple]:
+    """The attribute codec alone (low preset, no side information, no refinement): (bytes, PSNR, photos)."""
     curve = []
     for lam in lams:
-        b = run_point(s, tmp, ref, lam=lam, side_info=False, refine=False, restore=False, tag=f"c{lam}")
+        b = run_point(
+            s, tmp, ref, lam=lam, side_info=False, refine=False, restore=False, precision=precision, tag="c"
+        )
         curve.append((b["bytes"], b["psnr"], b.get("psnr_photo")))
-    curve.sort()
-    bx = np.log([c[0] for c in curve])
+    return sorted(curve)
+
+
+def _equal_bytes_gains(
+    s: Setup,
+    tmp: Path,
+    ref,
+    lams: list[float],
+    rows: list[tuple[str, dict]],
+    lines: list[str],
+    before: bool = False,
+) -> dict:
+    """Each row's PSNR against the codec-alone curve (attributes only, at ``lams``) at the row's bytes; with
+    ``before`` also against the uniform codec's curve (precision off), the codec alone of before. Returns the
+    curves and the rows as points, for the plot."""
+    curves = {"codec alone": _codec_curve(s, tmp, ref, lams, True)}
+    if before:
+        curves = {
+            "codec alone (v4, precision)": curves["codec alone"],
+            "uniform codec alone": _codec_curve(s, tmp, ref, lams, False),
+        }
     lines += [
-        "Equal-bytes gain of each row over the attribute codec alone (no side information, no refinement) at "
-        f"lambda {', '.join(f'{x:g}' for x in lams)}, interpolated in log bytes:",
+        "Equal-bytes gain of each row over the attribute codec alone (low preset's parameters, no side "
+        f"information, no refinement) at lambda {', '.join(f'{x:g}' for x in lams)}, interpolated in log "
+        "bytes:",
         "",
-        "| lambda | codec bytes | codec PSNR vs original |" + (" codec PSNR photos |" if s.photos else ""),
-        "|---|---|---|" + ("---|" if s.photos else ""),
+        "| codec | lambda | bytes | PSNR vs original |" + (" PSNR photos |" if s.photos else ""),
+        "|---|---|---|---|" + ("---|" if s.photos else ""),
     ]
-    for lam, (nb, p, pp) in zip(sorted(lams, reverse=True), curve):
-        lines.append(f"| {lam:g} | {nb:,} | {p:.2f} |" + (f" {pp:.2f} |" if s.photos else ""))
-    lines += [
-        "",
-        "| row | bytes | gain vs original's renders |" + (" gain vs photos |" if s.photos else ""),
-        "|---|---|---|" + ("---|" if s.photos else ""),
-    ]
+    for name, curve in curves.items():
+        for lam, (nb, p, pp) in zip(sorted(lams, reverse=True), curve):
+            lines.append(f"| {name} | {lam:g} | {nb:,} | {p:.2f} |" + (f" {pp:.2f} |" if s.photos else ""))
+    head = ["row", "bytes"]
+    for name in curves:
+        head += [f"gain over {name}, vs original's renders"] + (
+            [f"over {name}, vs photos"] if s.photos else []
+        )
+    lines += ["", "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for label, r in rows:
         x = float(np.log(r["bytes"]))
-        if not bx[0] <= x <= bx[-1]:
-            lines.append(f"| {label} | {r['bytes']:,} | outside the curve |" + (" |" if s.photos else ""))
-            continue
-        g = r["psnr"] - float(np.interp(x, bx, [c[1] for c in curve]))
-        cell = f"| {label} | {r['bytes']:,} | {g:+.2f} dB |"
-        if s.photos:
-            cell += f" {r['psnr_photo'] - float(np.interp(x, bx, [c[2] for c in curve])):+.2f} dB |"
-        lines.append(cell)
+        cells = [label, f"{r['bytes']:,}"]
+        for curve in curves.values():
+            bx = np.log([c[0] for c in curve])
+            keys = [("psnr", 1)] + ([("psnr_photo", 2)] if s.photos else [])
+            for key, k in keys:
+                inside = bx[0] <= x <= bx[-1]
+                g = r[key] - float(np.interp(x, bx, [c[k] for c in curve])) if inside else None
+                cells.append("outside the curve" if g is None else f"{g:+.2f} dB")
+        lines.append("| " + " | ".join(cells) + " |")
     lines.append("")
     print("\n".join(lines[-len(rows) - 2 :]), flush=True)
+    points = {name: [(c[0], c[1]) for c in curve] for name, curve in curves.items()}
+    for label, r in rows:  # the full decodes (restorer rows), one point each
+        if "restorer" in label:
+            points.setdefault(label.split(":")[0] + ", full decode", []).append((r["bytes"], r["psnr"]))
+    return points
 
 
 def plot(curves: dict, path: Path) -> None:
     import matplotlib
+    import matplotlib.ticker
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -233,11 +290,15 @@ def plot(curves: dict, path: Path) -> None:
             pts = sorted(pts)
             ax.plot([b / 1024 for b, _ in pts], [p for _, p in pts], "o-", label=label)
         ax.set_xscale("log")
+        kib = matplotlib.ticker.FuncFormatter(lambda v, _: f"{v:.0f}")
+        ax.xaxis.set_minor_locator(matplotlib.ticker.LogLocator(subs=(1.0, 1.5, 2.0, 3.0, 5.0, 7.0)))
+        ax.xaxis.set_major_formatter(kib)
+        ax.xaxis.set_minor_formatter(kib)
         ax.set_xlabel("total KiB")
         ax.set_ylabel("PSNR vs original renders (dB)")
         ax.set_title(name)
         ax.grid(True, alpha=0.3)
-        ax.legend()
+        ax.legend(loc="lower right", fontsize="small")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
 
@@ -262,6 +323,14 @@ def main(
     out: Path = typer.Option(Path("bench/pipeline.md")),
     append: bool = typer.Option(
         False, help="add these scenes to an existing OUT (scenes benched in two runs)"
+    ),
+    before: bool = typer.Option(
+        False,
+        help="also the uniform attribute codec (--no-precision) at the presets' lambdas of before, "
+        "side by side in this run",
+    ),
+    side_rows: bool = typer.Option(
+        True, help="rows refined on I~ + R~ (and with the cells off); off: G~ only and the restorers' rows"
     ),
 ) -> None:
     torch.set_num_threads(1)
@@ -307,6 +376,8 @@ def main(
                 lines,
                 curves,
                 [float(x) for x in gain_lams.split(",") if x],
+                before,
+                side_rows,
             )
             out.write_text("\n".join(lines) + "\n")
     lines.append(f"Benchmark time (this run): {time.perf_counter() - t0:.0f} s.")

@@ -150,14 +150,14 @@ def run_point(
     cells=True,
     residual_scale=None,
     target_size=None,
+    precision=True,
     tag="",
 ) -> dict:
     cams_file = tmp / f"{s.name.split()[0]}_train_cameras.json"
     if not cams_file.exists():
         save_cameras_json(s.train_cams, cams_file)
-    gfile = (
-        tmp / f"{s.name.split()[0]}_{quality}_{lam}_{side_info}_{check}_{residual_scale}_{target_size}.gspc"
-    )
+    knobs = f"{quality}_{lam}_{side_info}_{check}_{residual_scale}_{target_size}_{precision}"
+    gfile = tmp / f"{s.name.split()[0]}_{knobs}.gspc"
     max_side = max(max(c.width, c.height) for c in s.train_cams)
     t0 = time.perf_counter()
     if not gfile.exists():
@@ -174,6 +174,7 @@ def run_point(
                 check_iterations=None if check else 0,
                 residual_scale=residual_scale,
                 target_size=target_size,
+                precision=precision,
             ),
         )
     enc_s = time.perf_counter() - t0
