@@ -27,6 +27,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import platform
 import re
 import sys
@@ -282,7 +283,8 @@ def main() -> None:
         "",
         f"Command: `python {' '.join(sys.argv)}`",
         "",
-        f"Machine: {platform.machine()}, Python {platform.python_version()}, torch {torch.__version__}, "
+        f"Machine: {platform.machine()}, {os.cpu_count()} CPUs, load average at the start "
+        f"{os.getloadavg()[0]:.1f}, Python {platform.python_version()}, torch {torch.__version__}, "
         "GSPC_THREADS=1 (one torch thread) in every gspc process. No GPU. Scenes: tools/make_scale_scenes.py "
         "(bench/scale.md). Code: " + "; ".join(f"{c.label} = {c.root}" for c in codes) + ".",
         "",
@@ -293,7 +295,9 @@ def main() -> None:
             folder = args.scenes / f"scale_{s}"
             run_size(folder, Path(d), args.encode_args.split(), codes, args.sweep, args.per_copy, lines)
             args.out.write_text("\n".join(lines) + "\n")
-    lines.append(f"Benchmark time: {time.perf_counter() - t0:.0f} s.")
+    lines.append(
+        f"Benchmark time: {time.perf_counter() - t0:.0f} s; load average at the end {os.getloadavg()[0]:.1f}."
+    )
     args.out.write_text("\n".join(lines) + "\n")
     print(json.dumps({"wrote": str(args.out)}))
 
