@@ -86,8 +86,8 @@ def _check_line(log: str) -> str:
     """The encoder's check as its summary states it (gspc/encoder/policy.py), line wrapping undone."""
     text = " ".join(log.split())
     m = re.search(
-        r"check: (at \d+ unsent views: coded [\d.]+ dB, refined [\d.]+ dB, "
-        r"same bytes on attributes [\d.]+ dB)",
+        r"check: (at \d+ unsent views: coded [\d.]+ dB, refined [\d.]+ dB"
+        r"(?: after \d+ of \d+ iterations \(decided there\))?, same bytes on attributes [\d.]+ dB)",
         text,
     )
     return m.group(1) if m else "did not run"
