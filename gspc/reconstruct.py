@@ -21,6 +21,7 @@ from gspc.progress import Progress
 from gspc.refine import Deadline, Refined, Refinement, Schedule
 from gspc.render import render
 from gspc.scene import GaussianScene
+from gspc.visibility import sampling_coverage
 
 
 @torch.no_grad()
@@ -93,11 +94,39 @@ FULL_RATE_FROM = 300
 # rate x8 49.58, colour x8 50.25, INRIA's 50.35 (852 iterations: 49.96). The 100k bird fit: every rate x2
 # with sh_rest x16 lost 1.2 dB to sh_rest x8 alone at 153 iterations. bench/refine.md measures the result.
 DECODER_GROUP_RATES = (("sh_rest", 8.0),)
+# Views seeing a Gaussian (view_coverage: counted by the pixels they give it) from which the rates are full;
+# fewer take them in proportion. With few views per Gaussian the cells leave refinement free to fit the
+# targets at those views in ways that hurt every other view, and Adam steps about its full rate whatever
+# the gradient. Side-information views per Gaussian: statue massa 17.9, lego fit 26.3, bird fit 35.5 (all at
+# full rates, bench/refine.md); the scale scenes' close-up views (tools/bench_scale_pipeline.py, 8 per copy)
+# 2.4 at 100k and 4.9 at 1M Gaussians (neighbours seen from farther). Held-out views against the original's
+# renders, restored targets: 100k, 298 iterations (coded 43.84 dB): rates x1 43.45, x0.3 43.67, x0.1 43.88;
+# 1M, 50 iterations (coded 42.33): rates x50/300 41.89, x0.042 42.75, x0.017 42.65.
+COVERAGE_FULL = 16.0
+# A mean over every 15th Gaussian of a million differs from the whole's in the second decimal, for 1/15 of
+# the time (16 s over 34 views at 1M on this project's loaded machine).
+COVERAGE_SAMPLE = 1 << 16
 
 
-def decoder_schedule(iterations: int, lr_scale: float = 1.0) -> Schedule:
-    """The decoder's refinement schedule for a run of ``iterations`` (``lr_scale``: the user's multiplier)."""
-    return Schedule(iterations, lr_scale, DECODER_GROUP_RATES, full_rate_from=FULL_RATE_FROM)
+def view_coverage(scene: GaussianScene, cameras: Sequence[Camera]) -> float:
+    """The mean number of ``cameras`` that see a Gaussian of ``scene``, each counted by the pixels it gives
+    the Gaussian against the closest (gspc/visibility.py, sampling_coverage), over the Gaussians some camera
+    sees (0 where none is seen), estimated on at most COVERAGE_SAMPLE of them, evenly strided."""
+    step = max(1, -(-scene.num_gaussians // COVERAGE_SAMPLE))
+    cover = sampling_coverage(
+        scene.means.detach()[::step].cpu().numpy(),
+        scene.log_scales.detach()[::step].cpu().numpy(),
+        list(cameras),
+    )
+    seen = cover[cover > 0]
+    return float(seen.mean()) if seen.size else 0.0
+
+
+def decoder_schedule(iterations: int, lr_scale: float = 1.0, coverage: float = COVERAGE_FULL) -> Schedule:
+    """The decoder's refinement schedule for a run of ``iterations`` (``lr_scale``: the user's multiplier)
+    over views that see each Gaussian ``coverage`` times on average (:func:`view_coverage`)."""
+    rate = lr_scale * min(1.0, coverage / COVERAGE_FULL)
+    return Schedule(iterations, rate, DECODER_GROUP_RATES, full_rate_from=FULL_RATE_FROM)
 
 
 def decoder_refinement(
@@ -118,7 +147,7 @@ def decoder_refinement(
     a copy)."""
     bg = torch.tensor(background, dtype=decoded.means.dtype, device=decoded.means.device)
     cells = quantisation_cells(decoded, section, precision) if section is not None else None
-    schedule = decoder_schedule(iterations, lr_scale)
+    schedule = decoder_schedule(iterations, lr_scale, view_coverage(decoded, cameras))
     return Refinement(decoded, cameras, targets, schedule, bg, cells, seed, in_place=in_place)
 
 

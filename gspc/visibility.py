@@ -15,10 +15,35 @@ def visible_mask(
     Conservative on purpose (a bounding sphere of radius 3 * max scale), so only Gaussians that
     are certainly outside every frustum are reported invisible.
     """
+    seen = np.zeros(len(means), dtype=bool)
+    for mask, _ in _per_camera(means, log_scales, cameras, near):
+        seen |= mask
+    return seen
+
+
+def sampling_coverage(
+    means: np.ndarray, log_scales: np.ndarray, cameras: list[Camera], near: float = 0.01
+) -> np.ndarray:
+    """Per Gaussian (N,): how many of ``cameras`` see it (the test of :func:`visible_mask`, occlusion
+    ignored), each counted by the pixels it gives the Gaussian against the closest of them: (p / p_v)^2,
+    with p_v the world size of a pixel at the Gaussian's depth in camera v and p the smallest of those. A
+    copy in the background, three times as far as the view that frames it, counts 1/9. 0 where none sees it.
+    """
+    best = np.full(len(means), np.inf)
+    inverse_area = np.zeros(len(means))  # sum over the views that see it of 1 / p_v^2
+    for mask, pixel in _per_camera(means, log_scales, cameras, near):
+        best = np.where(mask, np.minimum(best, pixel), best)
+        inverse_area += np.where(mask, 1.0 / pixel**2, 0.0)
+    best[~np.isfinite(best)] = 0.0  # seen by none: its sum is 0 too
+    return best**2 * inverse_area
+
+
+def _per_camera(means: np.ndarray, log_scales: np.ndarray, cameras: list[Camera], near: float):
+    """Per camera: the mask of Gaussians whose 3-sigma footprint overlaps its image, and the world size of
+    one of its pixels at each Gaussian's (clamped) depth."""
     means = np.asarray(means, dtype=np.float64)
     # Clamped below float64's exp overflow: a Gaussian that large covers every view either way.
     radius = 3.0 * np.exp(np.minimum(np.asarray(log_scales, dtype=np.float64).max(axis=1), 700.0))
-    seen = np.zeros(len(means), dtype=bool)
     for cam in cameras:
         R, t = cam.world_to_cam[:3, :3], cam.world_to_cam[:3, 3]
         p = means @ R.T + t
@@ -32,5 +57,4 @@ def visible_mask(
         rv = cam.fy * radius / zc
         inside_sphere = np.linalg.norm(p, axis=1) <= radius
         on_screen = (u + ru >= 0) & (u - ru <= cam.width) & (v + rv >= 0) & (v - rv <= cam.height)
-        seen |= (front & on_screen) | inside_sphere
-    return seen
+        yield (front & on_screen) | inside_sphere, zc / cam.fx

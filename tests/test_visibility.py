@@ -4,7 +4,7 @@ import numpy as np
 
 from gspc.cameras import Camera
 from gspc.views import look_at
-from gspc.visibility import visible_mask
+from gspc.visibility import sampling_coverage, visible_mask
 
 
 def ring(n: int = 8, radius: float = 4.0) -> list[Camera]:
@@ -32,3 +32,41 @@ def test_gaussians_seen_by_one_photo_of_a_ring_are_kept():
         sum(seen_by) >= 1
         and not visible_mask(means[:1], np.full((1, 3), -3.0), [c for c, s in zip(cams, seen_by) if not s])[0]
     )
+
+
+def test_sampling_coverage_counts_views_by_the_pixels_they_give():
+    cams = ring()
+    # The centre of the ring is in every view at the same distance; a point above everything in none.
+    means = np.array([[0.0, 0, 0], [0, 0, 50.0]])
+    cover = sampling_coverage(means, np.full((2, 3), -3.0), cams)
+    assert np.allclose(cover, [len(cams), 0])
+    # Near camera 0 (depth 1, where the opposite camera sees it at depth 7): each view that sees it counts
+    # (its closest depth / this view's depth)^2, so camera 0 counts 1 and the opposite one 1/49.
+    near = np.array([[3.0, 0, 0]])
+    depths = [
+        (c.world_to_cam[:3, :3] @ near[0] + c.world_to_cam[:3, 3])[2]
+        for c in cams
+        if visible_mask(near, np.full((1, 3), -3.0), [c])[0]
+    ]
+    assert min(depths) == 1.0 and 7.0 in [round(d, 9) for d in depths]
+    expected = sum((min(depths) / d) ** 2 for d in depths)
+    assert np.allclose(sampling_coverage(near, np.full((1, 3), -3.0), cams), expected)
+
+
+def test_decoder_rates_shrink_with_few_views_per_gaussian():
+    from gspc.reconstruct import COVERAGE_FULL, decoder_schedule, view_coverage
+    from gspc.scene import make_scene
+
+    cams = ring()
+    n = 4
+    scene = make_scene(
+        means=np.zeros((n, 3)),
+        quats=np.tile([1.0, 0, 0, 0], (n, 1)),
+        log_scales=np.full((n, 3), -3.0),
+        opacities=np.zeros(n),
+        sh_dc=np.zeros((n, 3)),
+        sh_degree=0,
+    )
+    assert view_coverage(scene, cams) == len(cams) and view_coverage(scene, cams[:2]) == 2
+    assert decoder_schedule(300, 1.0, 2 * COVERAGE_FULL).rate == 1.0  # enough views: the full rates
+    assert decoder_schedule(300, 0.5, COVERAGE_FULL / 4).rate == 0.125

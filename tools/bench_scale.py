@@ -41,13 +41,14 @@ app()
 """
 
 
-def measure(args: list[str]) -> dict:
-    """Run ``gspc ARGS`` from this checkout on one thread; wall s, CPU s, peak RSS MB and its stderr."""
+def measure(args: list[str], code: Path = REPO) -> dict:
+    """Run ``gspc ARGS`` on one thread with the gspc package under ``code`` (default: this checkout); wall s,
+    CPU s, peak RSS MB and its stderr."""
     with tempfile.TemporaryDirectory() as tmp, tempfile.TemporaryFile() as err:
         peak_file = Path(tmp) / "peak_kb"
-        env = dict(os.environ, GSPC_THREADS="1", PYTHONPATH=str(REPO), GSPC_BENCH_PEAK=str(peak_file))
+        env = dict(os.environ, GSPC_THREADS="1", PYTHONPATH=str(code), GSPC_BENCH_PEAK=str(peak_file))
         t0 = time.perf_counter()
-        proc = subprocess.Popen([sys.executable, "-c", CLI, *args], env=env, stdout=err, stderr=err)
+        proc = subprocess.Popen([sys.executable, "-c", CLI, *args], env=env, stdout=err, stderr=err, cwd="/")
         _, status, ru = os.wait4(proc.pid, 0)
         wall = time.perf_counter() - t0
         proc.returncode = os.waitstatus_to_exitcode(status)

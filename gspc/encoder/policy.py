@@ -42,6 +42,10 @@ class CheckPolicy:
     # 1.5 dB on a curve as steep as the donut's (5 dB per 10% of bytes), a handicap that would favour side
     # information.
     rival_tolerance: float = 0.005
+    # ... and by at most this share of the side information's own bytes: where those are under 0.5% of the
+    # file (1M scale scene: 0.47%), the tolerance alone accepted the coding without them as the rival
+    # (bench/scale_pipeline.md, equal bytes).
+    rival_share: float = 0.25
     chunk_entry_bytes: int = 48  # a chunk-table entry plus alignment padding, about (spec section 5)
     # The trial: a refinement of at least ``trial_from`` iterations is scored after its first
     # ``trial_fraction``; where the trial's gain over the coded scene, times ``gain_ratio``, already clears
@@ -247,13 +251,14 @@ def _rivals(
         if progress:
             progress("check rivals", k, len(inp.candidates))
         extra = len(c.payload) + inp.policy.chunk_entry_bytes
+        target = enc.num_bytes + extra
         alt = search_lambda(
             inp.scene,
-            enc.num_bytes + extra,
+            target,
             inp.params,
             visible=inp.visible,
             significance=inp.significance,
-            rel_tol=inp.policy.rival_tolerance,
+            rel_tol=min(inp.policy.rival_tolerance, inp.policy.rival_share * extra / target),
             first=enc,
         )
         out.append((alt, score(alt.decoded)))
