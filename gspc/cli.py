@@ -279,6 +279,15 @@ def _position_grid_line(grid) -> str:
     return line
 
 
+def _precision_line(section) -> str:
+    """A version-4 file's precision classes (spec 10.13), from the header alone, for ``gspc info``."""
+    steps = [c.scale_step for c in section.all_classes]
+    return (
+        f"precision: {len(steps)} classes per Gaussian (log-scale steps {min(steps):.3g} to "
+        f"{max(steps):.3g}), an SH degree per Gaussian (attribute codec version 4)"
+    )
+
+
 @app.command()
 @_one_line_errors
 def info(
@@ -307,6 +316,8 @@ def info(
             f"{len(views)} side-information views"
         )
         out.print(_position_grid_line(fields.attributes.position))
+        if fields.attributes.precision:
+            out.print(_precision_line(fields.attributes))
         t = Table(show_header=True)
         for col in ("part", "chunks", "bytes", "B/Gaussian", "share"):
             t.add_column(col, justify="left" if col == "part" else "right")

@@ -171,3 +171,20 @@ def test_the_high_preset_removes_nothing():
     enc = encode_attributes(scene, QUALITY["high"].attributes, significance=_significance(300, 1, seed=3))
     plain = encode_attributes(scene, CodecParams(lam=1.0))
     assert enc.section.version == 4 and np.array_equal(np.sort(enc.kept), np.sort(plain.kept))
+
+
+def test_info_names_a_version_4_files_classes(tmp_path):
+    from typer.testing import CliRunner
+
+    from gspc.cli import app
+    from gspc.format import container
+    from gspc.io import write_ply
+    from gspc.pipeline import EncodeOptions, encode
+
+    src, out = tmp_path / "s.ply", tmp_path / "s.gspc"
+    write_ply(random_scene(300, sh_degree=1, seed=2), src)
+    encode(src, out, opts=EncodeOptions(side_info=False, synth_views=4, max_side=48))
+    shown = CliRunner().invoke(app, ["info", str(out)], terminal_width=200).output
+    section = AttributeSection.from_dict(container.read(out).header["attributes"])
+    assert section.version == 4
+    assert f"precision: {len(section.all_classes)} classes per Gaussian" in shown
