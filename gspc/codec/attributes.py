@@ -252,7 +252,8 @@ def _encode_classed(
     parts: dict[str, list[bytes]] = {OPAC: [], SCAL: [], ROTN: [], SHDC: [], SHRS: []}
     rest = scene.sh_rest.detach().cpu().numpy()
     for k, steps_k in enumerate(class_list):
-        rows = kept[pmap.rows(k)]
+        order = pmap.rows(k)
+        rows = kept[order]
         quant = AttributeQuantisers.from_steps(steps_k, params.sh_deadzone)
         scales, dc = _np(scene.log_scales, rows), _np(scene.sh_dc, rows)
         _check_range("log scale", scales, steps_k.scale_step, lam)
@@ -261,11 +262,13 @@ def _encode_classed(
         parts[SCAL].append(encode_matrix(quant.scale.quantise(scales)))
         parts[ROTN].append(encode_matrix(quant.rotation.quantise(_np(scene.quats, rows))))
         parts[SHDC].append(encode_matrix(quant.dc.quantise(dc)))
-        for b in range(1, degree + 1):
-            band_rows = kept[pmap.rows(k)[degrees[pmap.rows(k)] >= b]]
-            _check_range("SH rest", rest, np.asarray(steps_k.sh_steps)[None, :, None], lam, band_rows)
-            q = quant.sh_rest.quantise(rest, band_rows)
-            parts[SHRS].append(encode_matrix(q[:, 3 * (b * b - 1) : 3 * ((b + 1) ** 2 - 1)]))
+        if degree > 0:  # every coefficient of the class's Gaussians with any SH rest, once; each band a slice
+            deg = degrees[order]
+            coded = rows[deg >= 1]
+            _check_range("SH rest", rest, np.asarray(steps_k.sh_steps)[None, :, None], lam, coded)
+            q, deg = quant.sh_rest.quantise(rest, coded), deg[deg >= 1]
+            for b in range(1, degree + 1):
+                parts[SHRS].append(encode_matrix(q[deg >= b, 3 * (b * b - 1) : 3 * ((b + 1) ** 2 - 1)]))
     chunks = {PREC: encode_precision(pmap, degree)}
     chunks.update({t: pack_bins(p) for t, p in parts.items() if t != SHRS or degree > 0})
     return chunks, section
