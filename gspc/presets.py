@@ -41,12 +41,14 @@ class Preset:
 # Per-Gaussian precision (attribute codec version 4, gspc/codec/precision.py), chosen codec alone on lego,
 # the statue massa, the bird capture and massa inside shells of sky-sized Gaussians (bench/precision.md,
 # "Choosing the presets' parameters"): step classes 2^-3 .. 2^2 of the rate's, centred 1.5 octaves coarse; SH
-# bands kept where they move the views by 4 of their steps; Gaussians painting under a fifth of the median's
-# blending weight removed. Against the uniform codec at equal PSNR: the bird about 0.5x the bytes, lego 0.85x,
-# massa 0.7x. A finest class of 2^-1 coded lego 10% smaller but lost 6 dB on the shells. The classed codec
-# reaches a PSNR at other lambdas than the uniform one, and differently by scene; the low preset's lambda rose
-# from 8 to 10 (the statues' whole files under 6 B/G). The high preset removes nothing and keeps more SH.
-LOW_PRECISION = PrecisionParams(exponents=(-3, 2), bias=1.5, sh_keep=4.0, prune=0.2)
+# bands kept where they move the views by 4 of their steps; Gaussians painting under lambda / 50 of the
+# median's blending weight removed (a fifth at lambda 10; in proportion to lambda so that the finer rates
+# reach SPZ's quality on every statue). Against the uniform codec at equal PSNR: the bird about 0.5x the
+# bytes, lego 0.85x, massa 0.7x. A finest class of 2^-1 coded lego 10% smaller but lost 6 dB on the shells.
+# The classed codec reaches a PSNR at other lambdas than the uniform one, and differently by scene; the low
+# preset's lambda rose from 8 to 10 (the statues' whole files under 6 B/G). The high preset removes nothing
+# and keeps more SH.
+LOW_PRECISION = PrecisionParams(exponents=(-3, 2), bias=1.5, sh_keep=4.0, prune=0.02)
 HIGH_PRECISION = PrecisionParams(exponents=(-3, 2), bias=1.0, sh_keep=2.0, prune=0.0)
 QUALITY: dict[str, Preset] = {
     "low": Preset(

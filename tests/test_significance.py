@@ -59,3 +59,21 @@ def test_sh_band_change_is_the_first_order_change_of_dropping_a_band():
     change = (whole - render(dropped, cam).image.double().sum()).abs()
     # Colours clamped at 0 make it first order only; the Gaussians' own terms bound it.
     assert change <= m.sh_band_change[:, 1].sum() * 1.001 + 1e-6
+
+
+def test_zooms_keep_each_gaussians_largest_per_pixel_measure():
+    """At 1x and 2x a measure is the larger of the two per pixel: a speck finer than a pixel at 1x moves the
+    2x picture more per pixel by its scale."""
+    scene = random_scene(80, sh_degree=1, seed=11)
+    with torch.no_grad():
+        scene.log_scales[3] = -7.0  # far under a pixel at 1x
+    cams = synthesize_views(scene, 2, 32, 32)
+    one = significance(scene, cams)
+    assert np.array_equal(significance(scene, cams, zooms=(1.0,)).weight, one.weight)
+    both = significance(scene, cams, zooms=(1.0, 2.0))
+    two = significance(scene, [c.scaled(2.0) for c in cams])
+    assert np.array_equal(both.weight, np.maximum(one.weight, two.weight))
+    for k, g in both.gradient.items():
+        assert np.allclose(g, np.maximum(one.gradient[k], two.gradient[k] / 4))
+    assert np.allclose(both.sh_band_change, np.maximum(one.sh_band_change, two.sh_band_change / 4))
+    assert both.gradient["log_scales"][3] >= one.gradient["log_scales"][3]

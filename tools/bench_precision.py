@@ -61,7 +61,7 @@ from scenes import Shells, with_shells
 from gspc.cameras import Camera
 from gspc.codec.attributes import EncodedAttributes, encode_attributes
 from gspc.codec.params import CodecParams
-from gspc.encoder.prepare import SIGNIFICANCE_VIEWS
+from gspc.encoder.prepare import SIGNIFICANCE_VIEWS, SIGNIFICANCE_ZOOMS
 from gspc.encoder.significance import Significance, evenly_spaced, significance
 from gspc.format import container
 from gspc.format.chunks import SIDE
@@ -180,9 +180,10 @@ class Bench:
         cams = self.encoder_cams
         views = evenly_spaced(cams, SIGNIFICANCE_VIEWS)
         t0 = time.perf_counter()
-        self.measure = significance(self.scene, views, self.views.background)
+        self.measure = significance(self.scene, views, self.views.background, zooms=SIGNIFICANCE_ZOOMS)
         self.measure_s = time.perf_counter() - t0
-        self.measure_views = f"{len(views)} of {len(cams)} at {cams[0].width}x{cams[0].height}"
+        zooms = " and ".join(f"{z:g}x" for z in SIGNIFICANCE_ZOOMS)
+        self.measure_views = f"{len(views)} of {len(cams)} at {cams[0].width}x{cams[0].height}, {zooms}"
 
 
 @dataclass(frozen=True)
@@ -523,7 +524,8 @@ def report(results, chosen, lam_list, shell_rows, shell_text, file_rows, trees, 
         "## The significance measure's time",
         "",
         f"`significance()` (gspc/encoder/significance.py) over {SIGNIFICANCE_VIEWS} evenly spaced encoder "
-        "cameras, timed alone (what an encoder that uses it adds).",
+        "cameras at each of gspc/encoder/prepare.py's SIGNIFICANCE_ZOOMS, timed alone (what an encoder that "
+        "uses it adds).",
         "",
         "| scene | Gaussians | views | seconds |",
         "|---|---|---|---|",

@@ -13,7 +13,8 @@ Gaussian over the encoder's views, and the rate's :class:`PrecisionParams`:
 - **SH degree**: a band is kept where dropping it would change the views (its first-order change of the
   renders, ``sh_band_change``) by more than its coded step does;
 - **removal**: a Gaussian that paints a small fraction of what the median Gaussian paints over the views
-  (its blending weight) is dropped: its bytes buy less than theirs.
+  (its blending weight) is dropped: its bytes buy less than theirs. The fraction grows with lambda, the
+  price of a byte in error: a fixed one capped the quality the finer rates reach (bench/precision.md).
 """
 
 from __future__ import annotations
@@ -61,7 +62,7 @@ class PrecisionParams:
     Class step multipliers are ``2^e`` for integer ``e`` in ``exponents`` (``e = 0``: the rate's own steps,
     class 0); a Gaussian's ``e`` is ``round(bias - log2(sensitivity / median) / 2)``. ``sh_keep``: a band is
     kept where its change of the views is at least this many of its coded steps (0 keeps every band).
-    ``prune``: a Gaussian whose blending weight over the views is below ``prune`` times the median
+    ``prune``: a Gaussian whose blending weight over the views is below ``prune x lambda`` times the median
     Gaussian's is removed (0: never).
     """
 
@@ -194,7 +195,7 @@ def plan_precision(
         # Blending weight, not a first-order change of the views: removing one of several Gaussians that
         # paint the same surface changes little, removing all of them removes the surface (a statue lost
         # 9 dB that way, bench/precision.md); a weight is what a Gaussian paints, however redundant.
-        floor = params.prune * float(np.median(sig.weight[keep & measured]))
+        floor = params.prune * lam * float(np.median(sig.weight[keep & measured]))
         keep &= (sig.weight >= floor) | ~measured
     exponent = class_exponents(sens, params, keep & measured)
     exponent[~measured] = 0

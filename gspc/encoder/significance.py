@@ -1,7 +1,7 @@
 """What each Gaussian does to the views: the encoder's measures for spending precision where it shows.
 
-All accumulated over the encoder's cameras at the resolution they are given, from ONE forward and backward
-render per view (gspc/codec/precision.py's :class:`Significance` holds them):
+All accumulated over the encoder's cameras, from ONE forward and backward render per view and zoom
+(gspc/codec/precision.py's :class:`Significance` holds them):
 
 - ``weight``: the blending weight a Gaussian takes over a view, sum_pixels alpha_i T_i (its footprint times
   opacity times the transmittance in front of it), as a fraction of the view's pixels. It is the gradient of
@@ -11,6 +11,10 @@ render per view (gspc/codec/precision.py's :class:`Significance` holds them):
   components: how far a change of that group moves the picture (C3DGS's sensitivity).
 - ``sh_band_change``: per SH band, sum_views |sum over the band's coefficients of gradient x coefficient|:
   the first-order change of the view if the band were dropped.
+
+At several zooms (the cameras' own resolution and twice it, say), each measure is taken per zoom, per pixel
+of the zoom's views, and the largest kept: a Gaussian finer than a pixel of the cameras shows its scale and
+rotation only when the picture is shown larger (bench/precision.md).
 
 None is ever written to a file: the precision classes chosen from them are what a decoder reads, so a
 decoder never recomputes these. tools/bench_significance.py measures which of them predicts where the
@@ -100,22 +104,34 @@ def significance(
     cameras: Sequence[Camera],
     background: Sequence[float] = (0.0, 0.0, 0.0),
     progress: Progress | None = None,
+    zooms: Sequence[float] = (1.0,),
 ) -> Significance:
-    """Every measure, accumulated over ``cameras``."""
+    """Every measure, accumulated over ``cameras`` at each of ``zooms`` (a camera's size multiplier); of
+    several zooms, per Gaussian the largest, the sums over a zoom's pixels divided by zoom^2."""
     n, d = scene.num_gaussians, scene.sh_degree
     weight = torch.zeros(n, dtype=torch.float64)
     gradient = {k: torch.zeros(n, dtype=torch.float64) for k in ATTRIBUTE_NAMES}
     change = torch.zeros(n, d, dtype=torch.float64)
-    for i, cam in enumerate(cameras):
-        if progress:
-            progress("significance", i, len(cameras))
-        m = measure_view(scene, cam, background)
-        weight += m.weight
-        change += m.sh_band_change
-        for k, g in m.gradient.items():
-            gradient[k] += g
+    total = len(cameras) * len(zooms)
+    for z, zoom in enumerate(zooms):
+        w = torch.zeros(n, dtype=torch.float64)
+        g = {k: torch.zeros(n, dtype=torch.float64) for k in ATTRIBUTE_NAMES}
+        c = torch.zeros(n, d, dtype=torch.float64)
+        for i, cam in enumerate(cameras):
+            if progress:
+                progress("significance", z * len(cameras) + i, total)
+            m = measure_view(scene, cam if zoom == 1.0 else cam.scaled(zoom), background)
+            w += m.weight
+            c += m.sh_band_change
+            for k, v in m.gradient.items():
+                g[k] += v
+        per_pixel = 1.0 / zoom**2  # weight is already a fraction of the view's pixels
+        weight = torch.maximum(weight, w)
+        change = torch.maximum(change, c * per_pixel)
+        for k in gradient:
+            gradient[k] = torch.maximum(gradient[k], g[k] * per_pixel)
     if progress:
-        progress("significance", len(cameras), len(cameras))
+        progress("significance", total, total)
     return Significance(
         weight.numpy(), {k: v.numpy() for k, v in gradient.items()}, change.numpy(), len(cameras)
     )
