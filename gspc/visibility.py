@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import torch
 
 from gspc.cameras import Camera
 
@@ -58,3 +59,26 @@ def _per_camera(means: np.ndarray, log_scales: np.ndarray, cameras: list[Camera]
         inside_sphere = np.linalg.norm(p, axis=1) <= radius
         on_screen = (u + ru >= 0) & (u - ru <= cam.width) & (v + rv >= 0) & (v - rv <= cam.height)
         yield (front & on_screen) | inside_sphere, zc / cam.fx
+
+
+def footprints(means: np.ndarray, log_scales: np.ndarray, cameras: list[Camera]) -> np.ndarray:
+    """Per Gaussian (N,): the mean over ``cameras`` of the part of its projected Gaussian inside the image,
+    as a fraction of the image's pixels (each Gaussian taken round, at its largest scale; occlusion and
+    opacity ignored): how much of it the cameras show, cheaply, to compare two sets of cameras."""
+    m = torch.as_tensor(np.asarray(means), dtype=torch.float64)
+    sigma = torch.as_tensor(np.asarray(log_scales), dtype=torch.float64).amax(1).clamp(max=700.0).exp()
+    total = torch.zeros(len(m), dtype=torch.float64)
+    for cam in cameras:
+        R = torch.as_tensor(cam.world_to_cam[:3, :3], dtype=torch.float64)
+        t = torch.as_tensor(cam.world_to_cam[:3, 3], dtype=torch.float64)
+        p = m @ R.T + t
+        z = p[:, 2].clamp(min=1e-6)
+        # Its axes in pixels, at least the renderer's blur (a third of a pixel): a speck still counts.
+        su = (cam.fx * sigma / z).clamp(min=0.3)
+        sv = (cam.fy * sigma / z).clamp(min=0.3)
+        u, v = cam.fx * p[:, 0] / z + cam.cx, cam.fy * p[:, 1] / z + cam.cy
+        inside_u = torch.special.ndtr((cam.width - u) / su) - torch.special.ndtr(-u / su)
+        inside_v = torch.special.ndtr((cam.height - v) / sv) - torch.special.ndtr(-v / sv)
+        area = 2.0 * np.pi * su * sv / (cam.width * cam.height)
+        total += torch.where(p[:, 2] > 0, inside_u * inside_v * area, 0.0)
+    return (total / max(len(cameras), 1)).numpy()

@@ -77,3 +77,28 @@ def test_zooms_keep_each_gaussians_largest_per_pixel_measure():
         assert np.allclose(g, np.maximum(one.gradient[k], two.gradient[k] / 4))
     assert np.allclose(both.sh_band_change, np.maximum(one.sh_band_change, two.sh_band_change / 4))
     assert both.gradient["log_scales"][3] >= one.gradient["log_scales"][3]
+
+
+def test_a_gaussian_the_sample_under_shows_is_measured_at_every_camera():
+    """A Gaussian close in front of one unsampled camera, turned away from the scene, gets that camera's
+    measure (per sampled view) instead of the glimpse the sample has of it; the rest keep the sample's."""
+    from gspc.cameras import Camera
+    from gspc.encoder.significance import SIGNIFICANCE_VIEWS, encoder_significance, evenly_spaced
+
+    scene = random_scene(50, sh_degree=0, seed=2)
+    cams = synthesize_views(scene, 3 * SIGNIFICANCE_VIEWS, 24, 24)
+    sample = evenly_spaced(cams, SIGNIFICANCE_VIEWS)
+    j = next(i for i, c in enumerate(cams) if all(c is not s for s in sample))
+    flip = np.diag([-1.0, 1.0, -1.0, 1.0])  # half a turn about its y axis: same centre, looking out
+    cams[j] = Camera(flip @ cams[j].world_to_cam, cams[j].K, 24, 24)
+    centre = np.asarray(cams[j].center)
+    with torch.no_grad():
+        scene.means[0] = torch.tensor(centre * 1.3, dtype=torch.float32)
+        scene.log_scales[0] = float(np.log(0.05 * np.linalg.norm(centre)))
+    plain = significance(scene, sample, zooms=(1.0, 2.0))
+    sig = encoder_significance(scene, cams)
+    assert sig.weight[0] > 2 * plain.weight[0]
+    assert sig.gradient["quats"][0] > plain.gradient["quats"][0]
+    # Only raised, never lowered; the others are shown as well by the sample as by every camera.
+    assert (sig.weight >= plain.weight).all()
+    assert (sig.weight[1:] == plain.weight[1:]).mean() > 0.8

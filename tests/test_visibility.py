@@ -4,7 +4,7 @@ import numpy as np
 
 from gspc.cameras import Camera
 from gspc.views import look_at
-from gspc.visibility import sampling_coverage, visible_mask
+from gspc.visibility import footprints, sampling_coverage, visible_mask
 
 
 def ring(n: int = 8, radius: float = 4.0) -> list[Camera]:
@@ -70,3 +70,18 @@ def test_decoder_rates_shrink_with_few_views_per_gaussian():
     assert view_coverage(scene, cams) == len(cams) and view_coverage(scene, cams[:2]) == 2
     assert decoder_schedule(300, 1.0, 2 * COVERAGE_FULL).rate == 1.0  # enough views: the full rates
     assert decoder_schedule(300, 0.5, COVERAGE_FULL / 4).rate == 0.125
+
+
+def test_footprints_count_the_part_of_a_gaussian_inside_the_image():
+    """Centred in camera 0's image: its whole area, 2 pi sigma_px^2 of the image's pixels; on its edge,
+    half; behind it, nothing. Averaged over the cameras given."""
+    cam = ring()[0]
+    R = cam.world_to_cam[:3, :3]
+    ahead = cam.center + 4.0 * R[2]  # 4 units along the optical axis
+    edge = ahead + 4.0 * 0.5 * R[0]  # 50 px right of the centre: the image's right edge
+    behind = cam.center - 4.0 * R[2]
+    sigma = 0.04  # 1 px at 4 units (fx 100)
+    f = footprints(np.array([ahead, edge, behind]), np.full((3, 3), np.log(sigma)), [cam])
+    whole = 2 * np.pi * 1.0**2 / (100 * 100)
+    assert np.allclose(f, [whole, whole / 2, 0.0], rtol=1e-3, atol=1e-12)
+    assert np.allclose(footprints(np.array([ahead]), np.full((1, 3), np.log(sigma)), [cam, cam])[0], whole)

@@ -23,8 +23,8 @@ framing). SPZ v4 is Niantic's writer through PlayCanvas splat-transform, read ba
 bytes at SPZ's PSNR come from the sweep, log-linear between its two nearest points (bench_setups.bytes_at),
 at 1x and at 2x separately.
 
-The significance measure (gspc/encoder/significance.py) is computed once per scene over 20 evenly spaced
-encoder cameras and timed on its own; variants that take it get it.
+The significance measure is computed once per scene as the encoder computes it (gspc/encoder/significance.py
+``encoder_significance``) and timed on its own; variants that take it get it.
 
 Whole encoder (``--trees``): ``gspc encode`` with default options (its own 60 synthesised views) and ``gspc
 decode`` with default options, each statue, by the gspc code of each named tree ("." this checkout, else a git
@@ -61,8 +61,14 @@ from scenes import Shells, with_shells
 from gspc.cameras import Camera
 from gspc.codec.attributes import EncodedAttributes, encode_attributes
 from gspc.codec.params import CodecParams
-from gspc.encoder.prepare import SIGNIFICANCE_VIEWS, SIGNIFICANCE_ZOOMS
-from gspc.encoder.significance import Significance, evenly_spaced, significance
+from gspc.encoder.significance import (
+    SIGNIFICANCE_VIEWS,
+    SIGNIFICANCE_ZOOMS,
+    Significance,
+    encoder_significance,
+    evenly_spaced,
+    significance,
+)
 from gspc.format import container
 from gspc.format.chunks import SIDE
 from gspc.io import read_scene
@@ -176,11 +182,11 @@ class Bench:
         return cls(name, kind, path, scene, setup.train_cams, views, visible)
 
     def measure_significance(self) -> None:
-        """The significance measure at evenly spaced encoder cameras (as gspc/encoder/prepare.py), timed."""
+        """The encoder's significance measure (as gspc/encoder/prepare.py), timed."""
         cams = self.encoder_cams
         views = evenly_spaced(cams, SIGNIFICANCE_VIEWS)
         t0 = time.perf_counter()
-        self.measure = significance(self.scene, views, self.views.background, zooms=SIGNIFICANCE_ZOOMS)
+        self.measure = encoder_significance(self.scene, cams, self.views.background)
         self.measure_s = time.perf_counter() - t0
         zooms = " and ".join(f"{z:g}x" for z in SIGNIFICANCE_ZOOMS)
         self.measure_views = f"{len(views)} of {len(cams)} at {cams[0].width}x{cams[0].height}, {zooms}"
@@ -524,8 +530,8 @@ def report(results, chosen, lam_list, shell_rows, shell_text, file_rows, trees, 
         "## The significance measure's time",
         "",
         f"`significance()` (gspc/encoder/significance.py) over {SIGNIFICANCE_VIEWS} evenly spaced encoder "
-        "cameras at each of gspc/encoder/prepare.py's SIGNIFICANCE_ZOOMS, timed alone (what an encoder that "
-        "uses it adds).",
+        "cameras at each of its SIGNIFICANCE_ZOOMS, with the Gaussians they under-show measured again at "
+        "every camera (`encoder_significance`), timed alone (what an encoder that uses it adds).",
         "",
         "| scene | Gaussians | views | seconds |",
         "|---|---|---|---|",

@@ -15,7 +15,7 @@ from gspc.codec.attributes import EncodedAttributes, encode_attributes, search_l
 from gspc.codec.params import CodecParams
 from gspc.codec.precision import Significance
 from gspc.encoder.side import SideCandidate, side_candidate
-from gspc.encoder.significance import evenly_spaced, significance
+from gspc.encoder.significance import encoder_significance
 from gspc.limits import default_refine_iterations
 from gspc.options import EncodeOptions
 from gspc.presets import quality_preset, refine_iterations_for
@@ -43,12 +43,6 @@ def codec_params(opts: EncodeOptions) -> CodecParams:
     return params
 
 
-# Views the significance measure renders, spread over the encoder's cameras: 20 rank Gaussians as well as
-# all 161 of the bird capture (bench/significance.md), and each costs one render forward and backward.
-SIGNIFICANCE_VIEWS = 20
-# ... each at the cameras' size and at twice it: precision measured at 1x alone left the statues 0.4-0.6 dB
-# worse at 2x for the same bytes (bench/precision.md); the 2x renders cost four times the 1x ones.
-SIGNIFICANCE_ZOOMS = (1.0, 2.0)
 
 
 @dataclass
@@ -69,15 +63,13 @@ def code_attributes(
 ) -> CodedAttributes:
     """Prune what no camera sees and code the rest (at ``target_size`` bytes when given), on the CPU: the
     visibility mask decides what is coded, so it is numpy like the codec. Where the parameters spend
-    precision per Gaussian, its significance is measured first at SIGNIFICANCE_VIEWS of the cameras, at
-    SIGNIFICANCE_ZOOMS."""
+    precision per Gaussian, its significance is measured first (gspc/encoder/significance.py)."""
     visible = visible_mask(
         scene.means.detach().cpu().numpy(), scene.log_scales.detach().cpu().numpy(), cameras
     )
     sig = None
     if params.precision is not None:
-        views = evenly_spaced(cameras, SIGNIFICANCE_VIEWS)
-        sig = significance(scene.to("cpu"), views, background, progress, SIGNIFICANCE_ZOOMS)
+        sig = encoder_significance(scene.to("cpu"), cameras, background, progress)
     if target_size is not None:
         enc = search_lambda(scene, target_size, params, visible=visible, significance=sig)
     else:

@@ -16,6 +16,11 @@ At several zooms (the cameras' own resolution and twice it, say), each measure i
 of the zoom's views, and the largest kept: a Gaussian finer than a pixel of the cameras shows its scale and
 rotation only when the picture is shown larger (bench/precision.md).
 
+The encoder measures a sample of its cameras (:func:`encoder_significance`); a Gaussian the sample shows
+much less of than the cameras do (a wall or sky at the edge of the sampled frames, seen whole by others) is
+measured again, alone, at every camera: a sky of large Gaussians lost 10 dB to removal and coarse classes
+chosen from such glimpses (bench/precision.md).
+
 None is ever written to a file: the precision classes chosen from them are what a decoder reads, so a
 decoder never recomputes these. tools/bench_significance.py measures which of them predicts where the
 attribute codec's error shows (bench/significance.md).
@@ -35,8 +40,29 @@ from gspc.progress import Progress
 from gspc.render.project import project
 from gspc.render.rasterize import composite
 from gspc.scene import ATTRIBUTE_NAMES, GaussianScene
+from gspc.visibility import footprints
 
-__all__ = ["Significance", "ViewMeasures", "evenly_spaced", "measure_view", "significance"]
+__all__ = [
+    "Significance",
+    "ViewMeasures",
+    "encoder_significance",
+    "evenly_spaced",
+    "measure_view",
+    "significance",
+]
+
+# The encoder's sample: 20 views rank Gaussians as well as all 161 of the bird capture
+# (bench/significance.md), each rendered forward and backward at the cameras' size and at twice it:
+# precision measured at 1x alone left the statues 0.4-0.6 dB worse at 2x for the same bytes
+# (bench/precision.md).
+SIGNIFICANCE_VIEWS = 20
+SIGNIFICANCE_ZOOMS = (1.0, 2.0)
+# A Gaussian the sample shows less than 1 / UNDER_SAMPLED of what every camera shows on average (by
+# gspc/visibility.py's footprints) is measured again at every camera.
+UNDER_SAMPLED = 1.5
+# ... at most this many Gaussian-views (the sample's own cost at 1x is views x N): beyond it, at evenly
+# spaced cameras.
+SURVEY_WORK_PER_GAUSSIAN = SIGNIFICANCE_VIEWS
 
 
 @dataclass(frozen=True)
@@ -134,4 +160,45 @@ def significance(
         progress("significance", total, total)
     return Significance(
         weight.numpy(), {k: v.numpy() for k, v in gradient.items()}, change.numpy(), len(cameras)
+    )
+
+
+def encoder_significance(
+    scene: GaussianScene,
+    cameras: Sequence[Camera],
+    background: Sequence[float] = (0.0, 0.0, 0.0),
+    progress: Progress | None = None,
+) -> Significance:
+    """The encoder's measure: :func:`significance` at SIGNIFICANCE_VIEWS evenly spaced cameras and
+    SIGNIFICANCE_ZOOMS, and the Gaussians that sample under-shows measured alone at every camera (in front
+    of nothing: what the rest hides of them is counted too, which errs towards precision)."""
+    sample = evenly_spaced(cameras, SIGNIFICANCE_VIEWS)
+    sig = significance(scene, sample, background, progress, SIGNIFICANCE_ZOOMS)
+    if len(sample) == len(cameras):
+        return sig
+    means, log_scales = scene.means.detach().cpu().numpy(), scene.log_scales.detach().cpu().numpy()
+    shown = footprints(means, log_scales, sample)
+    rows = np.flatnonzero(footprints(means, log_scales, list(cameras)) > UNDER_SAMPLED * shown)
+    if rows.size == 0:
+        return sig
+    budget = max(1, SURVEY_WORK_PER_GAUSSIAN * scene.num_gaussians // rows.size)
+    survey = evenly_spaced(cameras, min(len(cameras), budget))
+    alone = significance(scene.subset(rows), survey, background)
+    return _raised(sig, rows, alone, len(sample) / len(survey))
+
+
+def _raised(sig: Significance, rows: np.ndarray, alone: Significance, per_view: float) -> Significance:
+    """``sig`` with each measure of ``rows`` raised to ``alone``'s (summed over other views, scaled by
+    ``per_view`` to the sample's count) where that is larger."""
+
+    def up(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        out = a.copy()
+        out[rows] = np.maximum(a[rows], b * per_view)
+        return out
+
+    return Significance(
+        up(sig.weight, alone.weight),
+        {k: up(v, alone.gradient[k]) for k, v in sig.gradient.items()},
+        up(sig.sh_band_change, alone.sh_band_change),
+        sig.views,
     )
