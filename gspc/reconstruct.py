@@ -95,13 +95,19 @@ FULL_RATE_FROM = 300
 # with sh_rest x16 lost 1.2 dB to sh_rest x8 alone at 153 iterations. bench/refine.md measures the result.
 DECODER_GROUP_RATES = (("sh_rest", 8.0),)
 # Views seeing a Gaussian (view_coverage: counted by the pixels they give it) from which the rates are full;
-# fewer take them in proportion. With few views per Gaussian the cells leave refinement free to fit the
-# targets at those views in ways that hurt every other view, and Adam steps about its full rate whatever
-# the gradient. Side-information views per Gaussian: statue massa 17.9, lego fit 26.3, bird fit 35.5 (all at
-# full rates, bench/refine.md); the scale scenes' close-up views (tools/bench_scale_pipeline.py, 8 per copy)
-# 2.4 at 100k and 4.9 at 1M Gaussians (neighbours seen from farther). Held-out views against the original's
-# renders, restored targets: 100k, 298 iterations (coded 43.84 dB): rates x1 43.45, x0.3 43.67, x0.1 43.88;
-# 1M, 50 iterations (coded 42.33): rates x50/300 41.89, x0.042 42.75, x0.017 42.65.
+# fewer take them in proportion to the square of their share. With few views per Gaussian the cells leave
+# refinement free to fit the targets at those views in ways that hurt every other view, and Adam steps about
+# its full rate whatever the gradient. Side-information views per Gaussian: statue massa 17.9, lego fit 26.3,
+# bird fit 35.5 (all at full rates, bench/refine.md); the scale scenes' close-up views
+# (tools/bench_scale_pipeline.py, 8 per copy) 2.4 at 100k and 4.9 at 1M Gaussians (neighbours seen from
+# farther). Held-out views against the original's renders, restored targets: 100k, 298 iterations (coded 43.84
+# dB): rates x1 43.45, x0.3 43.67, x0.1 43.88; 1M, 50 iterations (coded 42.33): rates x50/300 41.89, x0.042
+# 42.75, x0.017 42.65. In proportion to the share itself, a longer run's steps grow with its length
+# (FULL_RATE_FROM) and cost what its extra visits gain. With the version-4 attribute codec
+# (bench/scale_pipeline.md, "More iterations at 1M"): the 1M scene (coverage 4.8, coded 40.87 dB) reached
+# 41.21, 41.41, 41.51 and 41.55 dB at 50, 100, 150 and 200 iterations with rates x0.05, but 41.33, 41.39 and
+# 41.38 at 100 to 200 with the share's x0.1 to x0.2, and 41.54 at 192 with its square (x0.06); the 100k scene
+# (coded 49.08), 300 iterations: the share 48.78, its square 49.10.
 COVERAGE_FULL = 16.0
 # A mean over every 15th Gaussian of a million differs from the whole's in the second decimal, for 1/15 of
 # the time (16 s over 34 views at 1M on this project's loaded machine).
@@ -125,7 +131,7 @@ def view_coverage(scene: GaussianScene, cameras: Sequence[Camera]) -> float:
 def decoder_schedule(iterations: int, lr_scale: float = 1.0, coverage: float = COVERAGE_FULL) -> Schedule:
     """The decoder's refinement schedule for a run of ``iterations`` (``lr_scale``: the user's multiplier)
     over views that see each Gaussian ``coverage`` times on average (:func:`view_coverage`)."""
-    rate = lr_scale * min(1.0, coverage / COVERAGE_FULL)
+    rate = lr_scale * min(1.0, coverage / COVERAGE_FULL) ** 2
     return Schedule(iterations, rate, DECODER_GROUP_RATES, full_rate_from=FULL_RATE_FROM)
 
 

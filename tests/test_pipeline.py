@@ -168,12 +168,12 @@ def test_decoder_refines_inside_the_quantisation_cells(encoded, tmp_path):
     coded = decode_attributes(chunks, section)
     cells = quantisation_cells(coded, section, decoded_precision(chunks, section))
     inside, free = tmp_path / "a.ply", tmp_path / "b.ply"
-    # Two side-information views see each Gaussian at most twice, where the decoder's rates shrink to an
-    # eighth or less (gspc/reconstruct.py, COVERAGE_FULL), and 5 iterations of a schedule made for hundreds
-    # start slow: x256 gives steps large enough to leave cells (x16 moved positions by 1e-8).
-    rep = decode(out, inside, DecodeOptions(iterations=5, lr_scale=256))
+    # Two side-information views see each Gaussian at most twice, where the decoder's rates shrink to a
+    # 64th or less (gspc/reconstruct.py, COVERAGE_FULL), and 5 iterations of a schedule made for hundreds
+    # start slow: x1000 gives steps large enough to leave cells (x16 at an eighth moved positions by 1e-8).
+    rep = decode(out, inside, DecodeOptions(iterations=5, lr_scale=1000))
     assert rep.refine_iterations == 5
-    decode(out, free, DecodeOptions(iterations=5, in_cells=False, lr_scale=256))
+    decode(out, free, DecodeOptions(iterations=5, in_cells=False, lr_scale=1000))
     a, b = read_scene(inside), read_scene(free)
     for name in ("means", "log_scales", "sh_dc"):
         lo, hi = cells[name]

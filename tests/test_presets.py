@@ -10,13 +10,19 @@ from gspc.presets import MIN_SCALED_ITERATIONS, QUALITY, REFINE_WORK, refine_ite
 @pytest.mark.parametrize(
     ("preset", "n", "expected"),
     [
-        (300, 20_000, 300),  # small scenes keep the preset's
-        (300, REFINE_WORK // 300, 300),
+        (300, 20_000, 300),  # small scenes keep the preset's (every real scene of bench/refine.md)
+        (1000, 20_000, 1000),
+        (100, 99_999, 100),
         (300, 100_000, 300),
-        (300, 300_000, 100),
-        (300, 1_000_000, MIN_SCALED_ITERATIONS),
+        (300, 300_000, 300),
+        (300, REFINE_WORK // 300, 300),
+        (300, REFINE_WORK // 300 + 1, 299),
+        (300, 778_599, 192),  # the 1M scale scene's coded Gaussians (bench/scale_pipeline.md)
+        (300, 1_000_000, 150),
+        (1000, 1_000_000, 150),
+        (100, 1_000_000, 100),
+        (300, 3_000_000, MIN_SCALED_ITERATIONS),
         (300, 6_000_000, MIN_SCALED_ITERATIONS),  # never below the floor
-        (100, 1_000_000, MIN_SCALED_ITERATIONS),
         (30, 1_000_000, 30),  # a preset under the floor is not raised
         (300, 0, 300),
     ],

@@ -69,7 +69,8 @@ def test_decoder_rates_shrink_with_few_views_per_gaussian():
     )
     assert view_coverage(scene, cams) == len(cams) and view_coverage(scene, cams[:2]) == 2
     assert decoder_schedule(300, 1.0, 2 * COVERAGE_FULL).rate == 1.0  # enough views: the full rates
-    assert decoder_schedule(300, 0.5, COVERAGE_FULL / 4).rate == 0.125
+    assert decoder_schedule(300, 1.0, COVERAGE_FULL).rate == 1.0
+    assert decoder_schedule(300, 0.5, COVERAGE_FULL / 4).rate == 0.5 / 16  # the share's square
 
 
 def test_footprints_count_the_part_of_a_gaussian_inside_the_image():
