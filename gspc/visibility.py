@@ -66,7 +66,8 @@ def footprints(means: np.ndarray, log_scales: np.ndarray, cameras: list[Camera])
     as a fraction of the image's pixels (each Gaussian taken round, at its largest scale; occlusion and
     opacity ignored): how much of it the cameras show, cheaply, to compare two sets of cameras."""
     m = torch.as_tensor(np.asarray(means), dtype=torch.float64)
-    sigma = torch.as_tensor(np.asarray(log_scales), dtype=torch.float64).amax(1).clamp(max=700.0).exp()
+    # Clamped where float64 stays finite through the products below (e^60 covers any view either way).
+    sigma = torch.as_tensor(np.asarray(log_scales), dtype=torch.float64).amax(1).clamp(max=60.0).exp()
     total = torch.zeros(len(m), dtype=torch.float64)
     for cam in cameras:
         R = torch.as_tensor(cam.world_to_cam[:3, :3], dtype=torch.float64)
@@ -80,5 +81,6 @@ def footprints(means: np.ndarray, log_scales: np.ndarray, cameras: list[Camera])
         inside_u = torch.special.ndtr((cam.width - u) / su) - torch.special.ndtr(-u / su)
         inside_v = torch.special.ndtr((cam.height - v) / sv) - torch.special.ndtr(-v / sv)
         area = 2.0 * np.pi * su * sv / (cam.width * cam.height)
-        total += torch.where(p[:, 2] > 0, inside_u * inside_v * area, 0.0)
+        part = torch.nan_to_num(inside_u * inside_v * area, nan=0.0, posinf=0.0)  # a camera inside it
+        total += torch.where(p[:, 2] > 0, part, 0.0)
     return (total / max(len(cameras), 1)).numpy()

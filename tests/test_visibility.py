@@ -86,3 +86,12 @@ def test_footprints_count_the_part_of_a_gaussian_inside_the_image():
     whole = 2 * np.pi * 1.0**2 / (100 * 100)
     assert np.allclose(f, [whole, whole / 2, 0.0], rtol=1e-3, atol=1e-12)
     assert np.allclose(footprints(np.array([ahead]), np.full((1, 3), np.log(sigma)), [cam, cam])[0], whole)
+
+
+def test_footprints_stay_finite_for_extreme_gaussians():
+    """A camera inside a huge Gaussian, a vanishing speck, one at 1e30: finite and never negative."""
+    cams = ring()
+    means = np.array([cams[0].center, [0.0, 0, 0], [1e30, 0, 0], [0.0, 0, 0]])
+    log_scales = np.array([[700.0] * 3, [-700.0] * 3, [0.0] * 3, [60.0] * 3])
+    f = footprints(means, log_scales, cams)
+    assert np.isfinite(f).all() and (f >= 0).all()

@@ -60,9 +60,10 @@ SIGNIFICANCE_ZOOMS = (1.0, 2.0)
 # A Gaussian the sample shows less than 1 / UNDER_SAMPLED of what every camera shows on average (by
 # gspc/visibility.py's footprints) is measured again at every camera.
 UNDER_SAMPLED = 1.5
-# ... at most this many Gaussian-views (the sample's own cost at 1x is views x N): beyond it, at evenly
-# spaced cameras.
+# ... at most this many Gaussian-views (the sample's own cost at 1x is views x N) and this many cameras (each
+# render has a cost of its own, whatever it holds): beyond either, at evenly spaced cameras.
 SURVEY_WORK_PER_GAUSSIAN = SIGNIFICANCE_VIEWS
+SURVEY_MAX_VIEWS = 256
 
 
 @dataclass(frozen=True)
@@ -182,7 +183,7 @@ def encoder_significance(
     if rows.size == 0:
         return sig
     budget = max(1, SURVEY_WORK_PER_GAUSSIAN * scene.num_gaussians // rows.size)
-    survey = evenly_spaced(cameras, min(len(cameras), budget))
+    survey = evenly_spaced(cameras, min(budget, SURVEY_MAX_VIEWS))
     alone = significance(scene.subset(rows), survey, background)
     return _raised(sig, rows, alone, len(sample) / len(survey))
 
