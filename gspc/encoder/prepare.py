@@ -43,8 +43,6 @@ def codec_params(opts: EncodeOptions) -> CodecParams:
     return params
 
 
-
-
 @dataclass
 class CodedAttributes:
     encoded: EncodedAttributes  # chunks, meta and G~ as the decoder decodes it
