@@ -17,6 +17,7 @@ from pathlib import Path
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
@@ -65,7 +66,8 @@ def _one_line_errors(fn):
             if os.environ.get("GSPC_DEBUG"):
                 raise
             msg = f"internal error ({type(e).__name__}: {e}); rerun with GSPC_DEBUG=1 for a traceback"
-        err.print(f"[red]error:[/red] {msg}", highlight=False, soft_wrap=True)
+        # Messages quote paths and install hints ("gspc[cuda]") that rich would read as markup and drop.
+        err.print(f"[red]error:[/red] {escape(msg)}", highlight=False, soft_wrap=True)
         raise typer.Exit(1)
 
     return wrapper
@@ -126,7 +128,9 @@ def _progress_bars():
         disable=not err.is_terminal,
     ) as bars:
         tasks: dict[str, int] = {}
-        announce = ProgressLines(lambda line: bars.console.print(line, highlight=False), lines=False)
+        announce = ProgressLines(
+            lambda line: bars.console.print(line, highlight=False, markup=False), lines=False
+        )
 
         def update(stage: str, done: int, total: int) -> None:
             if stage not in tasks:
@@ -165,7 +169,7 @@ def _summary(title: str, rep, output: str) -> None:
     s.add_row("total", f"{sum(rep.seconds.values()):.2f}")
     console.print(s)
     facts = {"Gaussians in": rep.num_gaussians_in, "Gaussians out": rep.num_gaussians_out, **rep.info}
-    console.print("  ".join(f"{k}: {v}" for k, v in facts.items()))
+    console.print("  ".join(f"{k}: {v}" for k, v in facts.items()), markup=False)
 
 
 def _option(cls: type, name: str, *flags: str):
@@ -313,7 +317,8 @@ def info(
         out.print(
             f"{path}: gspc format {d['version'][0]}.{d['version'][1]}, {d['file_size']:,} bytes, "
             f"{n:,} Gaussians, SH degree {'?' if degree is None else degree}, "
-            f"{len(views)} side-information views"
+            f"{len(views)} side-information views",
+            markup=False,
         )
         out.print(_position_grid_line(fields.attributes.position))
         if fields.attributes.precision:
@@ -339,13 +344,12 @@ def info(
     _use_threads()
 
     st = scene_stats(read_scene(path))
-    t = Table(title=str(path), show_header=True)
+    t = Table(title=escape(str(path)), show_header=True)
     t.add_column("statistic")
     t.add_column("value", justify="right")
     for k, v in _flatten(st):
         t.add_row(k, _fmt(v))
     out.print(t)
-
 
 
 def _flatten(d, prefix=""):
@@ -412,7 +416,7 @@ def render(
         tmp = output / f".{name}.png.tmp"
         tmp.write_bytes(imagecodecs.png_encode((img.cpu().numpy() * 255 + 0.5).astype("uint8")))
         os.replace(tmp, output / f"{name}.png")
-    out.print(f"wrote {len(imgs)} images to {output}")
+    out.print(f"wrote {len(imgs)} images to {output}", markup=False)
 
 
 @app.command(name="eval")
@@ -466,7 +470,9 @@ def convert(
 
     sc = read_scene(scene)
     write_ply(sc, output)
-    _console_for(output).print(f"wrote {sc.num_gaussians:,} Gaussians (SH degree {sc.sh_degree}) to {output}")
+    _console_for(output).print(
+        f"wrote {sc.num_gaussians:,} Gaussians (SH degree {sc.sh_degree}) to {output}", markup=False
+    )
 
 
 def main() -> None:  # pragma: no cover - console script entry

@@ -109,3 +109,17 @@ def test_corrupt_file_and_missing_restorer_give_one_line_errors(tmp_path, scene_
     assert_one_line_error(run("decode", renamed, "-o", tmp_path / "o.ply"), "no-such-model")
     assert not (tmp_path / "o.ply").exists()
     assert_one_line_error(run("encode", scene_file, "-o", tmp_path / "x.gspc", "--restorer", "nope"), "nope")
+
+
+def test_messages_print_square_brackets_as_written(tmp_path, scene_file, monkeypatch):
+    # rich reads "[cuda]" as markup and drops it: first seen on a GPU, where the renderer's install hint
+    # "pip install 'gspc[cuda]'" printed as "pip install 'gspc'".
+    assert_one_line_error(run("info", tmp_path / "scene[cuda].ply"), "scene[cuda].ply")
+    res = run("convert", scene_file, "-o", tmp_path / "out[1].ply")
+    assert res.exit_code == 0 and "out[1].ply" in res.output, res.output
+    import gspc.pipeline as pipeline
+
+    monkeypatch.setattr(pipeline, "renderer_info", lambda *a, **k: "torch (pip install 'gspc[cuda]')")
+    enc = tmp_path / "s.gspc"
+    res = run("encode", scene_file, "-o", enc, "--views", 3, "--max-side", 24, "--no-side-info")
+    assert res.exit_code == 0 and "'gspc[cuda]'" in " ".join(res.output.split()), res.output
