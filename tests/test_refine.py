@@ -90,16 +90,17 @@ def test_a_cut_short_schedule_takes_the_steps_of_its_new_length(setup, monkeypat
     """full_rate_from: a run below it takes rates x length / full_rate_from; a deadline that cuts the
     schedule rescales the remaining steps to the new length (as if that length had been asked for)."""
     import gspc.refine as refine_module
+    from gspc.adam import FusedAdam
 
     _, cams, targets, perturbed = setup
     rates = []
-    step = torch.optim.Adam.step
+    step = FusedAdam.step
 
     def recording_step(self, *a, **k):
         rates.append(self.param_groups[0]["lr"])
         return step(self, *a, **k)
 
-    monkeypatch.setattr(torch.optim.Adam, "step", recording_step)
+    monkeypatch.setattr(FusedAdam, "step", recording_step)
     refine(perturbed, cams, targets, Schedule(200, full_rate_from=400))
     full = rates[0] / 0.5  # the first step runs at the undecayed rate x 200 / 400
     rates.clear()
