@@ -11,6 +11,7 @@ from gspc.codec.entropy import (
     decode_matrix,
     encode_matrix,
     fit_model,
+    fit_models,
     fixed_point_table,
     model_weights,
     pack_bits,
@@ -145,3 +146,69 @@ def test_bits_packed_in_blocks_are_the_bits_packed_at_once(monkeypatch):
     monkeypatch.setattr(entropy, "BITS_BLOCK", 7)
     assert pack_bits(v, lengths) == whole
     assert np.array_equal(unpack_bits(whole, lengths), v)
+
+
+def _reference_fit(sym: np.ndarray) -> tuple[list[int], float]:
+    """fit_model as first written, one context at a time: what fit_models must reproduce exactly."""
+    if sym.size == 0:
+        return [0], 0.0
+    lo, hi = int(sym.min()), int(sym.max())
+    if lo == hi:
+        return [1, lo], 16.0
+    n = sym.size
+    c = int(np.sort(sym)[n // 2])
+    r = np.abs(sym - c)
+    n0, s = int((r == 0).sum()), float(r.sum())
+    th, bo = entropy.THETAS[:, None], entropy.BOOSTS[None, :] / 8.0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = bo + 2.0 * th / (1.0 - th)
+        cost = (
+            n * np.log2(z)
+            - n0 * np.log2(bo)
+            - np.where(th > 0, s * np.log2(np.where(th > 0, th, 1)), -np.inf)
+        )
+    cost[~np.isfinite(cost)] = np.inf
+    u, b = np.unravel_index(int(np.argmin(cost)), cost.shape)
+    geo = [2, lo, hi, c, int(u), int(b)]
+    if hi - lo >= entropy._EMPIRICAL_MAX_WINDOW:
+        return geo, float(cost[u, b]) + 64
+    counts = np.bincount(sym - lo, minlength=hi - lo + 1)
+    geo_bits = entropy._cross_entropy_bits(counts, model_weights(geo)) + 64
+    w = np.where(counts > 0, np.maximum(counts * entropy._EMPIRICAL_SCALE // counts.max(), 1), 0)
+    table_bits = 8.0 * float(np.where(w < 128, 1, np.where(w < 256, 2, 3)).sum()) + 32
+    emp_bits = entropy._cross_entropy_bits(counts, w.astype(np.float64)) + table_bits
+    return ([3, lo, hi, *(int(x) for x in w)], emp_bits) if emp_bits < geo_bits else (geo, geo_bits)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_fit_models_is_fit_model_per_context_exactly(seed):
+    # Contexts empty, constant, narrow (tables), wide (geometric only), negative and skewed, as the encoder's
+    # buckets are: the same specs and the same float costs, bit for bit.
+    rng = np.random.default_rng(seed)
+    parts = [
+        rng.geometric(0.3, 500) - 3,
+        np.full(40, -7),
+        rng.integers(-5000, 5000, 300),
+        np.rint(rng.laplace(0, 2, 2000)).astype(np.int64),
+        np.array([SYMBOL_LIMIT, -SYMBOL_LIMIT, 0]),
+        rng.integers(0, 2, 7),
+    ]
+    ctx_of = [0, 2, 3, 5, 7, 8]  # contexts 1, 4, 6 stay empty
+    sym = np.concatenate(parts).astype(np.int64)
+    ctx = np.concatenate([np.full(p.size, c) for p, c in zip(parts, ctx_of)])
+    order = rng.permutation(sym.size)
+    sym, ctx = sym[order], ctx[order]
+    specs, bits = fit_models(sym, ctx, 9)
+    for k in range(9):
+        assert (specs[k], bits[k]) == _reference_fit(sym[ctx == k]), k
+    assert fit_model(sym[ctx == 3]) == _reference_fit(sym[ctx == 3])
+    assert fit_models(np.zeros(0, np.int64), np.zeros(0, np.int64), 3) == ([[0], [0], [0]], [0.0, 0.0, 0.0])
+
+
+def test_bit_length_paths_agree():
+    rng = np.random.default_rng(0)
+    small = rng.integers(0, 1 << 53, 1000)
+    big = np.concatenate([small, [(1 << 63) - 1, 1 << 53, (1 << 53) - 1]])
+    assert np.array_equal(bit_length(big)[: small.size], bit_length(small))
+    assert bit_length(big)[-3:].tolist() == [63, 54, 53]
+    assert bit_length(np.array([(1 << 53) - 1])).tolist() == [53]

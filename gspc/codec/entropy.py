@@ -65,7 +65,11 @@ BOOSTS = np.array(
 
 def bit_length(x: np.ndarray) -> np.ndarray:
     """Bit length of non-negative int64 integers (0 -> 0, 1 -> 1, 2..3 -> 2, ...), exact up to 2^63 - 1."""
-    x = np.asarray(x, dtype=np.int64).copy()
+    x = np.asarray(x, dtype=np.int64)
+    if x.size and 0 <= int(x.min()) and int(x.max()) < 1 << 53:
+        # Every such integer is a float64 exactly, whose binary exponent is its bit length (0 -> 0).
+        return np.frexp(x.astype(np.float64))[1].astype(np.int64)
+    x = x.copy()
     n = np.zeros(x.shape, np.int64)
     for s in (32, 16, 8, 4, 2, 1):  # binary search on integers: no float rounding near 2^53
         big = x >= (1 << s)
@@ -92,6 +96,19 @@ def model_weights(spec: list[int]) -> np.ndarray:
     return w
 
 
+def _rate_grid_factors() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """fit_model's per-(theta, boost) constants: log2 of the normaliser z, of the centre boost, of theta (1
+    where theta is 0) and where theta is positive; the same float64 operations as computing them per call."""
+    th = THETAS[:, None]
+    bo = BOOSTS[None, :] / 8.0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = bo + 2.0 * th / (1.0 - th)
+        return np.log2(z), np.log2(bo), np.log2(np.where(th > 0, th, 1)), th > 0
+
+
+_LOG2_Z, _LOG2_BOOST, _LOG2_THETA, _THETA_POSITIVE = _rate_grid_factors()
+
+
 def _cross_entropy_bits(counts: np.ndarray, w: np.ndarray) -> float:
     p = w / w.sum()
     nz = counts > 0
@@ -101,40 +118,61 @@ def _cross_entropy_bits(counts: np.ndarray, w: np.ndarray) -> float:
 def fit_model(sym: np.ndarray) -> tuple[list[int], float]:
     """The cheapest model spec for these symbols and its estimated cost in bits (table included)."""
     sym = np.asarray(sym, dtype=np.int64)
+    specs, bits = fit_models(sym, np.zeros(sym.size, np.int64), 1)
+    return specs[0], bits[0]
+
+
+def fit_models(sym: np.ndarray, context: np.ndarray, contexts: int) -> tuple[list[list[int]], list[float]]:
+    """:func:`fit_model` of the symbols of each context ``0 .. contexts - 1`` (``context`` beside ``sym``):
+    the same specs and costs, the float arithmetic of each context's cost unchanged, with one sort and one
+    grid for all of them (the encoder fits four predictors x 15 buckets per column)."""
+    sym, context = np.asarray(sym, dtype=np.int64), np.asarray(context, dtype=np.int64)
+    specs: list[list[int]] = [[0] for _ in range(contexts)]
+    bits = [0.0] * contexts
     if sym.size == 0:
-        return [0], 0.0
-    lo, hi = int(sym.min()), int(sym.max())
-    if lo == hi:
-        return [1, lo], 16.0
-    n = sym.size
-    c = int(np.sort(sym)[n // 2])
-    r = np.abs(sym - c)
-    n0, s = int((r == 0).sum()), float(r.sum())
+        return specs, bits
+    count = np.bincount(context, minlength=contexts)
+    first = np.concatenate([[0], np.cumsum(count)[:-1]])
+    # Each context's symbols in order, from one sort of (context, symbol) packed into one integer.
+    low, span = int(sym.min()), int(sym.max()) - int(sym.min()) + 1
+    ordered = np.sort(context * span + (sym - low)) % span + low
+    last = sym.size - 1  # an empty context's indices (its values are never used)
+    lo = ordered[np.minimum(first, last)]
+    hi = ordered[np.minimum(first + np.maximum(count, 1) - 1, last)]
+    centre = ordered[np.minimum(first + count // 2, last)]
+    r = np.abs(sym - centre[np.minimum(context, contexts - 1)])
+    # Integer sums below 2^53: float64 accumulation is exact, as the int64 sums were.
+    n0 = np.bincount(context, weights=(r == 0).astype(np.float64), minlength=contexts)
+    total = np.bincount(context, weights=r.astype(np.float64), minlength=contexts)
     # Rate of every (theta, boost) on the infinite support, from sufficient statistics.
-    th = THETAS[:, None]
-    bo = BOOSTS[None, :] / 8.0
-    with np.errstate(divide="ignore", invalid="ignore"):
-        z = bo + 2.0 * th / (1.0 - th)
+    with np.errstate(invalid="ignore"):
         cost = (
-            n * np.log2(z)
-            - n0 * np.log2(bo)
-            - np.where(th > 0, s * np.log2(np.where(th > 0, th, 1)), -np.inf)
+            count[:, None, None].astype(np.float64) * _LOG2_Z
+            - n0[:, None, None] * _LOG2_BOOST
+            - np.where(_THETA_POSITIVE, total[:, None, None] * _LOG2_THETA, -np.inf)
         )
     cost[~np.isfinite(cost)] = np.inf
-    u, b = np.unravel_index(int(np.argmin(cost)), cost.shape)
-    geo = [2, lo, hi, c, int(u), int(b)]
-    best, best_bits = geo, None
-    if hi - lo < _EMPIRICAL_MAX_WINDOW:
-        counts = np.bincount(sym - lo, minlength=hi - lo + 1)
-        best_bits = _cross_entropy_bits(counts, model_weights(geo)) + 64
-        w = np.where(counts > 0, np.maximum(counts * _EMPIRICAL_SCALE // counts.max(), 1), 0)
-        table_bits = 8.0 * float(np.where(w < 128, 1, np.where(w < 256, 2, 3)).sum()) + 32
-        emp_bits = _cross_entropy_bits(counts, w.astype(np.float64)) + table_bits
-        if emp_bits < best_bits:
-            best, best_bits = [3, lo, hi, *(int(x) for x in w)], emp_bits
-    if best_bits is None:
-        best_bits = float(cost[u, b]) + 64
-    return best, best_bits
+    choice = np.argmin(cost.reshape(contexts, -1), axis=1)
+    for k in range(contexts):
+        n, a, z = int(count[k]), int(lo[k]), int(hi[k])
+        if n == 0:
+            continue
+        if a == z:
+            specs[k], bits[k] = [1, a], 16.0
+            continue
+        u, b = np.unravel_index(int(choice[k]), cost.shape[1:])
+        geo = [2, a, z, int(centre[k]), int(u), int(b)]
+        best, best_bits = geo, float(cost[k, u, b]) + 64
+        if z - a < _EMPIRICAL_MAX_WINDOW:
+            counts = np.bincount(ordered[first[k] : first[k] + n] - a, minlength=z - a + 1)
+            best_bits = _cross_entropy_bits(counts, model_weights(geo)) + 64
+            w = np.where(counts > 0, np.maximum(counts * _EMPIRICAL_SCALE // counts.max(), 1), 0)
+            table_bits = 8.0 * float(np.where(w < 128, 1, np.where(w < 256, 2, 3)).sum()) + 32
+            emp_bits = _cross_entropy_bits(counts, w.astype(np.float64)) + table_bits
+            if emp_bits < best_bits:
+                best, best_bits = [3, a, z, *(int(x) for x in w)], emp_bits
+        specs[k], bits[k] = best, best_bits
+    return specs, bits
 
 
 def _is_int(x: object) -> bool:
@@ -320,10 +358,9 @@ def encode_matrix(q: np.ndarray) -> bytes:
         for mode in range(NUM_MODES if ch > 0 else 2):
             res = col - _prediction(mode, nb, prev_q, prev_nb)
             bucket = sb * _NUM_INTRA + _intra_bucket(prev_res)
-            specs, bits = [], 0.0
-            for k in range(NUM_BUCKETS):
-                spec, cost = fit_model(res[bucket == k])
-                specs.append(spec)
+            specs, costs = fit_models(res, bucket, NUM_BUCKETS)
+            bits = 0.0
+            for spec, cost in zip(specs, costs):
                 # A window wider than a model may have rules the mode out (mode 0's never is: the symbols
                 # are within SYMBOL_LIMIT).
                 bits += cost if spec[0] < 2 or spec[2] - spec[1] < MAX_WINDOW else math.inf
@@ -331,12 +368,17 @@ def encode_matrix(q: np.ndarray) -> bytes:
                 best = (bits, mode, res, bucket, specs)
         _, mode, res, bucket, specs = best
         header.append([mode, specs])
+        # One table per bucket, built when first used (as decode_matrix builds them): each level would
+        # otherwise build the same tables again.
+        models: dict[int, object] = {}
         for k in range(len(levels)):
             sel_level = lv == k
             for bk in range(NUM_BUCKETS):
                 sel = sel_level & (bucket == bk)
                 if sel.any():
-                    encode_symbols(enc, res[sel], specs[bk])
+                    if bk not in models and specs[bk][0] >= 2:
+                        models[bk] = _categorical(specs[bk])
+                    encode_symbols(enc, res[sel], specs[bk], models.get(bk))
         prev_q, prev_nb, prev_res = col, nb, res
     words = enc.get_compressed().astype("<u4").tobytes()
     # Model specs are small ints with much repetition: zstd halves them or better.
