@@ -397,6 +397,55 @@ def test_gpu_bench_measures_nothing_without_a_gpu(tmp_path):
     assert not out.exists()
 
 
+@pytest.mark.slow
+def test_gpu_bench_runs_its_steps_on_the_cpu(tmp_path):
+    # The tool's dry run (--device cpu): every step of a GPU session, so that a lent GPU's scarce minutes
+    # are not lost to the tool itself. A one-copy "scale scene" of 400 Gaussians, two close-ups, kept file.
+    import json
+
+    folder = tmp_path / "scale_400"
+    folder.mkdir()
+    write_ply(random_scene(400, sh_degree=1, seed=2, log_scale=-3.5), folder / "point_cloud.ply")
+    copy = {"asset": "random", "gaussians": 400, "centre": [0.0, 0.0], "yaw": 0.0}
+    (folder / "scene.json").write_text(json.dumps({"gaussians": 400, "copies": [copy]}))
+    tool = Path(__file__).resolve().parent.parent / "tools" / "bench_gpu.py"
+    out, logs, keep = tmp_path / "gpu.md", tmp_path / "logs", tmp_path / "keep"
+    keep.mkdir()
+    args = [
+        "--device",
+        "cpu",
+        "--scenes",
+        str(tmp_path),
+        "--sizes",
+        "400",
+        "--per-copy",
+        "4",
+        "--tests",
+        "none",
+    ]
+    proc = subprocess.run(
+        [sys.executable, str(tool), *args, "--decoders", "torch,cpu", "--keep", str(keep),
+         "--logs", str(logs), "--out", str(out), "--threads", "1"],
+        capture_output=True,
+        text=True,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    rows = [json.loads(line) for line in (logs / "rows.jsonl").read_text().splitlines()]
+    assert [r["step"] for r in rows] == ["encode", "decode", "decode"]
+    assert rows[0]["bytes"] == (keep / "scale_400.gspc").stat().st_size > 0
+    assert all(math.isfinite(r["psnr"]) and r["renderer"] == "torch on cpu" for r in rows[1:])
+    assert "| 400 | encode | cpu |" in out.read_text()
+    # The deadline stops a command still running, and its row says so (here at once: a deadline of 0).
+    import bench_gpu
+
+    stopped = bench_gpu.measure(
+        ["info", str(folder / "point_cloud.ply")], bench_gpu.child_env(1, None), bench_gpu.Clock(0.0),
+        tmp_path / "stopped.log",
+    )  # fmt: skip
+    assert stopped["stopped"]
+    assert "stopped at the deadline" in bench_gpu.table([{**rows[1], **stopped, "psnr": math.nan}])[-1]
+
+
 # --- CUDA machines -----------------------------------------------------------------------------------------
 
 
