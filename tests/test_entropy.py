@@ -212,3 +212,11 @@ def test_bit_length_paths_agree():
     assert np.array_equal(bit_length(big)[: small.size], bit_length(small))
     assert bit_length(big)[-3:].tolist() == [63, 54, 53]
     assert bit_length(np.array([(1 << 53) - 1])).tolist() == [53]
+
+
+def test_fit_models_on_symbols_too_wide_to_pack():
+    sym = np.array([2**58, -(2**58), 5, 7, -3, 2**58 - 1], dtype=np.int64)
+    ctx = np.array([0, 0, 1, 1, 2, 0])
+    specs, bits = fit_models(sym, ctx, 3)
+    for k in range(3):
+        assert (specs[k], bits[k]) == _reference_fit(sym[ctx == k]), k

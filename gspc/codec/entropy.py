@@ -123,9 +123,10 @@ def fit_model(sym: np.ndarray) -> tuple[list[int], float]:
 
 
 def fit_models(sym: np.ndarray, context: np.ndarray, contexts: int) -> tuple[list[list[int]], list[float]]:
-    """:func:`fit_model` of the symbols of each context ``0 .. contexts - 1`` (``context`` beside ``sym``):
-    the same specs and costs, the float arithmetic of each context's cost unchanged, with one sort and one
-    grid for all of them (the encoder fits four predictors x 15 buckets per column)."""
+    """:func:`fit_model` of the symbols of each context ``0 .. contexts - 1`` (``context`` beside ``sym``,
+    each value below ``contexts``): the same specs and costs, the float arithmetic of each context's cost
+    unchanged, with one sort and one grid for all of them (the encoder fits four predictors x 15 buckets per
+    column)."""
     sym, context = np.asarray(sym, dtype=np.int64), np.asarray(context, dtype=np.int64)
     specs: list[list[int]] = [[0] for _ in range(contexts)]
     bits = [0.0] * contexts
@@ -133,23 +134,28 @@ def fit_models(sym: np.ndarray, context: np.ndarray, contexts: int) -> tuple[lis
         return specs, bits
     count = np.bincount(context, minlength=contexts)
     first = np.concatenate([[0], np.cumsum(count)[:-1]])
-    # Each context's symbols in order, from one sort of (context, symbol) packed into one integer.
+    # Each context's symbols in order: one sort of (context, symbol) packed into one integer where it fits.
     low, span = int(sym.min()), int(sym.max()) - int(sym.min()) + 1
-    ordered = np.sort(context * span + (sym - low)) % span + low
+    if span < (1 << 62) // contexts:
+        ordered = np.sort(context * span + (sym - low)) % span + low
+    else:
+        ordered = sym[np.lexsort((sym, context))]
     last = sym.size - 1  # an empty context's indices (its values are never used)
     lo = ordered[np.minimum(first, last)]
     hi = ordered[np.minimum(first + np.maximum(count, 1) - 1, last)]
     centre = ordered[np.minimum(first + count // 2, last)]
-    r = np.abs(sym - centre[np.minimum(context, contexts - 1)])
-    # Integer sums below 2^53: float64 accumulation is exact, as the int64 sums were.
-    n0 = np.bincount(context, weights=(r == 0).astype(np.float64), minlength=contexts)
-    total = np.bincount(context, weights=r.astype(np.float64), minlength=contexts)
+    # Per context: n0 symbols at the centre and the sum of distances to it, in int64 as fit_model summed them.
+    r = np.abs(ordered - np.repeat(centre, count))
+    used = np.flatnonzero(count)
+    n0, total = np.zeros(contexts, np.int64), np.zeros(contexts, np.int64)
+    n0[used] = np.add.reduceat((r == 0).astype(np.int64), first[used])
+    total[used] = np.add.reduceat(r, first[used])
     # Rate of every (theta, boost) on the infinite support, from sufficient statistics.
     with np.errstate(invalid="ignore"):
         cost = (
             count[:, None, None].astype(np.float64) * _LOG2_Z
-            - n0[:, None, None] * _LOG2_BOOST
-            - np.where(_THETA_POSITIVE, total[:, None, None] * _LOG2_THETA, -np.inf)
+            - n0[:, None, None].astype(np.float64) * _LOG2_BOOST
+            - np.where(_THETA_POSITIVE, total[:, None, None].astype(np.float64) * _LOG2_THETA, -np.inf)
         )
     cost[~np.isfinite(cost)] = np.inf
     choice = np.argmin(cost.reshape(contexts, -1), axis=1)

@@ -188,7 +188,12 @@ def check_side_info(inp: CheckInputs, progress: Progress | None = None) -> Check
     bar = max(before, alt_psnr) + inp.margin_db
     targets = restored_targets(inp.coded, side.records, side.images, inp.restorer)
     run = decoder_refinement(
-        enc.decoded.to(inp.device), enc.section, inp.view_cameras, targets, inp.iterations, inp.background,
+        enc.decoded.to(inp.device),
+        enc.section,
+        inp.view_cameras,
+        targets,
+        inp.iterations,
+        inp.background,
         precision=enc.precision,
     )
     trial = inp.policy.trial_length(inp.iterations)
