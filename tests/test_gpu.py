@@ -400,7 +400,7 @@ def test_gpu_bench_measures_nothing_without_a_gpu(tmp_path):
 @pytest.mark.slow
 def test_gpu_bench_runs_its_steps_on_the_cpu(tmp_path):
     # The tool's dry run (--device cpu): every step of a GPU session, so that a lent GPU's scarce minutes
-    # are not lost to the tool itself. A one-copy "scale scene" of 400 Gaussians, two close-ups, kept file.
+    # are not lost to the tool itself. A one-copy "scale scene" of 400 Gaussians, four close-ups, kept file.
     import json
 
     folder = tmp_path / "scale_400"
