@@ -370,7 +370,7 @@ def test_float32_math_is_local_and_synchronize_is_free_on_cpu():
 
 
 def test_pyproject_pins_what_the_code_needs():
-    # Adam(fused=True) on CPU tensors (gspc/refine.py) needs torch 2.4; the [cuda] extra takes exactly the
+    # The fused Adam kernel on CPU tensors (gspc/adam.py) needs torch 2.4; the [cuda] extra takes exactly the
     # gsplat versions gsplat_backend.SUPPORTED renders with.
     text = (Path(__file__).resolve().parent.parent / "pyproject.toml").read_text()
     floor = re.search(r'"torch>=(\d+)\.(\d+)', text)
