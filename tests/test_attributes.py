@@ -160,6 +160,26 @@ def test_search_lambda_needs_few_encodes(monkeypatch, share):
     assert len(calls) <= 6
 
 
+def test_search_lambda_stops_where_the_sizes_jump_over_the_window(monkeypatch):
+    """Sizes jump where the position bits change with lambda (14 - round(log2 lambda): at 2^1.5 by a few %);
+    a window inside the jump has no lambda, and the search stops once the lambdas around it are too close
+    instead of spending every try on it."""
+    import gspc.codec.attributes as attributes
+
+    scene = _scene(n=3000, degree=1)
+    params = QUALITY["low"].attributes
+    above = encode_attributes(scene, params.with_lambda(2.0**1.5 * 0.995)).num_bytes
+    below = encode_attributes(scene, params.with_lambda(2.0**1.5 * 1.005)).num_bytes
+    assert above > 1.02 * below  # the jump this test needs
+    target = int(below + 0.6 * (above - below))
+    calls = []
+    real = attributes.encode_attributes
+    monkeypatch.setattr(attributes, "encode_attributes", lambda *a, **k: calls.append(1) or real(*a, **k))
+    enc = search_lambda(scene, target, params, rel_tol=0.005)
+    assert enc.num_bytes <= target and len(calls) <= 10  # 12 (every try) before it stopped
+    assert real(scene, params.with_lambda(enc.lam * 0.99)).num_bytes > target
+
+
 def test_corrupt_chunk_raises():
     enc = encode_attributes(_scene(n=200), QUALITY["low"].attributes)
     chunks = dict(enc.chunks)

@@ -395,7 +395,8 @@ def search_lambda(
 
     Searches log lambda by secant steps on log size within a bracket that bisection narrows when a step
     would not (each try is a whole encode: a million Gaussians take half a minute, so steps are few).
-    Stops when a fit lands within ``rel_tol`` under the target; if even the coarsest lambda tried is too
+    Stops when a fit lands within ``rel_tol`` under the target, or when the lambdas under and over it are
+    too close to part the window (the sizes jump over it there); if even the coarsest lambda tried is too
     big, returns that one (the caller reports the miss). ``first``: an encoding the caller already has, made
     with ``params`` and ``visible`` at any lambda (the search starts from its lambda).
     """
@@ -431,6 +432,10 @@ def search_lambda(
             if fallback is None or size < fallback.num_bytes:
                 fallback = enc
             lo = max(lo, x)
+        if best is not None and (hi - lo) * -LOG_BYTES_PER_LOG_LAMBDA < 0.5 * rel_tol:
+            # Lambdas this close code sizes half the window apart, unless the sizes jump (a position
+            # bit more or less): a window inside the jump has no lambda.
+            break
         x = _next_log_lambda(lo, hi, tried, goal)
     return best if best is not None else fallback
 
