@@ -21,5 +21,9 @@ class CodecError(GspcError):
     """A codec payload inside a valid container cannot be decoded."""
 
 
+class NothingCodedError(CodecError):
+    """Every Gaussian was removed (transparent, unseen or, at a coarse lambda, not worth its bytes)."""
+
+
 class DeviceError(GspcError):
     """A requested compute device or backend is unavailable."""

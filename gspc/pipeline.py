@@ -19,10 +19,16 @@ from pathlib import Path
 from gspc import __version__
 from gspc.atomic import atomic_write_bytes
 from gspc.cameras import Camera
-from gspc.codec.attributes import EncodedAttributes, decode_attributes, decoded_precision
+from gspc.codec.attributes import (
+    EncodedAttributes,
+    coded_with,
+    decode_attributes,
+    decoded_precision,
+    search_lambda,
+)
 from gspc.codec.precision import PrecisionMap
 from gspc.device import check_device, renderer_info, synchronize
-from gspc.encoder.policy import CheckInputs, SideInfoDecision, check_cameras, check_side_info
+from gspc.encoder.policy import CheckInputs, Outcome, SideInfoDecision, check_cameras, check_side_info
 from gspc.encoder.prepare import (
     CodedAttributes,
     code_attributes,
@@ -137,11 +143,11 @@ def encode_scene(
         coded_attributes = code_attributes(
             scene, cameras, codec_params(opts), opts.target_size, opts.background, progress
         )
-    enc = coded_attributes.encoded
+    choice = _side_information(scene, cameras, coded_attributes, restorer, opts, device, progress, rep)
     if opts.target_size is not None:  # what the search reached, so a missed target is visible
+        enc = choice.attributes
         reached = f"attributes {enc.num_bytes:,} B for a {opts.target_size:,} B target"
         rep.info["lambda"] = f"{enc.lam:.4g} ({reached})"
-    choice = _side_information(scene, cameras, coded_attributes, restorer, opts, device, progress, rep)
     rep.num_gaussians_out = choice.attributes.decoded.num_gaussians
     with rep.timed("write"):
         data = _file_bytes(scene, choice, opts)
@@ -179,7 +185,7 @@ def _side_information(
     runs = iteration_counts(opts, enc.decoded.num_gaussians)
     view_indices, view_cams = sample_side_views(cameras, opts)
     if not view_indices:
-        return _EncoderChoice(enc, None, runs.refine)
+        return _EncoderChoice(_unrefined(scene, coded_attributes, progress), None, runs.refine)
     with rep.timed("render"):
         bg = opts.background
         # The residuals go into the file: rendered by the file's renderer rules (spec 10.12), which the
@@ -190,12 +196,14 @@ def _side_information(
         candidates = side_candidates(opts, view_cams, view_residuals(original, coded), runs.check)
     # No residual anywhere: no chunk at all (cameras alone would be dead weight).
     side = candidates[0] if candidates[0].payload is not None else None
-    if side is None or runs.check == 0:
+    if side is None:
+        return _EncoderChoice(_unrefined(scene, coded_attributes, progress), None, runs.refine)
+    if runs.check == 0:
         return _EncoderChoice(enc, side, runs.refine)
     inputs = CheckInputs(
         scene=scene,
         attributes=enc,
-        params=coded_attributes.params,
+        params=coded_attributes.params.unrefined(),
         visible=coded_attributes.visible,
         significance=coded_attributes.significance,
         view_cameras=view_cams,
@@ -216,7 +224,27 @@ def _side_information(
     rep.info.update(result.decision.summary())
     # The decoder runs what the check ran (a time budget may cut it).
     iterations = result.decision.iterations if result.side is not None else runs.refine
-    return _EncoderChoice(result.attributes, result.side, iterations)
+    attributes = result.attributes
+    if result.decision.outcome is Outcome.DROPPED:
+        attributes = _unrefined(scene, coded_attributes, progress)
+    return _EncoderChoice(attributes, result.side, iterations)
+
+
+def _unrefined(scene: GaussianScene, coded: CodedAttributes, progress: Progress | None) -> EncodedAttributes:
+    """The attributes of a file without side information, which the decoder does not refine: coded with
+    the parameters for that (CodecParams.unrefined) in the bytes the refined coding takes."""
+    enc = coded.encoded
+    params = coded.params.unrefined().with_lambda(enc.lam)
+    if coded_with(enc, params):
+        return enc  # the same steps (a fine rate, or the uniform codec)
+    if progress:
+        progress("attributes for no side information", 0, 1)
+    out = search_lambda(
+        scene, enc.num_bytes, params, visible=coded.visible, significance=coded.significance, rel_tol=0.005
+    )
+    if progress:
+        progress("attributes for no side information", 1, 1)
+    return out
 
 
 def _file_bytes(scene: GaussianScene, choice: _EncoderChoice, opts: EncodeOptions) -> bytes:

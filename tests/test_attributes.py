@@ -180,6 +180,25 @@ def test_search_lambda_stops_where_the_sizes_jump_over_the_window(monkeypatch):
     assert real(scene, params.with_lambda(enc.lam * 0.99)).num_bytes > target
 
 
+def test_search_lambda_backs_off_where_removal_takes_every_gaussian(monkeypatch):
+    """At a coarse enough lambda the precision plan removes every Gaussian: the search treats it as too
+    coarse (a tiny scene's check rival hit it) instead of failing the encode."""
+    import gspc.codec.attributes as attributes
+    from gspc.errors import NothingCodedError
+
+    scene = _scene(n=300, degree=1)
+    real = attributes.encode_attributes
+
+    def coarse_removes_all(scene, params, *a, **k):
+        if params.lam > 20:
+            raise NothingCodedError("every Gaussian was pruned")
+        return real(scene, params, *a, **k)
+
+    monkeypatch.setattr(attributes, "encode_attributes", coarse_removes_all)
+    enc = search_lambda(scene, 10, QUALITY["low"].attributes)  # no lambda reaches 10 bytes
+    assert enc.lam <= 20 and enc.num_bytes > 10
+
+
 def test_corrupt_chunk_raises():
     enc = encode_attributes(_scene(n=200), QUALITY["low"].attributes)
     chunks = dict(enc.chunks)

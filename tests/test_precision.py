@@ -188,3 +188,41 @@ def test_info_names_a_version_4_files_classes(tmp_path):
     section = AttributeSection.from_dict(container.read(out).header["attributes"])
     assert section.version == 4
     assert f"precision: {len(section.all_classes)} classes per Gaussian" in shown
+
+
+def test_unrefined_parameters_code_finer_geometry_only_at_low_rates():
+    """A file without side information codes scales and rotations on CodecParams.unrefined()'s schedule: the
+    same steps up to lambda 6, finer beyond; the uniform codec keeps its own."""
+    from gspc.codec.attributes import coded_with
+    from gspc.presets import QUALITY
+
+    assert CodecParams(lam=10.0).unrefined() == CodecParams(lam=10.0)
+    low = QUALITY["low"].attributes
+    fine = low.unrefined()
+    assert fine.with_lambda(4.0).geometry_lam == low.with_lambda(4.0).geometry_lam == 4.0
+    assert fine.with_lambda(10.0).geometry_lam == pytest.approx(6.0 * (10.0 / 6.0) ** 0.25)
+    assert fine.with_lambda(10.0).geometry_lam < low.with_lambda(10.0).geometry_lam
+    scene = random_scene(300, sh_degree=1, seed=4)
+    sig = _significance(300, 1, seed=4)
+    enc = encode_attributes(scene, low.with_lambda(10.0), significance=sig)
+    assert coded_with(enc, low) and not coded_with(enc, fine)
+    enc4 = encode_attributes(scene, low.with_lambda(4.0), significance=sig)
+    assert coded_with(enc4, fine)  # a search may start from it
+
+
+def test_a_file_without_side_information_has_the_unrefined_steps(tmp_path):
+    from gspc.format import container
+    from gspc.io import write_ply
+    from gspc.pipeline import EncodeOptions, encode
+    from gspc.presets import QUALITY
+
+    src, out = tmp_path / "s.ply", tmp_path / "s.gspc"
+    write_ply(random_scene(300, sh_degree=1, seed=2), src)
+    encode(src, out, opts=EncodeOptions(side_info=False, synth_views=4, max_side=48))
+    base = AttributeSection.from_dict(container.read(out).header["attributes"]).base_class()
+    params = QUALITY["low"].attributes
+    lam = base.dc_step / params.dc_step  # the lambda the encoder's search settled on
+    assert lam > params.geometry_knee  # a rate where the two schedules differ
+    fine, coarse = params.unrefined().with_lambda(lam), params.with_lambda(lam)
+    assert base.scale_step == pytest.approx(fine.scale_step * fine.geometry_lam, rel=1e-9)
+    assert base.scale_step < coarse.scale_step * coarse.geometry_lam

@@ -45,7 +45,7 @@ from gspc.codec.quantisers import (
     SmallestThreeQuantiser,
     out_of_range,
 )
-from gspc.errors import CodecError, InputError, ValueRangeError
+from gspc.errors import CodecError, InputError, NothingCodedError, ValueRangeError
 from gspc.format.attribute_section import (
     AttributeSection,
     ClassSteps,
@@ -158,7 +158,9 @@ def encode_attributes(
         keep = plan.keep
     keep_idx = np.flatnonzero(keep)
     if keep_idx.size == 0:
-        raise CodecError("every Gaussian was pruned (transparent or unseen); use the keep flags to code them")
+        raise NothingCodedError(
+            "every Gaussian was pruned (transparent or unseen); use the keep flags to code them"
+        )
     means = _np(scene.means, keep_idx)
     sizes = np.exp(np.median(_np(scene.log_scales, keep_idx).astype(np.float64), axis=1))
     if plan is not None:
@@ -381,6 +383,11 @@ def decoded_precision(chunks: dict[str, bytes], section: AttributeSection) -> Pr
 LOG_BYTES_PER_LOG_LAMBDA = -0.4
 
 
+def coded_with(enc: EncodedAttributes, params: CodecParams) -> bool:
+    """Whether ``enc`` has the steps ``params`` give at its lambda (a search may start from it)."""
+    return class_steps(params.with_lambda(enc.lam), enc.section.sh_degree) == enc.section.base_class()
+
+
 def search_lambda(
     scene: GaussianScene,
     target_bytes: int,
@@ -418,6 +425,13 @@ def search_lambda(
                 if x >= hi or k == max_iter - 1:
                     raise
                 lo = max(lo, x)
+                x = 0.5 * (lo + hi)
+                continue
+            except NothingCodedError:
+                # So coarse that removal takes every Gaussian: a smaller lambda, as if too small.
+                if x <= lo or (k == max_iter - 1 and best is None and fallback is None):
+                    raise
+                hi = min(hi, x)
                 x = 0.5 * (lo + hi)
                 continue
         size = enc.num_bytes

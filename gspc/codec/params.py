@@ -45,6 +45,13 @@ class CodecParams:
     # which tolerates coarse geometry, -0.05 dB at lam 12-16 and -0.2 at lam 32-64.
     geometry_knee: float = 8.0
     geometry_lam_exponent: float = 0.5
+    # A file the decoder decodes as it is (no side information, so no refinement) wants finer scales and
+    # rotations at low rates: as lam^(1/4) from lam 6, per-Gaussian precision on, bytes at equal PSNR at lam
+    # 10-16 -2..-10% on the bird fit, -1..-7% on lego and two statues (most at twice the views' size), the
+    # same up to lam 6. A file the decoder refines wants the cells above: refinement recovers more in
+    # them (lego example: 40.38 dB against 38.88 at 0.97x the bytes; bench/precision.md).
+    unrefined_knee: float = 6.0
+    unrefined_lam_exponent: float = 0.25
     # Per-Gaussian precision (attribute codec version 4, gspc/codec/precision.py) where the encoder has
     # measured what each Gaussian does to its views; None: every Gaussian at the rate's steps.
     precision: PrecisionParams | None = None
@@ -61,6 +68,14 @@ class CodecParams:
         if self.position_bits is not None:
             return int(self.position_bits)
         return int(min(16, max(11, 14 - round(math.log2(self.lam)))))
+
+    def unrefined(self) -> CodecParams:
+        """These parameters for a file without side information (see ``unrefined_knee``); the uniform codec
+        (no precision) keeps its steps."""
+        if self.precision is None:
+            return self
+        knee, exponent = self.unrefined_knee, self.unrefined_lam_exponent
+        return replace(self, geometry_knee=knee, geometry_lam_exponent=exponent)
 
     def with_lambda(self, lam: float) -> CodecParams:
         if not lam > 0:

@@ -18,7 +18,7 @@ import torch
 
 from gspc.cameras import Camera
 from gspc.codec import residuals
-from gspc.codec.attributes import EncodedAttributes, search_lambda
+from gspc.codec.attributes import EncodedAttributes, coded_with, search_lambda
 from gspc.codec.params import CodecParams
 from gspc.codec.precision import Significance
 from gspc.encoder.side import SideCandidate
@@ -133,7 +133,7 @@ class CheckInputs:
 
     scene: GaussianScene
     attributes: EncodedAttributes
-    params: CodecParams
+    params: CodecParams  # the rival's: a file without side information (CodecParams.unrefined)
     visible: np.ndarray | None
     significance: Significance | None  # the rival codes per-Gaussian precision from it, as the file does
     view_cameras: list[Camera]  # the side-information views, in their stored form
@@ -252,6 +252,10 @@ def _rivals(
 ) -> list[tuple[EncodedAttributes, float]]:
     """Per candidate, the fair rival: the same total bytes spent on attributes alone, and its PSNR."""
     enc, out = inp.attributes, []
+    params = inp.params.with_lambda(enc.lam)
+    # A search starts from a coding with its parameters: the preset's where they agree, else the last rival.
+    same = coded_with(enc, params)
+    start = enc if same else None
     for k, c in enumerate(inp.candidates):
         if progress:
             progress("check rivals", k, len(inp.candidates))
@@ -260,12 +264,13 @@ def _rivals(
         alt = search_lambda(
             inp.scene,
             target,
-            inp.params,
+            params,
             visible=inp.visible,
             significance=inp.significance,
             rel_tol=min(inp.policy.rival_tolerance, inp.policy.rival_share * extra / target),
-            first=enc,
+            first=start,
         )
+        start = enc if same else alt
         out.append((alt, score(alt.decoded)))
     if progress:
         progress("check rivals", len(inp.candidates), len(inp.candidates))
