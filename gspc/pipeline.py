@@ -185,7 +185,7 @@ def _side_information(
     runs = iteration_counts(opts, enc.decoded.num_gaussians)
     view_indices, view_cams = sample_side_views(cameras, opts)
     if not view_indices:
-        return _EncoderChoice(_unrefined(scene, coded_attributes, progress), None, runs.refine)
+        return _EncoderChoice(_unrefined(scene, coded_attributes, progress, rep), None, runs.refine)
     with rep.timed("render"):
         bg = opts.background
         # The residuals go into the file: rendered by the file's renderer rules (spec 10.12), which the
@@ -197,7 +197,7 @@ def _side_information(
     # No residual anywhere: no chunk at all (cameras alone would be dead weight).
     side = candidates[0] if candidates[0].payload is not None else None
     if side is None:
-        return _EncoderChoice(_unrefined(scene, coded_attributes, progress), None, runs.refine)
+        return _EncoderChoice(_unrefined(scene, coded_attributes, progress, rep), None, runs.refine)
     if runs.check == 0:
         return _EncoderChoice(enc, side, runs.refine)
     inputs = CheckInputs(
@@ -226,25 +226,28 @@ def _side_information(
     iterations = result.decision.iterations if result.side is not None else runs.refine
     attributes = result.attributes
     if result.decision.outcome is Outcome.DROPPED:
-        attributes = _unrefined(scene, coded_attributes, progress)
+        attributes = _unrefined(scene, coded_attributes, progress, rep)
     return _EncoderChoice(attributes, result.side, iterations)
 
 
-def _unrefined(scene: GaussianScene, coded: CodedAttributes, progress: Progress | None) -> EncodedAttributes:
+def _unrefined(
+    scene: GaussianScene, coded: CodedAttributes, progress: Progress | None, rep: Report
+) -> EncodedAttributes:
     """The attributes of a file without side information, which the decoder does not refine: coded with
     the parameters for that (CodecParams.unrefined) in the bytes the refined coding takes."""
     enc = coded.encoded
     params = coded.params.unrefined().with_lambda(enc.lam)
     if coded_with(enc, params):
         return enc  # the same steps (a fine rate, or the uniform codec)
-    if progress:
-        progress("attributes for no side information", 0, 1)
-    out = search_lambda(
-        scene, enc.num_bytes, params, visible=coded.visible, significance=coded.significance, rel_tol=0.005
-    )
-    if progress:
-        progress("attributes for no side information", 1, 1)
-    return out
+    with _stage(rep, progress, "attributes for no side information"):
+        return search_lambda(
+            scene,
+            enc.num_bytes,
+            params,
+            visible=coded.visible,
+            significance=coded.significance,
+            rel_tol=0.005,
+        )
 
 
 def _file_bytes(scene: GaussianScene, choice: _EncoderChoice, opts: EncodeOptions) -> bytes:
