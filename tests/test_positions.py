@@ -28,6 +28,27 @@ def test_positions_roundtrip(bits):
     assert (err <= np.asarray(grid.step) * 0.5 + 1e-6 * np.abs(means[order]).max()).all()
 
 
+@pytest.mark.parametrize("scene", ["box", "unbounded"])
+def test_fractional_precision_lies_between_whole_bits(scene):
+    """A precision between whole bits (the rate's, gspc/codec/params.py) is a step between theirs on a grid
+    of the bits above it: every voxel fits, decodes within half a step, and whole precisions give the grids
+    they always did."""
+    rng = np.random.default_rng(3)
+    means = rng.uniform(-1, 1, size=(3000, 3)) * [1, 10, 0.1] if scene == "box" else unbounded()
+    grids = {p: pos.curve_order(means, p) for p in (11.0, 11.4, 12.0)}
+    if scene == "box":
+        lo, hi = means.min(0), means.max(0)
+        assert np.allclose(grids[11.0][2].step, (hi - lo) / 2047, rtol=0, atol=0)
+    voxels, order, grid = grids[11.4]
+    assert 12 <= grid.bits <= grids[12.0][2].bits  # a contracted grid adds what its extent needs
+    assert all(c < f < w for c, f, w in zip(grids[12.0][2].step, grid.step, grids[11.0][2].step))
+    out = pos.decode_positions(pos.encode_positions(voxels, grid), grid, len(voxels))
+    assert np.array_equal(out, voxels) and out.max() <= (1 << grid.bits) - 1
+    if scene == "box":
+        err = np.abs(pos.dequantise(voxels, grid.lo, grid.step) - means[order])
+        assert (err <= np.asarray(grid.step) * 0.5 + 1e-6).all()
+
+
 def test_degenerate_points():
     means = np.full((50, 3), 1e6)
     voxels, order, grid = pos.curve_order(means, 16)

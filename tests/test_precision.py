@@ -101,6 +101,46 @@ def test_exponents_follow_half_the_log_of_sensitivity():
     assert e.tolist() == [0, -1, -2, 1, 2, 2]
 
 
+def test_classes_follow_sensitivity_per_coded_component():
+    """A Gaussian whose 45 SH rest coefficients are each as sensitive as its other components are on average
+    gets the class of its twin without SH bands: the SH rest counts per coefficient (its gradient sums over
+    them; squared as a whole it counted their colour up to 45 times over), and the class divides by the
+    components a halving of the steps costs bits for (10 without SH bands, 55 with three)."""
+    from gspc.codec.precision import RateSteps, plan_precision
+
+    n, d = 400, 3
+    rng = np.random.default_rng(7)
+    twin = np.arange(n) % 2 == 1  # odd rows: a twin of the row before, without SH bands
+    grad = {g: np.repeat(10.0 ** rng.uniform(-2, 2, n // 2), 2) for g in ("opacities", "log_scales")}
+    grad.update(quats=np.repeat(10.0 ** rng.uniform(-2, 2, n // 2), 2), means=np.zeros(n))
+    grad["sh_dc"] = np.repeat(10.0 ** rng.uniform(-2, 2, n // 2), 2)
+    steps = RateSteps(100, 0.1, 0.01, 0.05, (0.1, 0.12, 0.144))
+    alpha = np.full(n, 0.5)
+    group_steps = {"opacities": 1.0 / (100 * 0.25), "log_scales": 0.1, "quats": 0.01, "sh_dc": 0.05}
+    others = sum((grad[g] * s) ** 2 for g, s in group_steps.items())  # the twin's sensitivity, 10 components
+    grad["sh_rest"] = np.where(twin, 0.0, 45 * np.sqrt(others / 10) / 0.1)
+    change = np.where(twin[:, None], 0.0, 1e3)[:, [0, 0, 0]]  # every band worth keeping, or none
+    sig = Significance(np.ones(n), grad, change, 20)
+    params = PrecisionParams(exponents=(-6, 6), bias=0.0, sh_keep=1.0)
+    plan = plan_precision(sig, alpha, steps, params, np.ones(n, bool), 0.0, 1.0)
+    assert (plan.degree[~twin] == d).all() and (plan.degree[twin] == 0).all()
+    assert len(np.unique(plan.exponent)) > 4
+    assert np.array_equal(plan.exponent[twin], plan.exponent[~twin])
+
+
+def test_small_classes_join_their_neighbour_towards_the_rates_steps():
+    from gspc.codec.precision import merge_small_classes
+
+    e = np.array([-3] * 2 + [-2] * 3 + [-1] * 10 + [0] * 10 + [1] * 4 + [2] * 10 + [-3] * 5)
+    among = np.ones(len(e), bool)
+    among[-5:] = False  # not coded (removed): they do not count, but move with their class
+    params = PrecisionParams(exponents=(-3, 2), min_class=5)
+    out = merge_small_classes(e, among, params)
+    # -3 (2 coded) joins -2 (then 5: stays); 1 (4) joins 0; 2 (10) stays.
+    assert out.tolist() == [-2] * 5 + [-1] * 10 + [0] * 14 + [2] * 10 + [-2] * 5
+    assert merge_small_classes(e, among, PrecisionParams(exponents=(-3, 2))).tolist() == e.tolist()
+
+
 def test_sh_degree_is_the_highest_band_worth_its_step():
     change = np.array([[5.0, 0.1, 3.0], [0.1, 0.1, 0.1], [2.0, 2.0, 0.0]])
     d = sh_degrees(change, np.array([1.0, 1.0, 1.0]), np.ones(3), 1.0)

@@ -128,7 +128,7 @@ def shell_position_bound(scene: GaussianScene, world: GaussianScene, lam: float)
     (grid step x R x |u| / |y|, the contraction's tangential stretch).
     """
     n, m = scene.num_gaussians, world.num_gaussians - scene.num_gaussians - FLOATERS
-    bits = QUALITY["low"].attributes.with_lambda(lam).effective_position_bits
+    bits = QUALITY["low"].attributes.with_lambda(lam).position_precision
     grid = positions.curve_order(world.means.numpy(), bits)[2]
     centre, radius = grid.contraction.centre, grid.contraction.radius
     y = positions.contract(world.means.numpy()[n : n + m], centre, radius)

@@ -168,7 +168,7 @@ def encode_attributes(
         # plan gives finer steps needs its position as much finer (a shell of sky-sized Gaussians: +3.7 dB).
         sizes = sizes * 2.0 ** np.minimum(plan.exponent[keep_idx], 0).astype(np.float64)
     try:
-        voxels, order, grid = pos.curve_order(means, params.effective_position_bits, sizes)
+        voxels, order, grid = pos.curve_order(means, params.position_precision, sizes)
     except CodecError as err:  # a grid the format's bounds refuse (spec 10.1)
         raise InputError(f"the scene's positions cannot be coded: {err}") from None
     kept = keep_idx[order]

@@ -1,8 +1,9 @@
 """Positions: voxelise, order along the Morton curve, code the sorted curve indices losslessly.
 
-Voxelisation uses the scene's measured bounds: per axis ``lo = min``, ``step = (max - min) / (2^bits - 1)``
-(``step = 1`` for a flat axis), voxel ``v = round((x - lo) / step)``. The decoded position is
-``float32(lo + v * step)`` computed in float64. Gaussians are sorted by Morton code (x bit lowest
+Voxelisation uses the scene's measured bounds: per axis ``lo = min``, ``step = (max - min) / (2^p - 1)``
+(``step = 1`` for a flat axis) for a precision of ``p`` bits, fractional between whole ones (the file holds
+``step`` and the grid's whole ``bits = ceil(p)``), voxel ``v = round((x - lo) / step)``. The decoded
+position is ``float32(lo + v * step)`` computed in float64. Gaussians are sorted by Morton code (x bit lowest
 within each triple), ties by input index; the decoded order IS this curve order.
 
 Unbounded scenes (a capture's background tens of radii away, floaters beyond) would stretch that grid and
@@ -30,6 +31,7 @@ leading one are stored raw.
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 
 import msgpack
@@ -64,14 +66,22 @@ FAR_MAX_SHIFT = 8  # the far set's coarsening is chosen among 1..8 bits per axis
 FAR_MARGIN_BITS = 1
 
 
-def voxel_grid(means: np.ndarray, bits: int) -> tuple[list[float], list[float]]:
-    """Measured per-axis origin and step of a ``bits``-per-axis grid over the points' bounds."""
-    if not 1 <= bits <= MAX_BITS:
-        raise CodecError(f"position bits must be 1-{MAX_BITS}, got {bits}")
+def grid_bits(precision: float) -> int:
+    """Integer bits per axis of a grid of ``precision`` bits (spec 10.1 codes whole bits; a fractional
+    precision is a step between two of them, encoder-only)."""
+    return int(math.ceil(precision - 1e-9))
+
+
+def voxel_grid(means: np.ndarray, precision: float) -> tuple[list[float], list[float]]:
+    """Measured per-axis origin and step of a grid of ``precision`` bits per axis over the points' bounds:
+    ``2^precision - 1`` steps span each axis (``precision`` may be fractional; the grid's integer bits,
+    :func:`grid_bits`, hold every voxel)."""
+    if not 1 <= grid_bits(precision) <= MAX_BITS or not precision >= 1:
+        raise CodecError(f"position bits must be 1-{MAX_BITS}, got {precision}")
     means = np.asarray(means, dtype=np.float64)
     lo = means.min(0)
     hi = means.max(0)
-    step = (hi - lo) / float((1 << bits) - 1)
+    step = (hi - lo) / (2.0**precision - 1.0)
     step = np.where(step > 0, step, 1.0)
     return [float(x) for x in lo], [float(x) for x in step]
 
@@ -144,20 +154,20 @@ def morton_decode(code: np.ndarray, bits: int) -> np.ndarray:
     return v
 
 
-def contracted_grid(y: np.ndarray, bits: int) -> tuple[int, list[float], list[float]]:
-    """(grid bits, lo, step) in grid space: the voxel size a ``bits`` grid has over the Gaussians the mapping
-    leaves as they are (|y| <= 2), with as many bits as the whole scene's extent needs at that size (at most
-    MAX_BITS; beyond, the voxels grow)."""
+def contracted_grid(y: np.ndarray, precision: float) -> tuple[int, list[float], list[float]]:
+    """(grid bits, lo, step) in grid space: the voxel size a grid of ``precision`` bits has over the Gaussians
+    the mapping leaves as they are (|y| <= 2), with as many bits as the whole scene's extent needs at that
+    size (at most MAX_BITS; beyond, the voxels grow)."""
     inside = np.sqrt((y * y).sum(1)) <= IDENTITY_RADIUS
     core = y[inside] if inside.any() else y
-    step = (core.max(0) - core.min(0)) / float((1 << bits) - 1)
+    step = (core.max(0) - core.min(0)) / (2.0**precision - 1.0)
     step = np.where(step > 0, step, 1.0)
     lo, hi = y.min(0), y.max(0)
     need = int(np.ceil(np.log2(((hi - lo) / step).max() + 1.0)))
-    grid_bits = min(max(bits, need), CONTRACTED_MAX_BITS)
+    bits = min(max(grid_bits(precision), need), CONTRACTED_MAX_BITS)
     if need > CONTRACTED_MAX_BITS:
         step = step * 2.0 ** (need - CONTRACTED_MAX_BITS)
-    return grid_bits, [float(x) for x in lo], _inside_bound(lo, hi, step, grid_bits)
+    return bits, [float(x) for x in lo], _inside_bound(lo, hi, step, bits)
 
 
 def _inside_bound(lo: np.ndarray, hi: np.ndarray, step: np.ndarray, bits: int) -> list[float]:
@@ -175,22 +185,24 @@ def _inside_bound(lo: np.ndarray, hi: np.ndarray, step: np.ndarray, bits: int) -
 
 
 def curve_order(
-    means: np.ndarray, bits: int, sizes: np.ndarray | None = None
+    means: np.ndarray, precision: float, sizes: np.ndarray | None = None
 ) -> tuple[np.ndarray, np.ndarray, PositionGrid]:
     """Voxels of the (fine) grid in decoded order, the permutation of the input, and the grid (contracted
-    where the scene is unbounded, with a far set coded on a coarser grid where one pays). ``sizes``: each
+    where the scene is unbounded, with a far set coded on a coarser grid where one pays) of ``precision``
+    bits per axis over the positions (fractional: :func:`voxel_grid`). ``sizes``: each
     Gaussian's world size (the encoder's choice of a far set needs it; None, no far set). CodecError where
     the scene's positions lie beyond the format's bounds (spec 10.1)."""
     roi = region_of_interest(means)
     if roi is None:
-        lo, step = voxel_grid(means, bits)
+        bits = grid_bits(precision)
+        lo, step = voxel_grid(means, precision)
         v = voxelise(means, lo, step, bits)
         grid = PositionGrid(bits, tuple(lo), tuple(step))
         order = np.argsort(morton_encode(v, bits), kind="stable")
         return v[order], order, grid
     centre, radius = roi
     y = contract(means, centre, radius)
-    bits, lo, step = contracted_grid(y, bits)
+    bits, lo, step = contracted_grid(y, precision)
     grid = PositionGrid(bits, tuple(lo), tuple(step), Contraction(tuple(float(c) for c in centre), radius))
     v = voxelise(y, lo, step, bits)
     order = np.argsort(morton_encode(v, bits), kind="stable")

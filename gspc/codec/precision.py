@@ -6,10 +6,17 @@ one (:func:`plan_precision`) from a :class:`Significance`, what gspc/encoder/sig
 Gaussian over the encoder's views, and the rate's :class:`PrecisionParams`:
 
 - **classes**: a Gaussian's expected contribution to the views' squared error from quantisation is about
-  ``sum_g (sensitivity_g x step_g)^2`` over its attribute groups. Bit allocation under a rate constraint
-  gives each Gaussian a step multiplier proportional to ``1 / sqrt`` of that (each halving of a step costs
-  about one bit per component): so classes are powers of two of the rate's steps, the exponent following
-  half the log2 of the Gaussian's sensitivity relative to the scene's median, within the params' range.
+  ``sum_g (sensitivity_g x step_g)^2`` over its attribute groups, and each halving of its steps costs about
+  one bit per coded component. Bit allocation under a rate constraint gives each Gaussian a step multiplier
+  proportional to ``1 / sqrt`` of that error per component: so classes are powers of two of the rate's
+  steps, the exponent following half the log2 of the Gaussian's sensitivity per coded component relative to
+  the scene's median, within the params' range. The SH rest's gradient sums over its coefficients (up to 45)
+  and counts per coefficient: squared as a whole, it counted a Gaussian's view-dependent colour up to 45
+  times over, and the Gaussians with SH bands took the finest classes for bytes that bought nothing (the SH-3
+  lego fit: 5-8% fewer bytes at equal PSNR without that, the bird capture 5% at 39 dB and even over its
+  curve). The other groups' few components (1 to 4) count as one: per component as well, the statues lost
+  1-2% (bench/precision.md). Scenes of SH degree 0 are planned as before; ``PrecisionParams.per_component``
+  off (the high preset: the bird lost 5.7% at its rates) weighs every group as a whole.
 - **SH degree**: a band is kept where dropping it would change the views (its first-order change of the
   renders, ``sh_band_change``) by more than its coded step does;
 - **removal**: a Gaussian that paints a small fraction of what the median Gaussian paints over the views
@@ -31,6 +38,8 @@ from gspc.limits import max_model_entries
 
 # The attribute groups whose steps the classes scale, with the Significance gradient each is weighed by.
 CLASSED_GROUPS = ("opacities", "log_scales", "quats", "sh_dc", "sh_rest")
+# Components each group codes per Gaussian (rotations: the smallest three); the SH rest's follow its degree.
+GROUP_COMPONENTS = {"opacities": 1, "log_scales": 3, "quats": 3, "sh_dc": 3}
 
 
 @dataclass(frozen=True)
@@ -63,7 +72,8 @@ class PrecisionParams:
     class 0); a Gaussian's ``e`` is ``round(bias - log2(sensitivity / median) / 2)``. ``sh_keep``: a band is
     kept where its change of the views is at least this many of its coded steps (0 keeps every band).
     ``prune``: a Gaussian whose blending weight over the views is below ``prune x lambda`` times the median
-    Gaussian's is removed (0: never).
+    Gaussian's is removed (0: never). ``min_class``: the fewest Gaussians a class other than 0 may hold;
+    ``per_component``: how the class rule counts components (below).
     """
 
     exponents: tuple[int, int] = (-1, 2)  # (finest, coarsest)
@@ -71,6 +81,13 @@ class PrecisionParams:
     sh_keep: float = 0.0
     prune: float = 0.0
     groups: tuple[str, ...] = field(default=CLASSED_GROUPS)
+    # A class of fewer Gaussians joins its neighbour towards the rate's own steps: each class codes its own
+    # matrices, whose models cost bytes whatever their rows (lego: 79 Gaussians in a class of 2^-4, 1.1 KB).
+    min_class: int = 0
+    # The SH rest counted per coefficient and each Gaussian per coded component (the module's docstring).
+    # Off, it weighs as it did before: the bird capture at the high preset's rates codes 5.7% fewer bytes at
+    # equal PSNR that way (lego 3.5% more; bench/precision.md).
+    per_component: bool = True
 
 
 @dataclass(frozen=True)
@@ -183,9 +200,13 @@ def plan_precision(
         "sh_dc": steps.dc_step,
         "sh_rest": steps.sh_band_steps[0] if steps.sh_band_steps else 0.0,
     }
+    d = len(steps.sh_band_steps)
+    bands = np.asarray(steps.sh_band_steps)
     sens = np.zeros(n)
     for g in params.groups:
         sens += (sig.gradient[g] * group_steps[g]) ** 2
+    if params.per_component and d > 0 and "sh_rest" in params.groups:
+        sens = _per_component(sens, sig, group_steps["sh_rest"], bands, params, alpha < faint_alpha)
     # The measure renders a sample of the encoder's views: a Gaussian none of them shows may still show in
     # the others (a shell of sky-sized Gaussians lost 820 of 3,500 to removal and most of the rest to the
     # coarsest class that way). Unmeasured, it keeps the rate's own steps and every SH band.
@@ -197,17 +218,37 @@ def plan_precision(
         # 9 dB that way, bench/precision.md); a weight is what a Gaussian paints, however redundant.
         floor = params.prune * lam * float(np.median(sig.weight[keep & measured]))
         keep &= (sig.weight >= floor) | ~measured
-    exponent = class_exponents(sens, params, keep & measured)
+    exponent = merge_small_classes(class_exponents(sens, params, keep & measured), keep & measured, params)
     exponent[~measured] = 0
-    d = len(steps.sh_band_steps)
     degree = np.full(n, d, np.int64)
     if d > 0:
         multipliers = 2.0 ** exponent.astype(np.float64) if "sh_rest" in params.groups else np.ones(n)
-        bands = np.asarray(steps.sh_band_steps)
         degree = sh_degrees(sig.sh_band_change[:, :d], bands, multipliers, params.sh_keep)
         degree[~measured] = d
         degree[alpha < faint_alpha] = 0
     return Plan(keep, exponent, degree)
+
+
+def _per_component(
+    sens: np.ndarray,
+    sig: Significance,
+    rest_step: float,
+    bands: np.ndarray,
+    params: PrecisionParams,
+    faint: np.ndarray,
+) -> np.ndarray:
+    """``sens`` with the SH rest counted per coefficient, divided by the components each Gaussian codes at
+    the SH degree the rate's own steps keep (see the module's docstring)."""
+    n, d = len(sens), len(bands)
+    rest = 3 * ((d + 1) ** 2 - 1)
+    whole = (sig.gradient["sh_rest"] * rest_step) ** 2
+    out = sens - whole + whole / rest
+    degree = sh_degrees(sig.sh_band_change[:, :d], bands, np.ones(n), params.sh_keep)
+    degree[faint] = 0
+    components = 3 * ((degree + 1) ** 2 - 1).astype(np.float64)
+    for g in params.groups:
+        components += GROUP_COMPONENTS.get(g, 0)
+    return out / components
 
 
 def class_exponents(sens: np.ndarray, params: PrecisionParams, among: np.ndarray | None = None) -> np.ndarray:
@@ -221,6 +262,19 @@ def class_exponents(sens: np.ndarray, params: PrecisionParams, among: np.ndarray
     median = float(np.median(positive))
     rel = np.log2(np.maximum(sens, median * 2.0**-60) / median)
     return np.clip(np.rint(params.bias - rel / 2), lo, hi).astype(np.int64)
+
+
+def merge_small_classes(exponent: np.ndarray, among: np.ndarray, params: PrecisionParams) -> np.ndarray:
+    """``exponent`` with each class of fewer than ``params.min_class`` Gaussians ``among`` those coded moved
+    to its neighbour towards exponent 0, from the extremes in (a class that grows past the floor stays)."""
+    out = exponent.copy()
+    lo, hi = params.exponents
+    for outer, step in ((range(lo, 0), 1), (range(hi, 0, -1), -1)):
+        for e in outer:
+            count = int((out[among] == e).sum())
+            if 0 < count < params.min_class:
+                out[out == e] = e + step
+    return out
 
 
 def sh_degrees(
