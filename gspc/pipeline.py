@@ -183,9 +183,10 @@ def _side_information(
     only if it pays for its bytes (gspc/encoder/policy.py)."""
     enc = coded_attributes.encoded
     runs = iteration_counts(opts, enc.decoded.num_gaussians)
+    deadline = _deadline(opts, rep)
     view_indices, view_cams = sample_side_views(cameras, opts)
     if not view_indices:
-        return _EncoderChoice(_unrefined(scene, coded_attributes, progress, rep), None, runs.refine)
+        return _EncoderChoice(_unrefined(scene, coded_attributes, progress, rep, deadline), None, runs.refine)
     with rep.timed("render"):
         bg = opts.background
         # The residuals go into the file: rendered by the file's renderer rules (spec 10.12), which the
@@ -197,7 +198,7 @@ def _side_information(
     # No residual anywhere: no chunk at all (cameras alone would be dead weight).
     side = candidates[0] if candidates[0].payload is not None else None
     if side is None:
-        return _EncoderChoice(_unrefined(scene, coded_attributes, progress, rep), None, runs.refine)
+        return _EncoderChoice(_unrefined(scene, coded_attributes, progress, rep, deadline), None, runs.refine)
     if runs.check == 0:
         return _EncoderChoice(enc, side, runs.refine)
     inputs = CheckInputs(
@@ -216,7 +217,7 @@ def _side_information(
         background=opts.background,
         margin_db=opts.check_margin_db,
         device=device,
-        deadline=None if opts.time_budget is None else rep.started + opts.time_budget,
+        deadline=deadline,
     )
     with _stage(rep, progress, "check"):
         result = check_side_info(inputs, progress)
@@ -226,28 +227,40 @@ def _side_information(
     iterations = result.decision.iterations if result.side is not None else runs.refine
     attributes = result.attributes
     if result.decision.outcome is Outcome.DROPPED:
-        attributes = _unrefined(scene, coded_attributes, progress, rep)
+        attributes = _unrefined(scene, coded_attributes, progress, rep, deadline)
     return _EncoderChoice(attributes, result.side, iterations)
 
 
+def _deadline(opts: EncodeOptions | DecodeOptions, rep: Report) -> float | None:
+    """The ``time.perf_counter()`` by which the command should end (``--time-budget``), or None."""
+    return None if opts.time_budget is None else rep.started + opts.time_budget
+
+
 def _unrefined(
-    scene: GaussianScene, coded: CodedAttributes, progress: Progress | None, rep: Report
+    scene: GaussianScene,
+    coded: CodedAttributes,
+    progress: Progress | None,
+    rep: Report,
+    deadline: float | None = None,
 ) -> EncodedAttributes:
     """The attributes of a file without side information, which the decoder does not refine: coded with
-    the parameters for that (CodecParams.unrefined) in the bytes the refined coding takes."""
+    the parameters for that (CodecParams.unrefined) in the bytes the refined coding takes. Past the
+    ``deadline`` no search starts, and one it cuts short keeps the refined coding unless it found better."""
     enc = coded.encoded
     params = coded.params.unrefined().with_lambda(enc.lam)
-    if coded_with(enc, params):
-        return enc  # the same steps (a fine rate, or the uniform codec)
+    if coded_with(enc, params) or (deadline is not None and time.perf_counter() >= deadline):
+        return enc  # the same steps (a fine rate, or the uniform codec), or no time left
     with _stage(rep, progress, "attributes for no side information"):
-        return search_lambda(
+        found = search_lambda(
             scene,
             enc.num_bytes,
             params,
             visible=coded.visible,
             significance=coded.significance,
             rel_tol=0.005,
+            deadline=deadline,
         )
+    return found if found.num_bytes <= enc.num_bytes else enc
 
 
 def _file_bytes(scene: GaussianScene, choice: _EncoderChoice, opts: EncodeOptions) -> bytes:
@@ -379,7 +392,7 @@ def _restore_and_refine(
     if not has_residual:
         rep.info["refine"] = "skipped (no view carries a residual)"
         return scene
-    deadline = None if opts.time_budget is None else rep.started + opts.time_budget
+    deadline = _deadline(opts, rep)
     with rep.timed("refine"):
         refined = refine_in_cells(
             scene,

@@ -185,6 +185,26 @@ def test_search_lambda_stops_where_the_sizes_jump_over_the_window(monkeypatch):
     assert jump <= enc.lam < jump * 1.01
 
 
+def test_search_lambda_starts_no_encode_past_its_deadline(monkeypatch):
+    from types import SimpleNamespace
+
+    import gspc.codec.attributes as attributes
+
+    calls = []
+
+    def sizes(scene, params, *a, **k):
+        calls.append(params.lam)
+        return SimpleNamespace(num_bytes=int(100_000 * params.lam**-0.5), lam=params.lam)
+
+    monkeypatch.setattr(attributes, "encode_attributes", sizes)
+    params = QUALITY["low"].attributes
+    search_lambda(None, 1_000, params, rel_tol=0.005)
+    assert len(calls) > 3
+    calls.clear()
+    enc = search_lambda(None, 1_000, params, rel_tol=0.005, deadline=0.0)  # long past
+    assert len(calls) == 1 and enc.lam == pytest.approx(params.lam)
+
+
 def test_sizes_follow_lambda_without_a_jump_at_whole_position_bits():
     """Position precision is fractional between whole bits: lambda either side of 2^1.5 (where rounding
     to whole bits moved a bit, a few % of the size at once) codes about the same size, and a --target-size

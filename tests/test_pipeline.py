@@ -236,6 +236,19 @@ def test_encode_time_budget_writes_the_iterations_it_checked(tmp_path):
     assert written == (d.iterations if d.outcome is Outcome.SENT else 400)
 
 
+def test_encode_time_budget_bounds_the_search_for_a_file_without_side_information(tmp_path):
+    """A file without side information re-codes its attributes for decoding as they are (a search of up to
+    12 encodes); with the budget spent it keeps the coding it has instead."""
+    src = tmp_path / "in.ply"
+    write_ply(scene(seed=4), src)
+    base = dict(lam=40, synth_views=6, max_side=40, side_info=False)
+    free = encode(src, tmp_path / "a.gspc", opts=EncodeOptions(**base))
+    assert "attributes for no side information" in free.seconds
+    spent = encode(src, tmp_path / "b.gspc", opts=EncodeOptions(**base, time_budget=1e-6))
+    assert "attributes for no side information" not in spent.seconds
+    assert (tmp_path / "b.gspc").stat().st_size <= (tmp_path / "a.gspc").stat().st_size * 1.02
+
+
 def test_bytes_spent_on_attributes_are_the_rivals(tmp_path):
     """A margin side information cannot meet: the file holds the rival's finer attributes."""
     from gspc.codec.attributes import decode_attributes

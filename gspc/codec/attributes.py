@@ -18,6 +18,7 @@ The byte layouts are specified in spec/gspc-format.md, section 10.
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass
 
 import msgpack
@@ -397,6 +398,7 @@ def search_lambda(
     max_iter: int = 12,
     first: EncodedAttributes | None = None,
     significance: Significance | None = None,
+    deadline: float | None = None,
 ) -> EncodedAttributes:
     """The encoding with the smallest lambda whose size is at most ``target_bytes``.
 
@@ -405,7 +407,8 @@ def search_lambda(
     Stops when a fit lands within ``rel_tol`` under the target, or when the lambdas under and over it are
     too close to part the window (the sizes jump over it there); if even the coarsest lambda tried is too
     big, returns that one (the caller reports the miss). ``first``: an encoding the caller already has, made
-    with ``params`` and ``visible`` at any lambda (the search starts from its lambda).
+    with ``params`` and ``visible`` at any lambda (the search starts from its lambda). ``deadline``: a
+    ``time.perf_counter()`` after which no further encode starts (the best so far is returned).
     """
     lo, hi = math.log(1e-3), math.log(1e3)  # log lambda: sizes above the target at lo, below at hi
     best: EncodedAttributes | None = None
@@ -415,6 +418,8 @@ def search_lambda(
     x = math.log(first.lam if first is not None else params.lam)
     goal = math.log(target_bytes * (1.0 - 0.5 * rel_tol))
     for k in range(max_iter):
+        if k > 0 and deadline is not None and time.perf_counter() >= deadline:
+            break
         if k == 0 and first is not None:
             enc = first
         else:
