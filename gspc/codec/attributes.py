@@ -452,8 +452,8 @@ def search_lambda(
                 fallback = enc
             lo = max(lo, x)
         if best is not None and (hi - lo) * -LOG_BYTES_PER_LOG_LAMBDA < 0.5 * rel_tol:
-            # Lambdas this close code sizes half the window apart, unless the sizes jump (a position
-            # bit more or less): a window inside the jump has no lambda.
+            # Lambdas this close code sizes half the window apart, unless the sizes jump (a threshold of
+            # the precision plan crossed by many Gaussians at once): a window inside the jump has no lambda.
             break
         x = _next_log_lambda(lo, hi, tried, goal)
     return best if best is not None else fallback

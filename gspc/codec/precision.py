@@ -202,11 +202,14 @@ def plan_precision(
     }
     d = len(steps.sh_band_steps)
     bands = np.asarray(steps.sh_band_steps)
+    per_component = params.per_component and d > 0 and "sh_rest" in params.groups
     sens = np.zeros(n)
     for g in params.groups:
-        sens += (sig.gradient[g] * group_steps[g]) ** 2
-    if params.per_component and d > 0 and "sh_rest" in params.groups:
-        sens = _per_component(sens, sig, group_steps["sh_rest"], bands, params, alpha < faint_alpha)
+        whole = (sig.gradient[g] * group_steps[g]) ** 2
+        # The SH rest's gradient sums over its coefficients: counted per coefficient.
+        sens += whole / (3 * ((d + 1) ** 2 - 1)) if per_component and g == "sh_rest" else whole
+    if per_component:
+        sens /= _coded_components(sig, bands, params, alpha < faint_alpha)
     # The measure renders a sample of the encoder's views: a Gaussian none of them shows may still show in
     # the others (a shell of sky-sized Gaussians lost 820 of 3,500 to removal and most of the rest to the
     # coarsest class that way). Unmeasured, it keeps the rate's own steps and every SH band.
@@ -229,26 +232,17 @@ def plan_precision(
     return Plan(keep, exponent, degree)
 
 
-def _per_component(
-    sens: np.ndarray,
-    sig: Significance,
-    rest_step: float,
-    bands: np.ndarray,
-    params: PrecisionParams,
-    faint: np.ndarray,
+def _coded_components(
+    sig: Significance, bands: np.ndarray, params: PrecisionParams, faint: np.ndarray
 ) -> np.ndarray:
-    """``sens`` with the SH rest counted per coefficient, divided by the components each Gaussian codes at
-    the SH degree the rate's own steps keep (see the module's docstring)."""
-    n, d = len(sens), len(bands)
-    rest = 3 * ((d + 1) ** 2 - 1)
-    whole = (sig.gradient["sh_rest"] * rest_step) ** 2
-    out = sens - whole + whole / rest
-    degree = sh_degrees(sig.sh_band_change[:, :d], bands, np.ones(n), params.sh_keep)
+    """Per Gaussian, the components a halving of its steps costs bits for: its classed groups', the SH rest's
+    at the degree the rate's own steps keep (see the module's docstring)."""
+    degree = sh_degrees(sig.sh_band_change[:, : len(bands)], bands, np.ones(len(faint)), params.sh_keep)
     degree[faint] = 0
-    components = 3 * ((degree + 1) ** 2 - 1).astype(np.float64)
+    components = 3.0 * ((degree + 1) ** 2 - 1)
     for g in params.groups:
         components += GROUP_COMPONENTS.get(g, 0)
-    return out / components
+    return components
 
 
 def class_exponents(sens: np.ndarray, params: PrecisionParams, among: np.ndarray | None = None) -> np.ndarray:
