@@ -342,7 +342,9 @@ def test_values_too_large_to_code_are_named(name, attr, value):
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # a clear error, not a numpy cast warning
         with pytest.raises(
-            InputError, match=f"1 Gaussian\\(s\\) have {name} values up to .*beyond what lambda 10"
+            InputError,
+            match=f"1 Gaussian\\(s\\) have {name} values up to .*beyond what lambda "
+            f"{QUALITY['low'].attributes.lam:g}",
         ):
             encode_attributes(scene, QUALITY["low"].attributes)
 

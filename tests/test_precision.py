@@ -101,6 +101,20 @@ def test_exponents_follow_half_the_log_of_sensitivity():
     assert e.tolist() == [0, -1, -2, 1, 2, 2]
 
 
+def test_exponents_beyond_the_tail_follow_at_half_the_pace():
+    """Beyond ``tail`` two of the rule's classes make one: the measure over-predicts the most sensitive
+    Gaussians (bench/precision.md), and a hard floor left a sky of large Gaussians coarse."""
+    sens = 4.0 ** np.arange(0, 12)  # the rule's exponents 0, -1, ..., -11 (median 4^5.5: bias -5.5 evens it)
+    rule = class_exponents(sens, PrecisionParams(exponents=(-20, 2), bias=-5.5))
+    assert rule.tolist() == list(range(0, -12, -1))
+    tailed = class_exponents(sens, PrecisionParams(exponents=(-7, 2), bias=-5.5, tail=-4))
+    assert tailed.tolist() == [0, -1, -2, -3, -4, -4, -5, -5, -6, -6, -7, -7]
+    # coarser than the tail, and without one, the rule as it was
+    assert class_exponents(sens, PrecisionParams(exponents=(-4, 2), bias=-5.5)).tolist() == [
+        max(e, -4) for e in rule.tolist()
+    ]
+
+
 def test_classes_follow_sensitivity_per_coded_component():
     """A Gaussian whose 45 SH rest coefficients are each as sensitive as its other components are on average
     gets the class of its twin without SH bands: the SH rest counts per coefficient (its gradient sums over

@@ -719,9 +719,10 @@ def synthetic_significance(n: int, degree: int, seed: int):
 
 
 def encode_classed(scene, exponents: tuple[int, int], seed: int) -> tuple[dict, dict[str, bytes]]:
-    """(meta["attributes"], attribute payloads) of attribute codec version 4 (spec 10.13): the low preset
-    with precision classes of step multipliers 2^exponents[0] .. 2^exponents[1], each band of SH kept where
-    its change of the views is at least its coded step."""
+    """(meta["attributes"], attribute payloads) of attribute codec version 4 (spec 10.13): the low preset's
+    codec at lambda 10 (pinned: the vectors do not follow the preset's rate) with precision classes of step
+    multipliers 2^exponents[0] .. 2^exponents[1], each band of SH kept where its change of the views is at
+    least its coded step."""
     from dataclasses import replace
 
     from gspc.codec.attributes import encode_attributes
@@ -729,7 +730,7 @@ def encode_classed(scene, exponents: tuple[int, int], seed: int) -> tuple[dict, 
     from gspc.presets import QUALITY
 
     precision = PrecisionParams(exponents=exponents, bias=1.0, sh_keep=1.0)
-    params = replace(QUALITY["low"].attributes, precision=precision)
+    params = replace(QUALITY["low"].attributes.with_lambda(10.0), precision=precision)
     sig = synthetic_significance(scene.num_gaussians, scene.sh_degree, seed)
     enc = encode_attributes(scene, params, significance=sig)
     assert enc.section.version == 4

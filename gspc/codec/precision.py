@@ -16,7 +16,9 @@ Gaussian over the encoder's views, and the rate's :class:`PrecisionParams`:
   lego fit: 5-8% fewer bytes at equal PSNR without that, the bird capture 5% at 39 dB and even over its
   curve). The other groups' few components (1 to 4) count as one: per component as well, the statues lost
   1-2% (bench/precision.md). Scenes of SH degree 0 are planned as before; ``PrecisionParams.per_component``
-  off (the high preset: the bird lost 5.7% at its rates) weighs every group as a whole.
+  off (the high preset: the bird lost 5.7% at its rates) weighs every group as a whole. Beyond a finest
+  class (``PrecisionParams.tail``) the exponent follows the sensitivity at half the pace: the measure
+  over-predicts the extreme ones, and a hard floor there left a sky of large Gaussians coarse.
 - **SH degree**: a band is kept where dropping it would change the views (its first-order change of the
   renders, ``sh_band_change``) by more than its coded step does;
 - **removal**: a Gaussian that paints a small fraction of what the median Gaussian paints over the views
@@ -69,7 +71,8 @@ class PrecisionParams:
     """How the encoder spends precision per Gaussian (an encoder choice: none of it is in the file).
 
     Class step multipliers are ``2^e`` for integer ``e`` in ``exponents`` (``e = 0``: the rate's own steps,
-    class 0); a Gaussian's ``e`` is ``round(bias - log2(sensitivity / median) / 2)``. ``sh_keep``: a band is
+    class 0); a Gaussian's ``e`` is ``round(bias - log2(sensitivity / median) / 2)``, and beyond ``tail``
+    (None: no tail) it follows at half the pace (:func:`class_exponents`). ``sh_keep``: a band is
     kept where its change of the views is at least this many of its coded steps (0 keeps every band).
     ``prune``: a Gaussian whose blending weight over the views is below ``prune x lambda`` times the median
     Gaussian's is removed (0: never). ``min_class``: the fewest Gaussians a class other than 0 may hold;
@@ -78,6 +81,10 @@ class PrecisionParams:
 
     exponents: tuple[int, int] = (-1, 2)  # (finest, coarsest)
     bias: float = 0.0
+    # The measure over-predicts the most sensitive Gaussians' error: restoring a sky of large Gaussians
+    # removed 16-100x less of the views' squared error than their gradients predicted, against the object
+    # inside it (bench/precision.md). Finer than ``tail`` the exponent takes one step per two of the rule's.
+    tail: int | None = None
     sh_keep: float = 0.0
     prune: float = 0.0
     groups: tuple[str, ...] = field(default=CLASSED_GROUPS)
@@ -247,7 +254,8 @@ def _coded_components(
 
 def class_exponents(sens: np.ndarray, params: PrecisionParams, among: np.ndarray | None = None) -> np.ndarray:
     """Each Gaussian's step exponent ``e`` (multiplier 2^e) from its sensitivity (see PrecisionParams),
-    relative to the median of those ``among`` (all by default)."""
+    relative to the median of those ``among`` (all by default). Beyond ``params.tail`` the rule's ``t - k``
+    becomes ``t - floor(k / 2)``: -5 -> -4, -6 and -7 -> -5, -8 and -9 -> -6 for a tail at -4."""
     lo, hi = params.exponents
     ref = sens if among is None else sens[among]
     positive = ref[ref > 0]
@@ -255,7 +263,11 @@ def class_exponents(sens: np.ndarray, params: PrecisionParams, among: np.ndarray
         return np.full(len(sens), hi, np.int64)
     median = float(np.median(positive))
     rel = np.log2(np.maximum(sens, median * 2.0**-60) / median)
-    return np.clip(np.rint(params.bias - rel / 2), lo, hi).astype(np.int64)
+    e = np.rint(params.bias - rel / 2)
+    if params.tail is not None:
+        t = params.tail
+        e = np.where(e < t, np.ceil(t + (e - t) / 2), e)
+    return np.clip(e, lo, hi).astype(np.int64)
 
 
 def merge_small_classes(exponent: np.ndarray, among: np.ndarray, params: PrecisionParams) -> np.ndarray:
