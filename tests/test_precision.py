@@ -218,6 +218,19 @@ def test_gaussians_no_measured_view_shows_keep_the_rates_steps_and_their_place()
     assert len(enc.kept) < 400  # the measured faint ones were removed
 
 
+def test_removal_keeps_half_at_any_lambda():
+    """The removal floor grows with lambda but never past the median's weight: at least half the measured
+    Gaussians stay (the low preset at lambda 200 removed every one of a small scene)."""
+    from gspc.presets import QUALITY
+
+    scene = random_scene(300, sh_degree=0, seed=5)
+    for lam in (200.0, 1e6):
+        enc = encode_attributes(
+            scene, QUALITY["low"].attributes.with_lambda(lam), significance=_significance(300, 0, seed=5)
+        )
+        assert 150 <= len(enc.kept) < 300
+
+
 def test_the_high_preset_removes_nothing():
     from gspc.presets import QUALITY
 
