@@ -23,7 +23,8 @@ Gaussian over the encoder's views, and the rate's :class:`PrecisionParams`:
   renders, ``sh_band_change``) by more than its coded step does;
 - **removal**: a Gaussian that paints a small fraction of what the median Gaussian paints over the views
   (its blending weight) is dropped: its bytes buy less than theirs. The fraction grows with lambda, the
-  price of a byte in error: a fixed one capped the quality the finer rates reach (bench/precision.md).
+  price of a byte in error: a fixed one capped the quality the finer rates reach (bench/precision.md). It
+  never passes the median's own weight: half the Gaussians stay at any lambda.
 """
 
 from __future__ import annotations
