@@ -79,26 +79,56 @@ def test_zooms_keep_each_gaussians_largest_per_pixel_measure():
     assert both.gradient["log_scales"][3] >= one.gradient["log_scales"][3]
 
 
-def test_a_gaussian_the_sample_under_shows_is_measured_at_every_camera():
-    """A Gaussian close in front of one unsampled camera, turned away from the scene, gets that camera's
-    measure (per sampled view) instead of the glimpse the sample has of it; the rest keep the sample's."""
+def _looking_out(scene, cams, skip):
+    """``cams`` with one camera outside ``skip`` turned half about its y axis (same centre, looking away from
+    the scene) and Gaussian 0 placed in front of it: that camera alone sees it whole."""
     from gspc.cameras import Camera
-    from gspc.encoder.significance import SIGNIFICANCE_VIEWS, encoder_significance, evenly_spaced
 
-    scene = random_scene(50, sh_degree=0, seed=2)
-    cams = synthesize_views(scene, 3 * SIGNIFICANCE_VIEWS, 24, 24)
-    sample = evenly_spaced(cams, SIGNIFICANCE_VIEWS)
-    j = next(i for i, c in enumerate(cams) if all(c is not s for s in sample))
-    flip = np.diag([-1.0, 1.0, -1.0, 1.0])  # half a turn about its y axis: same centre, looking out
-    cams[j] = Camera(flip @ cams[j].world_to_cam, cams[j].K, 24, 24)
+    j = next(i for i, c in enumerate(cams) if all(c is not s for s in skip))
+    flip = np.diag([-1.0, 1.0, -1.0, 1.0])
+    cams[j] = Camera(flip @ cams[j].world_to_cam, cams[j].K, cams[j].width, cams[j].height)
     centre = np.asarray(cams[j].center)
     with torch.no_grad():
         scene.means[0] = torch.tensor(centre * 1.3, dtype=torch.float32)
         scene.log_scales[0] = float(np.log(0.05 * np.linalg.norm(centre)))
+    return cams
+
+
+def test_every_camera_is_measured_at_its_own_size_and_a_sample_zoomed():
+    """Up to WIDE_VIEWS cameras each is measured at 1x (what one camera alone sees is never a glimpse), a
+    sample of them at the larger zooms, per Gaussian the largest per view of the whole set."""
+    from gspc.encoder.significance import SIGNIFICANCE_VIEWS, WIDE_VIEWS, encoder_significance, evenly_spaced
+
+    scene = random_scene(50, sh_degree=1, seed=2)
+    cams = synthesize_views(scene, 3 * SIGNIFICANCE_VIEWS, 24, 24)
+    assert len(cams) <= WIDE_VIEWS
+    sample = evenly_spaced(cams, SIGNIFICANCE_VIEWS)
+    cams = _looking_out(scene, cams, sample)
+    sig = encoder_significance(scene, cams)
+    one = significance(scene, cams)
+    two = significance(scene, evenly_spaced(cams, SIGNIFICANCE_VIEWS), zooms=(2.0,))
+    per_view = len(cams) / SIGNIFICANCE_VIEWS
+    assert np.array_equal(sig.weight, np.maximum(one.weight, two.weight * per_view))
+    for k, g in sig.gradient.items():
+        assert np.array_equal(g, np.maximum(one.gradient[k], two.gradient[k] * per_view))
+    assert np.array_equal(sig.sh_band_change, np.maximum(one.sh_band_change, two.sh_band_change * per_view))
     plain = significance(scene, sample, zooms=(1.0, 2.0))
+    assert sig.weight[0] > 2 * per_view * plain.weight[0]
+
+
+def test_beyond_the_measured_cameras_a_gaussian_they_under_show_is_measured_at_every_camera():
+    """Past WIDE_VIEWS cameras, a Gaussian close in front of one unmeasured camera gets that camera's measure
+    (per measured view) instead of the glimpse the others have of it; the rest keep theirs."""
+    from gspc.encoder.significance import WIDE_VIEWS, encoder_significance, evenly_spaced
+
+    scene = random_scene(50, sh_degree=0, seed=2)
+    cams = synthesize_views(scene, 2 * WIDE_VIEWS, 16, 16)
+    wide = evenly_spaced(cams, WIDE_VIEWS)
+    cams = _looking_out(scene, cams, wide)
+    plain = encoder_significance(scene, evenly_spaced(cams, WIDE_VIEWS))  # the same cameras, no survey
     sig = encoder_significance(scene, cams)
     assert sig.weight[0] > 2 * plain.weight[0]
-    assert sig.gradient["quats"][0] > plain.gradient["quats"][0]
-    # Only raised, never lowered; the others are shown as well by the sample as by every camera.
+    assert sig.gradient["log_scales"][0] > 2 * plain.gradient["log_scales"][0]
+    # Only raised, never lowered; the others are shown as well by the measured cameras as by every camera.
     assert (sig.weight >= plain.weight).all()
     assert (sig.weight[1:] == plain.weight[1:]).mean() > 0.8

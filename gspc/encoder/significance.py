@@ -16,10 +16,12 @@ At several zooms (the cameras' own resolution and twice it, say), each measure i
 of the zoom's views, and the largest kept: a Gaussian finer than a pixel of the cameras shows its scale and
 rotation only when the picture is shown larger (bench/precision.md).
 
-The encoder measures a sample of its cameras (:func:`encoder_significance`); a Gaussian the sample shows
-much less of than the cameras do (a wall or sky at the edge of the sampled frames, seen whole by others) is
-measured again, alone, at every camera: a sky of large Gaussians lost 10 dB to removal and coarse classes
-chosen from such glimpses (bench/precision.md).
+The encoder (:func:`encoder_significance`) measures every one of its cameras (up to WIDE_VIEWS) at their
+own size and a sample of them at the larger zooms: a sample at 1x saw a sky Gaussian behind the object where
+another camera sees it beside it, and removal took it (a shells scene lost 4 dB in three views that way). A
+Gaussian the cameras measured show much less of than all of them do (beyond WIDE_VIEWS cameras) is measured
+again, alone, at every camera: a sky of large Gaussians lost 10 dB to removal and coarse classes chosen from
+such glimpses (bench/precision.md).
 
 None is ever written to a file: the precision classes chosen from them are what a decoder reads, so a
 decoder never recomputes these. tools/bench_significance.py measures which of them predicts where the
@@ -52,11 +54,16 @@ __all__ = [
 ]
 
 # The encoder's sample: 20 views rank Gaussians as well as all 161 of the bird capture
-# (bench/significance.md), each rendered forward and backward at the cameras' size and at twice it:
-# precision measured at 1x alone left the statues 0.4-0.6 dB worse at 2x for the same bytes
-# (bench/precision.md).
+# (bench/significance.md); they are rendered forward and backward at twice the cameras' size too: precision
+# measured at 1x alone left the statues 0.4-0.6 dB worse at 2x for the same bytes (bench/precision.md).
 SIGNIFICANCE_VIEWS = 20
 SIGNIFICANCE_ZOOMS = (1.0, 2.0)
+# At 1x every camera is measured, up to this many (evenly spaced): 20 rank Gaussians as well as all, but
+# removal took what only unsampled cameras see whole (against the sample alone, low preset: shells of large
+# Gaussians +4.3 and +0.7 dB, the bird +0.19 dB for 0.3% more bytes, trumpet +0.34 dB at equal bytes, massa
+# and lego along their curves; bench/precision.md). 64 holds the 60 views the encoder synthesises: at most
+# 44 more renders at 1x.
+WIDE_VIEWS = 64
 # A Gaussian the sample shows less than 1 / UNDER_SAMPLED of what every camera shows on average (by
 # gspc/visibility.py's footprints) is measured again at every camera.
 UNDER_SAMPLED = 1.5
@@ -170,22 +177,47 @@ def encoder_significance(
     background: Sequence[float] = (0.0, 0.0, 0.0),
     progress: Progress | None = None,
 ) -> Significance:
-    """The encoder's measure: :func:`significance` at SIGNIFICANCE_VIEWS evenly spaced cameras and
-    SIGNIFICANCE_ZOOMS, and the Gaussians that sample under-shows measured alone at every camera (in front
-    of nothing: what the rest hides of them is counted too, which errs towards precision)."""
-    sample = evenly_spaced(cameras, SIGNIFICANCE_VIEWS)
-    sig = significance(scene, sample, background, progress, SIGNIFICANCE_ZOOMS)
-    if len(sample) == len(cameras):
+    """The encoder's measure: :func:`significance` at up to WIDE_VIEWS evenly spaced cameras at 1x and at
+    SIGNIFICANCE_VIEWS of them at the larger SIGNIFICANCE_ZOOMS (per Gaussian the largest, per view of the
+    wider set), and the Gaussians those cameras under-show measured alone at every camera (in front of
+    nothing: what the rest hides of them is counted too, which errs towards precision)."""
+    wide = evenly_spaced(cameras, WIDE_VIEWS)
+    sample = evenly_spaced(wide, SIGNIFICANCE_VIEWS)
+    zooms = [z for z in SIGNIFICANCE_ZOOMS if z != 1.0]
+    total = len(wide) + len(sample) * len(zooms)
+    sig = significance(scene, wide, background, _within(progress, 0, total))
+    if zooms:
+        zoomed = significance(scene, sample, background, _within(progress, len(wide), total), zooms)
+        sig = _largest(sig, zoomed, len(wide) / len(sample))
+    if len(wide) == len(cameras):
         return sig
     means, log_scales = scene.means.detach().cpu().numpy(), scene.log_scales.detach().cpu().numpy()
-    shown = footprints(means, log_scales, sample)
+    shown = footprints(means, log_scales, wide)
     rows = np.flatnonzero(footprints(means, log_scales, list(cameras)) > UNDER_SAMPLED * shown)
     if rows.size == 0:
         return sig
     budget = max(1, SURVEY_WORK_PER_GAUSSIAN * scene.num_gaussians // rows.size)
     survey = evenly_spaced(cameras, min(budget, SURVEY_MAX_VIEWS))
     alone = significance(scene.subset(rows), survey, background)
-    return _raised(sig, rows, alone, len(sample) / len(survey))
+    return _raised(sig, rows, alone, len(wide) / len(survey))
+
+
+def _within(progress: Progress | None, before: int, total: int) -> Progress | None:
+    """``progress`` for a part of a stage: its steps counted after ``before`` of ``total``."""
+    if progress is None:
+        return None
+    return lambda stage, done, _: progress(stage, before + done, total)
+
+
+def _largest(a: Significance, b: Significance, per_view: float) -> Significance:
+    """Per Gaussian the larger of ``a``'s measures and ``b``'s scaled by ``per_view`` (``b`` measured fewer
+    views)."""
+    return Significance(
+        np.maximum(a.weight, b.weight * per_view),
+        {k: np.maximum(v, b.gradient[k] * per_view) for k, v in a.gradient.items()},
+        np.maximum(a.sh_band_change, b.sh_band_change * per_view),
+        a.views,
+    )
 
 
 def _raised(sig: Significance, rows: np.ndarray, alone: Significance, per_view: float) -> Significance:
