@@ -60,3 +60,19 @@ def test_distances_and_sizes_grow_with_distance(obj):
     # Shapes are the copies' own: the spread of log scales within a Gaussian is kept.
     spread = world.log_scales[n:].max(1).values - world.log_scales[n:].min(1).values
     assert float(spread.max()) > 0.1
+
+
+def test_unseen_views_are_none_of_the_encoders_and_look_alike(obj):
+    """tools/bench_setups.py unseen_views: the scoring views sit between the encoder's synthesised cameras
+    (the encoder measures every one of those), at their size and field of view."""
+    from bench_setups import unseen_views
+
+    from gspc.views import synthesize_views
+
+    cams = synthesize_views(obj, 60, width=40, height=40)
+    views = unseen_views(obj, cams, 12)
+    assert len(views) == 12
+    centres = np.array([c.center for c in cams])
+    gap = min(np.linalg.norm(centres - np.asarray(v.center), axis=1).min() for v in views)
+    assert gap > 1e-3 * np.linalg.norm(centres[0])
+    assert all(v.width == 40 and v.height == 40 and np.isclose(v.fx, cams[0].fx) for v in views)

@@ -11,8 +11,8 @@ tuned to a small image. Scenes:
 - **bird**: the fit at ``--bird`` (tools/fit_scene.py output), its training cameras for the encoder and its
   held-out ones (every 8th) for scoring, at their native size, on its background (tools/bench_setups.py
   fit_setup, as tools/bench_peers.py);
-- **statues** (``--statues``, SH degree 0): tools/bench_pipeline.py's statue setup (bench_setups.synth_setup:
-  60 views synthesised at 320x320 for the encoder, 12 others for scoring, black background);
+- **statues** (``--statues``, SH degree 0): bench_setups.synth_setup: 60 views synthesised at 320x320 for the
+  encoder, black background, scored at 12 views between them (``unseen``: none is an encoder camera);
 - **shells**: the statue ``--shells-object`` alone and inside tools/scenes.py's shells (``with_shells``: skies
   of large Gaussians at 10, 30 and 100 radii and far floaters), both at the object's statue setup.
 
@@ -28,7 +28,7 @@ The significance measure is computed once per scene as the encoder computes it (
 
 Whole encoder (``--trees``): ``gspc encode`` with default options (its own 60 synthesised views) and ``gspc
 decode`` with default options, each statue, by the gspc code of each named tree ("." this checkout, else a git
-ref exported with ``git archive``); scored at 12 of the encoder's views its side information does not cover.
+ref exported with ``git archive``); scored at 12 views between the encoder's 60 (bench_setups.unseen_views).
 """
 
 from __future__ import annotations
@@ -64,6 +64,7 @@ from gspc.codec.params import CodecParams
 from gspc.encoder.significance import (
     SIGNIFICANCE_VIEWS,
     SIGNIFICANCE_ZOOMS,
+    WIDE_VIEWS,
     Significance,
     encoder_significance,
     evenly_spaced,
@@ -184,12 +185,14 @@ class Bench:
     def measure_significance(self) -> None:
         """The encoder's significance measure (as gspc/encoder/prepare.py), timed."""
         cams = self.encoder_cams
-        views = evenly_spaced(cams, SIGNIFICANCE_VIEWS)
+        wide = evenly_spaced(cams, WIDE_VIEWS)
+        sample = evenly_spaced(wide, SIGNIFICANCE_VIEWS)
         t0 = time.perf_counter()
         self.measure = encoder_significance(self.scene, cams, self.views.background)
         self.measure_s = time.perf_counter() - t0
-        zooms = " and ".join(f"{z:g}x" for z in SIGNIFICANCE_ZOOMS)
-        self.measure_views = f"{len(views)} of {len(cams)} at {cams[0].width}x{cams[0].height}, {zooms}"
+        zooms = " and ".join(f"{z:g}x" for z in SIGNIFICANCE_ZOOMS if z != 1.0)
+        size = f"{cams[0].width}x{cams[0].height}"
+        self.measure_views = f"{len(wide)} of {len(cams)} at {size}, {len(sample)} of them at {zooms}"
 
 
 @dataclass(frozen=True)
@@ -283,7 +286,7 @@ class FileRow:
 
 
 def whole_encoder(statue: Path, label: str, tree: Path, tmp: Path) -> FileRow:
-    s = default_encode_setup(statue.stem, statue)
+    s = default_encode_setup(statue.stem, statue, unseen=True)
     scene = read_scene(statue)
     gfile, ply = tmp / f"{label}_{statue.stem}.gspc", tmp / f"{label}_{statue.stem}.ply"
     enc_s = run_gspc(tree, "encode", str(statue), "-o", str(gfile))
@@ -340,7 +343,7 @@ def shells_section(
 ) -> tuple[list[str], list[str], list[Bench]]:
     """The object at ``path`` alone and inside tools/scenes.py's shells at each sky cover, every variant at
     the low and high presets: (table rows, the description, the scenes for the significance table)."""
-    setup = synth_setup(path.stem, path)
+    setup = synth_setup(path.stem, path, unseen=True)
     obj = read_scene(path)
     alone = Bench.of(f"{path.stem} alone", "shells", None, obj, setup)
     alone.measure_significance()
@@ -352,7 +355,8 @@ def shells_section(
         f"count, {spec.floaters} floaters at {spec.floater_radii[0]:g}-{spec.floater_radii[1]:g} radii, seed "
         f"{spec.seed}; copies of random object Gaussians with their longest axis grown to cover the sky "
         "`cover` times over (1: a sky behind the object; 0.1: sparse large Gaussians). Scored at the statue "
-        f"setup's {len(alone.views.cams[0])} views ({alone.views.size(0)} and {alone.views.size(1)}), whole "
+        f"setup's {len(alone.views.cams[0])} views between its 60 ({alone.views.size(0)} and "
+        f"{alone.views.size(1)}), whole "
         "frames, each scene against its own original's renders; visibility from the setup's 60 views for "
         "both.",
         "",
@@ -407,7 +411,8 @@ def main(
         benches.append(Bench.of(Path(bird).name, "bird", s.scene_path, read_scene(s.scene_path), s))
     for name in [x for x in statues.split(",") if x]:
         path = statue_dir / f"{name}.sog"
-        benches.append(Bench.of(name, "statue", path, read_scene(path), synth_setup(name, path)))
+        setup = synth_setup(name, path, unseen=True)
+        benches.append(Bench.of(name, "statue", path, read_scene(path), setup))
 
     results: list[tuple[Bench, Point | None, dict[str, list[Point]]]] = []
     if benches:  # compile and warm the renderer's kernels once, so the first measure's time is its own
@@ -511,9 +516,9 @@ def report(results, chosen, lam_list, shell_rows, shell_text, file_rows, trees, 
             "## The whole encoder, low preset, SH-degree-0 statues",
             "",
             "`gspc encode STATUE.sog -o F.gspc` and `gspc decode F.gspc -o F.ply`, default options, by the "
-            f"code of each tree ({trees}); scored at 12 of the encoder's 60 synthesised views that its side "
-            "information does not cover, 1x and 2x. B/G: the whole file (side information included) per "
-            f"input Gaussian; target <= {TARGETS['file B/G']} at no lower PSNR than today. Seconds: the "
+            f"code of each tree ({trees}); scored at 12 views between the encoder's 60 synthesised ones "
+            "(none of them an encoder camera), 1x and 2x. B/G: the whole file (side information included) "
+            f"per input Gaussian; target <= {TARGETS['file B/G']} at no lower PSNR than today. Seconds: the "
             "command's wall time, Python start included.",
             "",
             "| tree | statue | Gaussians | file bytes | B/G | side information bytes | PSNR 1x / 2x "
@@ -529,9 +534,10 @@ def report(results, chosen, lam_list, shell_rows, shell_text, file_rows, trees, 
     lines += [
         "## The significance measure's time",
         "",
-        f"`significance()` (gspc/encoder/significance.py) over {SIGNIFICANCE_VIEWS} evenly spaced encoder "
-        "cameras at each of its SIGNIFICANCE_ZOOMS, with the Gaussians they under-show measured again at "
-        "every camera (`encoder_significance`), timed alone (what an encoder that uses it adds).",
+        f"`encoder_significance()` (gspc/encoder/significance.py): up to {WIDE_VIEWS} evenly spaced encoder "
+        f"cameras at their size, {SIGNIFICANCE_VIEWS} of them at the larger SIGNIFICANCE_ZOOMS, and the "
+        "Gaussians they under-show measured again at every camera; timed alone (what an encoder that uses it "
+        "adds).",
         "",
         "| scene | Gaussians | views | seconds |",
         "|---|---|---|---|",

@@ -67,6 +67,9 @@ def fit_setup(folder: Path) -> Setup:
     )
 
 
+UNSEEN_EXTRA = 7  # a sphere of 67 points shares none with the encoder's 60
+
+
 def held_out_line(scene, eval_cams: list[Camera]) -> str:
     """The opening of a fit benchmark's description: the scene, its held-out views and the machine."""
     return (
@@ -76,16 +79,34 @@ def held_out_line(scene, eval_cams: list[Camera]) -> str:
     )
 
 
-def synth_setup(name: str, path: Path, views: int = 60, size: int = 320, n_eval: int = 12) -> Setup:
-    cams = synthesize_views(read_scene(path), views, width=size, height=size)
-    return Setup(name, path, cams, held_out_views(cams, n_eval), (0.0, 0.0, 0.0))
+def synth_setup(
+    name: str, path: Path, views: int = 60, size: int = 320, n_eval: int = 12, unseen: bool = False
+) -> Setup:
+    """``views`` synthesised cameras for the encoder; scored at ``n_eval`` of them its side information does
+    not cover, or (``unseen``) at :func:`unseen_views`."""
+    scene = read_scene(path)
+    cams = synthesize_views(scene, views, width=size, height=size)
+    scoring = unseen_views(scene, cams, n_eval) if unseen else held_out_views(cams, n_eval)
+    return Setup(name, path, cams, scoring, (0.0, 0.0, 0.0))
 
 
-def default_encode_setup(name: str, path: Path, n_eval: int = 12) -> Setup:
+def default_encode_setup(name: str, path: Path, n_eval: int = 12, unseen: bool = False) -> Setup:
     """The cameras ``gspc encode`` synthesises for a scene given without cameras (default options), and
-    ``n_eval`` of those its side information does not cover."""
-    cams = encoder_cameras(read_scene(path), None, EncodeOptions())
-    return Setup(name, path, cams, held_out_views(cams, n_eval), (0.0, 0.0, 0.0))
+    ``n_eval`` of those its side information does not cover, or (``unseen``) :func:`unseen_views`."""
+    scene = read_scene(path)
+    cams = encoder_cameras(scene, None, EncodeOptions())
+    scoring = unseen_views(scene, cams, n_eval) if unseen else held_out_views(cams, n_eval)
+    return Setup(name, path, cams, scoring, (0.0, 0.0, 0.0))
+
+
+def unseen_views(scene, cams: list[Camera], n_eval: int) -> list[Camera]:
+    """``n_eval`` evenly spaced views of a Fibonacci sphere of UNSEEN_EXTRA more views than ``cams``
+    (synthesised ones, whose size and field of view they keep): views between the encoder's, none of them one
+    it measures (the encoder measures every camera at 1x: a scoring view among them flatters its choice)."""
+    c = cams[0]
+    fov = float(np.degrees(2 * np.arctan(0.5 * c.width / c.fx)))
+    other = synthesize_views(scene, len(cams) + UNSEEN_EXTRA, width=c.width, height=c.height, fov_deg=fov)
+    return [other[int(j)] for j in np.linspace(0, len(other) - 1, n_eval).round()]
 
 
 def held_out_views(cams: list[Camera], n_eval: int) -> list[Camera]:
