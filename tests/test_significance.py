@@ -132,3 +132,18 @@ def test_beyond_the_measured_cameras_a_gaussian_they_under_show_is_measured_at_e
     # Only raised, never lowered; the others are shown as well by the measured cameras as by every camera.
     assert (sig.weight >= plain.weight).all()
     assert (sig.weight[1:] == plain.weight[1:]).mean() > 0.8
+
+
+def test_the_measure_reports_one_stage_from_open_to_close():
+    """The 1x views and the zoomed sample are one "significance" stage: opened once, counted up, closed."""
+    from gspc.encoder.significance import SIGNIFICANCE_VIEWS, encoder_significance
+
+    scene = random_scene(30, sh_degree=0, seed=4)
+    cams = synthesize_views(scene, SIGNIFICANCE_VIEWS + 5, 12, 12)
+    calls = []
+    encoder_significance(scene, cams, progress=lambda stage, done, total: calls.append((stage, done, total)))
+    assert {c[0] for c in calls} == {"significance"}
+    done = [c[1] for c in calls]
+    total = calls[0][2]
+    assert all(c[2] == total for c in calls) and done == sorted(done)
+    assert done.count(0) == 1 and done.count(total) == 1 and done[-1] == total
