@@ -59,13 +59,13 @@ __all__ = [
 SIGNIFICANCE_VIEWS = 20
 SIGNIFICANCE_ZOOMS = (1.0, 2.0)
 # At 1x every camera is measured, up to this many (evenly spaced): 20 rank Gaussians as well as all, but
-# removal took what only unsampled cameras see whole (against the sample alone, low preset: shells of large
-# Gaussians +4.3 and +0.7 dB, the bird +0.19 dB for 0.3% more bytes, trumpet +0.34 dB at equal bytes, massa
-# and lego along their curves; bench/precision.md). 64 holds the 60 views the encoder synthesises: at most
-# 44 more renders at 1x.
+# removal took what only unsampled cameras see whole (against the sample alone, low preset, scored between
+# the cameras: shells of large Gaussians +8.1 and +3.7 dB, massa and trumpet +0.5 dB at 0.97-0.98 of the
+# bytes, the bird +0.19 dB for 0.3% more bytes, lego along its curve; bench/precision.md). 64 holds the 60
+# views the encoder synthesises: at most 44 more renders at 1x.
 WIDE_VIEWS = 64
-# A Gaussian the sample shows less than 1 / UNDER_SAMPLED of what every camera shows on average (by
-# gspc/visibility.py's footprints) is measured again at every camera.
+# Past WIDE_VIEWS cameras, a Gaussian the measured ones show less than 1 / UNDER_SAMPLED of what every camera
+# shows on average (by gspc/visibility.py's footprints) is measured again at every camera.
 UNDER_SAMPLED = 1.5
 # ... at most this many Gaussian-views (the sample's own cost at 1x is views x N) and this many cameras (each
 # render has a cost of its own, whatever it holds): beyond either, at evenly spaced cameras.
