@@ -147,3 +147,20 @@ def test_the_measure_reports_one_stage_from_open_to_close():
     total = calls[0][2]
     assert all(c[2] == total for c in calls) and done == sorted(done)
     assert done.count(0) == 1 and done.count(total) == 1 and done[-1] == total
+
+
+def test_the_1x_pass_is_bounded_in_gaussian_views_never_below_the_sample(monkeypatch):
+    """Past WIDE_WORK Gaussian-views the 1x pass measures fewer cameras (a 1M-Gaussian scene would otherwise
+    pay about 150 s for 44 more views), never fewer than the sample; there the measure is the sample's own."""
+    import gspc.encoder.significance as sg
+
+    cams = synthesize_views(random_scene(10, seed=1), 3 * sg.SIGNIFICANCE_VIEWS, 16, 16)
+    assert len(sg.wide_cameras(cams, 1000)) == len(cams)  # 60 <= WIDE_VIEWS
+    assert len(sg.wide_cameras(cams, sg.WIDE_WORK // 30)) == 30
+    assert len(sg.wide_cameras(cams, 10 * sg.WIDE_WORK)) == sg.SIGNIFICANCE_VIEWS
+    scene = random_scene(40, sh_degree=0, seed=6)
+    monkeypatch.setattr(sg, "WIDE_WORK", 40)  # one view's worth for 40 Gaussians: the sample alone
+    sig = sg.encoder_significance(scene, cams)
+    sample = sg.evenly_spaced(cams, sg.SIGNIFICANCE_VIEWS)
+    plain = significance(scene, sample, zooms=(1.0, 2.0))
+    assert np.allclose(sig.weight[plain.weight > 0], plain.weight[plain.weight > 0])

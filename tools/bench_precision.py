@@ -69,6 +69,7 @@ from gspc.encoder.significance import (
     encoder_significance,
     evenly_spaced,
     significance,
+    wide_cameras,
 )
 from gspc.format import container
 from gspc.format.chunks import SIDE
@@ -185,7 +186,7 @@ class Bench:
     def measure_significance(self) -> None:
         """The encoder's significance measure (as gspc/encoder/prepare.py), timed."""
         cams = self.encoder_cams
-        wide = evenly_spaced(cams, WIDE_VIEWS)
+        wide = wide_cameras(cams, self.scene.num_gaussians)
         sample = evenly_spaced(wide, SIGNIFICANCE_VIEWS)
         t0 = time.perf_counter()
         self.measure = encoder_significance(self.scene, cams, self.views.background)

@@ -16,12 +16,12 @@ At several zooms (the cameras' own resolution and twice it, say), each measure i
 of the zoom's views, and the largest kept: a Gaussian finer than a pixel of the cameras shows its scale and
 rotation only when the picture is shown larger (bench/precision.md).
 
-The encoder (:func:`encoder_significance`) measures every one of its cameras (up to WIDE_VIEWS) at their
-own size and a sample of them at the larger zooms: a sample at 1x saw a sky Gaussian behind the object where
-another camera sees it beside it, and removal took it (a shells scene lost 4 dB in three views that way). A
-Gaussian the cameras measured show much less of than all of them do (beyond WIDE_VIEWS cameras) is measured
-again, alone, at every camera: a sky of large Gaussians lost 10 dB to removal and coarse classes chosen from
-such glimpses (bench/precision.md).
+The encoder (:func:`encoder_significance`) measures every one of its cameras (up to WIDE_VIEWS, fewer for
+scenes past WIDE_WORK) at their own size and a sample of them at the larger zooms: a sample at 1x saw a sky
+Gaussian behind the object where another camera sees it beside it, and removal took it (a shells scene lost
+4 dB in three views that way). A Gaussian the cameras measured show much less of than all of them do (where
+not every camera is measured) is measured again, alone, at every camera: a sky of large Gaussians lost 10 dB
+to removal and coarse classes chosen from such glimpses (bench/precision.md).
 
 None is ever written to a file: the precision classes chosen from them are what a decoder reads, so a
 decoder never recomputes these. tools/bench_significance.py measures which of them predicts where the
@@ -51,6 +51,7 @@ __all__ = [
     "evenly_spaced",
     "measure_view",
     "significance",
+    "wide_cameras",
 ]
 
 # The encoder's sample: 20 views rank Gaussians as well as all 161 of the bird capture
@@ -64,8 +65,12 @@ SIGNIFICANCE_ZOOMS = (1.0, 2.0)
 # bytes, the bird +0.19 dB for 0.3% more bytes, lego along its curve; bench/precision.md). 64 holds the 60
 # views the encoder synthesises: at most 44 more renders at 1x.
 WIDE_VIEWS = 64
-# Past WIDE_VIEWS cameras, a Gaussian the measured ones show less than 1 / UNDER_SAMPLED of what every camera
-# shows on average (by gspc/visibility.py's footprints) is measured again at every camera.
+# ... and at most this many Gaussian-views in that pass (64 views of 250k Gaussians), never fewer views than
+# the sample: one view's measure takes 0.34 s at 1x for the bird's 100k Gaussians and 3.3 s for 1M on a
+# 2-vCPU VM (bench/precision.md), so 44 more views would add about 150 s to a 1M-Gaussian encode.
+WIDE_WORK = 64 * 250_000
+# Where not every camera is measured at 1x, a Gaussian the measured ones show less than 1 / UNDER_SAMPLED of
+# what every camera shows on average (by gspc/visibility.py's footprints) is measured again at every camera.
 UNDER_SAMPLED = 1.5
 # ... at most this many Gaussian-views (the sample's own cost at 1x is views x N) and this many cameras (each
 # render has a cost of its own, whatever it holds): beyond either, at evenly spaced cameras.
@@ -177,11 +182,12 @@ def encoder_significance(
     background: Sequence[float] = (0.0, 0.0, 0.0),
     progress: Progress | None = None,
 ) -> Significance:
-    """The encoder's measure: :func:`significance` at up to WIDE_VIEWS evenly spaced cameras at 1x and at
+    """The encoder's measure: :func:`significance` at up to WIDE_VIEWS evenly spaced cameras at 1x (fewer
+    past WIDE_WORK Gaussian-views, never fewer than SIGNIFICANCE_VIEWS) and at
     SIGNIFICANCE_VIEWS of them at the larger SIGNIFICANCE_ZOOMS (per Gaussian the largest, per view of the
     wider set), and the Gaussians those cameras under-show measured alone at every camera (in front of
     nothing: what the rest hides of them is counted too, which errs towards precision)."""
-    wide = evenly_spaced(cameras, WIDE_VIEWS)
+    wide = wide_cameras(cameras, scene.num_gaussians)
     sample = evenly_spaced(wide, SIGNIFICANCE_VIEWS)
     zooms = [z for z in SIGNIFICANCE_ZOOMS if z != 1.0]
     total = len(wide) + len(sample) * len(zooms)
@@ -200,6 +206,13 @@ def encoder_significance(
     survey = evenly_spaced(cameras, min(budget, SURVEY_MAX_VIEWS))
     alone = significance(scene.subset(rows), survey, background)
     return _raised(sig, rows, alone, len(wide) / len(survey))
+
+
+def wide_cameras(cameras: Sequence[Camera], num_gaussians: int) -> list[Camera]:
+    """The cameras :func:`encoder_significance` measures at 1x for a scene of ``num_gaussians``: up to
+    WIDE_VIEWS evenly spaced, fewer past WIDE_WORK Gaussian-views, never fewer than SIGNIFICANCE_VIEWS."""
+    count = max(SIGNIFICANCE_VIEWS, min(WIDE_VIEWS, WIDE_WORK // max(1, int(num_gaussians))))
+    return evenly_spaced(cameras, count)
 
 
 def _within(progress: Progress | None, before: int, total: int) -> Progress | None:
