@@ -86,15 +86,19 @@ def synth_setup(
     not cover, or (``unseen``) at :func:`unseen_views`."""
     scene = read_scene(path)
     cams = synthesize_views(scene, views, width=size, height=size)
-    scoring = unseen_views(scene, cams, n_eval) if unseen else held_out_views(cams, n_eval)
-    return Setup(name, path, cams, scoring, (0.0, 0.0, 0.0))
+    return _synthesised(name, path, scene, cams, n_eval, unseen)
 
 
 def default_encode_setup(name: str, path: Path, n_eval: int = 12, unseen: bool = False) -> Setup:
     """The cameras ``gspc encode`` synthesises for a scene given without cameras (default options), and
     ``n_eval`` of those its side information does not cover, or (``unseen``) :func:`unseen_views`."""
     scene = read_scene(path)
-    cams = encoder_cameras(scene, None, EncodeOptions())
+    return _synthesised(name, path, scene, encoder_cameras(scene, None, EncodeOptions()), n_eval, unseen)
+
+
+def _synthesised(name: str, path: Path, scene, cams: list[Camera], n_eval: int, unseen: bool) -> Setup:
+    """A setup of synthesised encoder cameras on a black background, scored at ``n_eval`` of them without
+    side information or (``unseen``) between them."""
     scoring = unseen_views(scene, cams, n_eval) if unseen else held_out_views(cams, n_eval)
     return Setup(name, path, cams, scoring, (0.0, 0.0, 0.0))
 

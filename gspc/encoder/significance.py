@@ -194,7 +194,7 @@ def encoder_significance(
     sig = significance(scene, wide, background, _within(progress, 0, total))
     if zooms:
         zoomed = significance(scene, sample, background, _within(progress, len(wide), total), zooms)
-        sig = _largest(sig, zoomed, len(wide) / len(sample))
+        sig = _raised(sig, np.arange(scene.num_gaussians), zoomed, len(wide) / len(sample))
     if len(wide) == len(cameras):
         return sig
     means, log_scales = scene.means.detach().cpu().numpy(), scene.log_scales.detach().cpu().numpy()
@@ -222,20 +222,9 @@ def _within(progress: Progress | None, before: int, total: int) -> Progress | No
     return lambda stage, done, _: progress(stage, before + done, total)
 
 
-def _largest(a: Significance, b: Significance, per_view: float) -> Significance:
-    """Per Gaussian the larger of ``a``'s measures and ``b``'s scaled by ``per_view`` (``b`` measured fewer
-    views)."""
-    return Significance(
-        np.maximum(a.weight, b.weight * per_view),
-        {k: np.maximum(v, b.gradient[k] * per_view) for k, v in a.gradient.items()},
-        np.maximum(a.sh_band_change, b.sh_band_change * per_view),
-        a.views,
-    )
-
-
 def _raised(sig: Significance, rows: np.ndarray, alone: Significance, per_view: float) -> Significance:
-    """``sig`` with each measure of ``rows`` raised to ``alone``'s (summed over other views, scaled by
-    ``per_view`` to the sample's count) where that is larger."""
+    """``sig`` with each measure of ``rows`` raised to ``alone``'s (summed over other views or at another
+    zoom, scaled by ``per_view`` to ``sig``'s count of views) where that is larger."""
 
     def up(a: np.ndarray, b: np.ndarray) -> np.ndarray:
         out = a.copy()
