@@ -11,16 +11,21 @@ import torch
 
 from gspc.adam import FusedAdam
 
+CUDA = torch.cuda.is_available()
 
-def _params(seed: int, dtype: torch.dtype) -> list[torch.Tensor]:
+
+def _params(seed: int, dtype: torch.dtype, device: str) -> list[torch.Tensor]:
     g = torch.Generator().manual_seed(seed)
     shapes = [(50, 3), (50, 4), (50,), (50, 15, 3)]
-    return [torch.randn(s, generator=g, dtype=dtype).requires_grad_(True) for s in shapes]
+    return [torch.randn(s, generator=g, dtype=dtype).to(device).requires_grad_(True) for s in shapes]
 
 
+@pytest.mark.parametrize(
+    "device", ["cpu", pytest.param("cuda", marks=pytest.mark.skipif(not CUDA, reason="needs a CUDA GPU"))]
+)
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
-def test_steps_are_bit_identical_to_torch_fused_adam(dtype):
-    ours, theirs = _params(1, dtype), _params(1, dtype)
+def test_steps_are_bit_identical_to_torch_fused_adam(dtype, device):
+    ours, theirs = _params(1, dtype, device), _params(1, dtype, device)
     mine = FusedAdam(
         [{"params": [p], "lr": 0.01 * (i + 1), "name": str(i)} for i, p in enumerate(ours)], eps=1e-15
     )
@@ -29,7 +34,8 @@ def test_steps_are_bit_identical_to_torch_fused_adam(dtype):
     )
     g = torch.Generator().manual_seed(2)
     for step in range(6):
-        grads = [torch.randn(p.shape, generator=g, dtype=dtype) * 10.0 ** (step % 3 - 1) for p in ours]
+        scale = 10.0 ** (step % 3 - 1)
+        grads = [torch.randn(p.shape, generator=g, dtype=dtype).to(device) * scale for p in ours]
         if step == 2:
             grads[1] = None  # a parameter without a gradient this step keeps its state (and its step count)
         for opt, params in ((mine, ours), (ref, theirs)):

@@ -397,6 +397,34 @@ def test_gpu_bench_measures_nothing_without_a_gpu(tmp_path):
     assert not out.exists()
 
 
+def _one_copy_scale_scene(folder: Path, n: int = 400) -> None:
+    """A one-copy "scale scene" (tools/make_scale_scenes.py's layout) of ``n`` random Gaussians."""
+    import json
+
+    folder.mkdir()
+    write_ply(random_scene(n, sh_degree=1, seed=2, log_scale=-3.5), folder / "point_cloud.ply")
+    copy = {"asset": "random", "gaussians": n, "centre": [0.0, 0.0], "yaw": 0.0}
+    (folder / "scene.json").write_text(json.dumps({"gaussians": n, "copies": [copy]}))
+
+
+@pytest.mark.slow
+def test_walk_bench_measures_nothing_without_a_gpu_and_runs_on_the_cpu(tmp_path):
+    # tools/bench_gpu_walk.py: refused without CUDA; its dry run (--device cpu) times every configuration.
+    tool = Path(__file__).resolve().parent.parent / "tools" / "bench_gpu_walk.py"
+    _one_copy_scale_scene(tmp_path / "scale_400")
+    out = tmp_path / "walk.md"
+    base = [sys.executable, str(tool), "--scene", str(tmp_path / "scale_400"), "--out", str(out)]
+    if not CUDA:
+        proc = subprocess.run(base, capture_output=True, text=True)
+        assert proc.returncode != 0 and "no CUDA GPU here: nothing measured, nothing written" in proc.stderr
+        assert not out.exists()
+    args = ["--device", "cpu", "--views", "1", "--repeats", "1", "--budgets", "19,21"]
+    proc = subprocess.run([*base, *args], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    table = out.read_text()
+    assert "| CPU_WALK (2^19, looped scans) |" in table and "| 2^21, one-kernel scans = GPU_WALK |" in table
+
+
 @pytest.mark.slow
 def test_gpu_bench_runs_its_steps_on_the_cpu(tmp_path):
     # The tool's dry run (--device cpu): every step of a GPU session, so that a lent GPU's scarce minutes
@@ -404,10 +432,7 @@ def test_gpu_bench_runs_its_steps_on_the_cpu(tmp_path):
     import json
 
     folder = tmp_path / "scale_400"
-    folder.mkdir()
-    write_ply(random_scene(400, sh_degree=1, seed=2, log_scale=-3.5), folder / "point_cloud.ply")
-    copy = {"asset": "random", "gaussians": 400, "centre": [0.0, 0.0], "yaw": 0.0}
-    (folder / "scene.json").write_text(json.dumps({"gaussians": 400, "copies": [copy]}))
+    _one_copy_scale_scene(folder)
     tool = Path(__file__).resolve().parent.parent / "tools" / "bench_gpu.py"
     out, logs, keep = tmp_path / "gpu.md", tmp_path / "logs", tmp_path / "keep"
     keep.mkdir()

@@ -137,7 +137,7 @@ def test_walk_in_small_blocks_and_chunks(monkeypatch):
     monkeypatch.setattr(api, "composite", partial(rast.composite, kernel="torch"))
     # Many steps and chunks, tiles leaving the walk at different times: same result.
     monkeypatch.setattr(rast, "BLOCK", 3)
-    monkeypatch.setattr(rast, "STEP_BUDGET", 64 * 3 * 2)
+    monkeypatch.setattr(rast, "CPU_WALK", rast.WalkSizes(64 * 3 * 2, rast.CPU_WALK.scan_loop_from))
     scene = random_scene(150, 2, seed=5, spread=0.4, opacities=torch.full((150,), 2.5, dtype=F64))
     check_against_reference(scene, camera())
 
@@ -145,8 +145,21 @@ def test_walk_in_small_blocks_and_chunks(monkeypatch):
 def test_walk_with_looped_scans(monkeypatch):
     monkeypatch.setattr(api, "composite", partial(rast.composite, kernel="torch"))
     # The slice-loop transmittance and remaining-sum scans (taken on large steps) give the same result.
-    monkeypatch.setattr(rast, "SCAN_LOOP_FROM", 0)
+    monkeypatch.setattr(rast, "CPU_WALK", rast.WalkSizes(rast.CPU_WALK.step_budget, 0))
     scene = random_scene(150, 2, seed=6, spread=0.4, opacities=torch.randn(150, dtype=F64) * 3.0 + 2.0)
+    check_against_reference(scene, camera())
+
+
+def test_the_gpu_walk_sizes_give_the_same_result(monkeypatch):
+    # A GPU walks every tile of a frame in one chunk with one-kernel scans: the same sums, regrouped. Run
+    # here on the CPU as a stand-in (the walk's arithmetic does not depend on the device).
+    assert rast.walk_sizes(torch.device("cpu")) is rast.CPU_WALK
+    assert rast.walk_sizes(torch.device("cuda")) is rast.GPU_WALK
+    assert rast.GPU_WALK.step_budget > rast.CPU_WALK.step_budget
+    monkeypatch.setattr(api, "composite", partial(rast.composite, kernel="torch"))
+    monkeypatch.setattr(rast, "BLOCK", 3)  # many steps: tiles leave the one chunk at different times
+    monkeypatch.setattr(rast, "CPU_WALK", rast.GPU_WALK)
+    scene = random_scene(150, 2, seed=7, spread=0.4, opacities=torch.randn(150, dtype=F64) * 3.0 + 2.0)
     check_against_reference(scene, camera())
 
 

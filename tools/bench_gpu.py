@@ -4,8 +4,9 @@ write the GPU rows for bench/scale.md (to bench/scale_gpu.md).
 
     python tools/make_scale_scenes.py -o /work/scale --sizes 1000000     # the scene (see that tool)
     python tools/bench_gpu.py [--scenes /work/scale] [--sizes 1000000] [--per-copy 8] \
-        [--tests torch,gsplat] [--decoders torch,gsplat,cpu] [--gsplat-path DIR] [--keep DIR | --coded DIR] \
-        [--deadline SECONDS] [--logs DIR] [--out bench/scale_gpu.md]
+        [--tests torch,gsplat] [--decoders torch,gsplat,cpu] [--encode-with torch|gsplat] \
+        [--gsplat-path DIR] [--keep DIR | --coded DIR] [--deadline SECONDS] [--logs DIR] \
+        [--out bench/scale_gpu.md]
 
 Cameras as tools/bench_scale_pipeline.py (``--per-copy`` close-ups of each copy, every 4th held out and
 scored against the original's renders), so the rows compare with bench/scale_pipeline.md's CPU rows.
@@ -204,7 +205,7 @@ def run_size(folder: Path, tmp: Path, args, clock: Clock, logs: Path, record) ->
                 str(tmp / "train.json"),
             ]
             + ["--device", args.device],
-            plain,
+            child_env(args.threads, args.gsplat_path if args.encode_with == "gsplat" else None),
             clock,
             logs / f"encode_{n}.log",
         )
@@ -283,6 +284,12 @@ def main() -> None:
     )
     ap.add_argument(
         "--tests", default="torch", help="run tests/test_gpu.py with: torch, gsplat, both or none"
+    )
+    ap.add_argument(
+        "--encode-with",
+        default="torch",
+        choices=["torch", "gsplat"],
+        help="the encode's renderer (gsplat: --gsplat-path)",
     )
     ap.add_argument("--keep", type=Path, help="keep each size's encoded file here (scale_N.gspc)")
     ap.add_argument("--coded", type=Path, help="decode the files an earlier --keep left here; no encode")

@@ -43,14 +43,34 @@ from gspc.render.rules import (
 )
 
 BLOCK = 32  # Gaussians per tile per step
-STEP_BUDGET = 1 << 19  # elements of one (tiles, BLOCK, pixels) array; bounds memory
 DEAD_POWER = -1e4  # exponent of padding entries: exp2() is exactly 0
 LOG2_E = 1.4426950408889634
-# torch's CPU cumprod/cumsum along the middle axis of a (tiles, BLOCK, 64) array cost about 1 ns per
-# element; a Python loop over the BLOCK slices (one in-place op each) costs ~0.4 ns per element plus
-# ~7 us per op, so it wins only on large arrays: from about 2^18 elements, by ~35% at a full step of
-# 2^19 (measured on the machine of bench/render.md).
-SCAN_LOOP_FROM = 1 << 19
+
+
+@dataclass(frozen=True)
+class WalkSizes:
+    """How the walk cuts its work, by device (``walk_sizes``); the composited result is the same up to
+    round-off whatever the sizes (tests/test_render.py)."""
+
+    step_budget: int  # elements of one (tiles, BLOCK, pixels) array: tiles per chunk, and memory
+    scan_loop_from: int  # steps of at least this many elements scan with a loop over the BLOCK slices
+
+
+# CPU: steps sized for its caches. torch's CPU cumprod/cumsum along the middle axis of a (tiles, BLOCK, 64)
+# array cost about 1 ns per element; a Python loop over the BLOCK slices (one in-place op each) costs
+# ~0.4 ns per element plus ~7 us per op, so it wins only on large arrays: from about 2^18 elements, by ~35%
+# at a full step of 2^19 (measured on the machine of bench/render.md).
+CPU_WALK = WalkSizes(step_budget=1 << 19, scan_loop_from=1 << 19)
+# GPU: scans are one kernel each (the loop's 32 launches per scan cost more than a scan there), and
+# chunks of 1024 tiles (2^21 elements, 8 MB per float32 array). Measured on an H200 at 1M Gaussians
+# (bench/gpu_walk.md): forward and backward 1.3x faster than CPU_WALK; 2^19 as fast, larger chunks slower
+# (2^23 1.1x, 2^25 0.9x).
+GPU_WALK = WalkSizes(step_budget=1 << 21, scan_loop_from=1 << 62)
+
+
+def walk_sizes(device: torch.device) -> WalkSizes:
+    """The walk's sizes on ``device``: CPU_WALK on the CPU, GPU_WALK elsewhere."""
+    return CPU_WALK if device.type == "cpu" else GPU_WALK
 
 
 @dataclass
@@ -385,26 +405,26 @@ def _may_cap(params: torch.Tensor) -> torch.Tensor:
     return out
 
 
-def _transmittance(alpha: torch.Tensor, t_in: torch.Tensor, r: _Rules) -> torch.Tensor:
+def _transmittance(alpha: torch.Tensor, t_in: torch.Tensor, r: _Rules, loop_from: int) -> torch.Tensor:
     """(b, L + 1, 64) transmittance before each Gaussian and after the last (serial product order)."""
     b, n, _ = alpha.shape
     trans = torch.empty(b, n + 1, PIXELS, dtype=alpha.dtype, device=alpha.device)
     trans[:, 0] = t_in
     torch.sub(r.one, alpha, out=trans[:, 1:])
-    if trans.numel() < SCAN_LOOP_FROM:
+    if trans.numel() < loop_from:
         return trans.cumprod_(1)
-    for i in range(1, n + 1):  # the serial products of cumprod_, faster (SCAN_LOOP_FROM)
+    for i in range(1, n + 1):  # the serial products of cumprod_, faster on large CPU steps (CPU_WALK)
         trans[:, i].mul_(trans[:, i - 1])
     return trans
 
 
-def _minus_remaining(wg: torch.Tensor, before: torch.Tensor) -> torch.Tensor:
+def _minus_remaining(wg: torch.Tensor, before: torch.Tensor, loop_from: int) -> torch.Tensor:
     """(b, L, 64) -R_i = sum_{j <= i} wg_j - before, R_i being what the Gaussians after i still add."""
     out = wg.clone()
     out[:, 0].sub_(before)
-    if wg.numel() < SCAN_LOOP_FROM:
+    if wg.numel() < loop_from:
         return out.cumsum_(1)
-    for i in range(1, wg.shape[1]):  # the serial sums of cumsum_, faster (SCAN_LOOP_FROM)
+    for i in range(1, wg.shape[1]):  # the serial sums of cumsum_, faster on large CPU steps (CPU_WALK)
         out[:, i].add_(out[:, i - 1])
     return out
 
@@ -427,7 +447,8 @@ def _walk(coef: torch.Tensor, feat: torch.Tensor, may_cap: torch.Tensor, bins: T
     r = _Rules(dt, dev)
     order = torch.sort(bins.count, descending=True).indices
     order = order[: int((bins.count > 0).sum())]
-    chunk = max(1, STEP_BUDGET // (PIXELS * BLOCK))
+    sizes = walk_sizes(dev)
+    chunk = max(1, sizes.step_budget // (PIXELS * BLOCK))
     if grad is None:
         out = torch.zeros(len(bins.count), feat.shape[1], PIXELS, dtype=dt, device=dev)
     else:
@@ -455,7 +476,7 @@ def _walk(coef: torch.Tensor, feat: torch.Tensor, may_cap: torch.Tensor, bins: T
             pos = pos.reshape(-1)  # (b * L,) pair rows, padding -> the zero-alpha row
             cap = bool(may_cap.index_select(0, pos).any())
             alpha = _alphas(coef.index_select(0, pos).reshape(b, -1, 6), r, cap)  # (b, L, 64)
-            trans = _transmittance(alpha, trans_run.index_select(0, live), r)
+            trans = _transmittance(alpha, trans_run.index_select(0, live), r, sizes.scan_loop_from)
             t_before, t_end = trans[:, :-1], trans[:, -1].clone()  # (the backward reuses trans)
             keep = _included(trans[:, 1:], r)
             w = alpha * t_before
@@ -474,7 +495,8 @@ def _walk(coef: torch.Tensor, feat: torch.Tensor, may_cap: torch.Tensor, bins: T
                 # and g = dL/dw. Written as w_i g_i - R_i alpha_i / (1 - alpha_i), it reuses w g (the
                 # terms of R) and needs no separate gate where nothing reaches the cap.
                 wg = torch.bmm(fc, gp).mul_(w)
-                neg_after = _minus_remaining(wg, remaining.index_select(0, live))  # -R_i
+                before = remaining.index_select(0, live)
+                neg_after = _minus_remaining(wg, before, sizes.scan_loop_from)  # -R_i
                 remaining.index_copy_(0, live, neg_after[:, -1].neg())
                 ratio = torch.sub(r.one, alpha, out=trans[:, 1:])
                 ratio = torch.div(alpha, ratio, out=ratio)
