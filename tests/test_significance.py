@@ -164,3 +164,22 @@ def test_the_1x_pass_is_bounded_in_gaussian_views_never_below_the_sample(monkeyp
     sample = sg.evenly_spaced(cams, sg.SIGNIFICANCE_VIEWS)
     plain = significance(scene, sample, zooms=(1.0, 2.0))
     assert np.allclose(sig.weight[plain.weight > 0], plain.weight[plain.weight > 0])
+
+
+def test_the_compiled_sums_are_the_plain_ones():
+    # significance_cpu.py against the PyTorch sums it replaced: absolute values summed per row, and per SH
+    # band |sum of gradient x coefficient| (products in the inputs' dtype, sums in float64).
+    from gspc.encoder import significance_cpu as kern
+
+    g = torch.Generator().manual_seed(3)
+    for dtype in (torch.float32, torch.float64):
+        rows = torch.randn(500, 7, generator=g, dtype=dtype)
+        expected = rows.double().abs().sum(1).numpy()
+        np.testing.assert_allclose(kern.abs_row_sums(rows.numpy()), expected, rtol=1e-6)
+        grad, coef = torch.randn(2, 500, 15, 3, generator=g, dtype=dtype).unbind(0)
+        product = (grad * coef).double()
+        for degree in (1, 2, 3):
+            bands = [product[:, b * b - 1 : (b + 1) ** 2 - 1].sum((1, 2)).abs() for b in range(1, degree + 1)]
+            got = kern.band_changes(grad.numpy(), coef.numpy(), degree)
+            assert got.shape == (500, degree)
+            np.testing.assert_allclose(got, torch.stack(bands, 1).numpy(), rtol=1e-9, atol=1e-12)

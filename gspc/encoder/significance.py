@@ -66,8 +66,10 @@ SIGNIFICANCE_ZOOMS = (1.0, 2.0)
 # views the encoder synthesises: at most 44 more renders at 1x.
 WIDE_VIEWS = 64
 # ... and at most this many Gaussian-views in that pass (64 views of 250k Gaussians), never fewer views than
-# the sample: one view's measure takes 0.34 s at 1x for the bird's 100k Gaussians and 3.3 s for 1M on a
-# 2-vCPU VM (bench/precision.md), so 44 more views would add about 150 s to a 1M-Gaussian encode.
+# the sample: one view's measure took 0.34 s at 1x for the bird's 100k Gaussians and 3.3 s for 1M on a
+# 2-vCPU VM (bench/precision.md), so 44 more views would have added about 150 s to a 1M-Gaussian encode.
+# The compiled sums (significance_cpu.py) have since made a 1M view about 2.6x cheaper (bench/speed.md);
+# the bound was kept.
 WIDE_WORK = 64 * 250_000
 # Where not every camera is measured at 1x, a Gaussian the measured ones show less than 1 / UNDER_SAMPLED of
 # what every camera shows on average (by gspc/visibility.py's footprints) is measured again at every camera.
@@ -91,7 +93,8 @@ class ViewMeasures:
 
 def measure_view(scene: GaussianScene, camera: Camera, background: Sequence[float]) -> ViewMeasures:
     """Every measure of one view, from one render and its backward."""
-    leaves = {k: v.detach().clone().requires_grad_(True) for k, v in scene.tensors().items()}
+    # Leaves sharing the scene's storage (autograd.grad below writes no .grad, and nothing writes them).
+    leaves = {k: v.detach().requires_grad_(True) for k, v in scene.tensors().items()}
     p = project(
         leaves["means"],
         leaves["quats"],
@@ -110,10 +113,13 @@ def measure_view(scene: GaussianScene, camera: Camera, background: Sequence[floa
     bg = torch.tensor(background, dtype=acc.dtype)
     image = acc[..., :3] + (1 - alpha)[..., None] * bg
     grads = torch.autograd.grad(image.sum(), [*leaves.values(), p.colors], allow_unused=True)
+    from gspc.encoder import significance_cpu as kern  # numba: imported where a measure runs
+
     n = scene.num_gaussians
     zero = torch.zeros(n, dtype=torch.float64)
     gradient = {
-        k: zero if g is None else g.abs().reshape(n, -1).sum(1).double() for k, g in zip(leaves, grads[:-1])
+        k: zero if g is None else torch.from_numpy(kern.abs_row_sums(g.reshape(n, -1).contiguous().numpy()))
+        for k, g in zip(leaves, grads[:-1])
     }
     # d sum(image) / d colour_i is sum_pixels alpha_i T_i in each channel; the projection may keep only the
     # Gaussians in front of the camera (p.index): the rest weigh 0.
@@ -124,9 +130,8 @@ def measure_view(scene: GaussianScene, camera: Camera, background: Sequence[floa
     change = torch.zeros(n, d, dtype=torch.float64)
     g_rest = grads[ATTRIBUTE_NAMES.index("sh_rest")]
     if d > 0 and g_rest is not None:
-        product = (g_rest * scene.sh_rest.detach()).double()
-        for b in range(1, d + 1):
-            change[:, b - 1] = product[:, b * b - 1 : (b + 1) ** 2 - 1].sum((1, 2)).abs()
+        coef = scene.sh_rest.detach().contiguous().numpy()
+        change = torch.from_numpy(kern.band_changes(g_rest.contiguous().numpy(), coef, d))
     return ViewMeasures(weight, gradient, change)
 
 
