@@ -54,9 +54,9 @@ def test_log_linear_reads_a_value_between_two_codings_in_log_bytes():
     assert _log_linear((1000, 30.0), (1000, 31.0), 1000) == 30.0  # one coding: its own value
 
 
-def _rival_inputs(extras: list[int]):
+def _rival_inputs(shares: list[float]):
     """CheckInputs enough for the rivals: a small scene coded at the low preset, views to score at, and
-    candidates carrying ``extras`` bytes of side information."""
+    candidates whose side information weighs ``shares`` of the attributes' bytes."""
     from dataclasses import replace
 
     from scenes import random_scene
@@ -73,8 +73,8 @@ def _rival_inputs(extras: list[int]):
     params = replace(quality_preset("low").attributes, lam=4.0)
     sig = encoder_significance(scene, cams)
     enc = encode_attributes(scene, params, significance=sig)
-    cands = [SideCandidate(2 * (k + 1), [], {}, bytes(e)) for k, e in enumerate(extras)]
-    inputs = CheckInputs(
+    cands = [SideCandidate(2 * (k + 1), [], {}, bytes(int(f * enc.num_bytes))) for k, f in enumerate(shares)]
+    return CheckInputs(
         scene=scene,
         attributes=enc,
         params=params.unrefined(),
@@ -90,7 +90,6 @@ def _rival_inputs(extras: list[int]):
         background=(0.0, 0.0, 0.0),
         margin_db=0.15,
     )
-    return inputs
 
 
 def test_the_rivals_are_read_off_two_codings_and_agree_with_each_ones_own_search(monkeypatch):
@@ -103,10 +102,7 @@ def test_the_rivals_are_read_off_two_codings_and_agree_with_each_ones_own_search
     from gspc.metrics import mean_psnr
     from gspc.reconstruct import render_images
 
-    inp = _rival_inputs([0, 0])
-    base = inp.attributes.num_bytes
-    inp.candidates[0].payload = bytes(int(0.03 * base))
-    inp.candidates[1].payload = bytes(int(0.012 * base))
+    inp = _rival_inputs([0.03, 0.012])
     reference = render_images(inp.scene, inp.check_cameras, inp.background)
 
     def score(s):
