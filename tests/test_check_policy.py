@@ -125,3 +125,24 @@ def test_the_rivals_are_read_off_two_codings_and_agree_with_each_ones_own_search
     for r, o, c in zip(read, own, inp.candidates):
         assert o.num_bytes <= policy._rival_target(inp, c)
         assert abs(r - score(o.decoded)) < 0.3, (r, score(o.decoded))
+
+
+def test_a_rival_searched_past_the_deadline_starts_no_second_coding(monkeypatch):
+    # The rival a file holds ("spent on attributes") is searched after the check's refinement: past the
+    # time budget's deadline its search stops where it starts.
+    import time
+
+    import gspc.codec.attributes as attributes
+    from gspc.encoder import policy
+
+    inp = _rival_inputs([0.05])
+    codings = []
+    encode = attributes.encode_attributes
+    monkeypatch.setattr(attributes, "encode_attributes", lambda *a, **k: codings.append(1) or encode(*a, **k))
+    target = policy._rival_target(inp, inp.candidates[0])
+    policy._rival_coding(inp, target, deadline=time.perf_counter() - 1.0)
+    late = len(codings)
+    assert late <= 1  # the search's start (the file's own coding where the parameters agree, else one)
+    codings.clear()
+    policy._rival_coding(inp, target)
+    assert len(codings) > late  # without a deadline the same search goes on

@@ -233,8 +233,9 @@ def check_side_info(inp: CheckInputs, progress: Progress | None = None) -> Check
     )
     if outcome is Outcome.SENT:
         return CheckResult(side, enc, decision)
-    if outcome is Outcome.SPENT_ON_ATTRIBUTES:
-        return CheckResult(None, _rival_coding(inp, _rival_target(inp, side)), decision)
+    if outcome is Outcome.SPENT_ON_ATTRIBUTES:  # searched after the refinement: within the time budget
+        rival = _rival_coding(inp, _rival_target(inp, side), deadline=inp.deadline)
+        return CheckResult(None, rival, decision)
     return CheckResult(None, enc, decision)
 
 
@@ -261,11 +262,16 @@ def _rival_target(inp: CheckInputs, side: SideCandidate) -> int:
 
 
 def _rival_coding(
-    inp: CheckInputs, target: int, rel_tol: float | None = None, first: EncodedAttributes | None = None
+    inp: CheckInputs,
+    target: int,
+    rel_tol: float | None = None,
+    first: EncodedAttributes | None = None,
+    deadline: float | None = None,
 ) -> EncodedAttributes:
     """The attributes alone at ``target`` bytes (at most), to ``rel_tol`` under it (default: the policy's
     tolerance, and its share of the side information's bytes); the search starts from ``first`` (a coding
-    with the rival's parameters), else from the file's coding where it has them."""
+    with the rival's parameters), else from the file's coding where it has them, and starts no coding after
+    ``deadline`` (search_lambda's)."""
     enc = inp.attributes
     params = inp.params.with_lambda(enc.lam)
     if rel_tol is None:
@@ -281,6 +287,7 @@ def _rival_coding(
         significance=inp.significance,
         rel_tol=rel_tol,
         first=first,
+        deadline=deadline,
     )
 
 
