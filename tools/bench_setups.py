@@ -21,6 +21,7 @@ import torch
 
 from gspc.cameras import Camera
 from gspc.encoder.prepare import encoder_cameras
+from gspc.encoder.significance import evenly_spaced
 from gspc.format import container
 from gspc.format.chunks import RESI, SIDE
 from gspc.format.header import FileHeader
@@ -110,7 +111,7 @@ def unseen_views(scene, cams: list[Camera], n_eval: int) -> list[Camera]:
     c = cams[0]
     fov = float(np.degrees(2 * np.arctan(0.5 * c.width / c.fx)))
     other = synthesize_views(scene, len(cams) + UNSEEN_EXTRA, width=c.width, height=c.height, fov_deg=fov)
-    return [other[int(j)] for j in np.linspace(0, len(other) - 1, n_eval).round()]
+    return evenly_spaced(other, n_eval)
 
 
 def held_out_views(cams: list[Camera], n_eval: int) -> list[Camera]:
