@@ -153,6 +153,11 @@ class EncodeOptions:
         "spend precision per Gaussian as its effect on the views calls for, and remove those worth less than "
         "their bytes (attribute codec version 4; off: every Gaussian at the rate's steps, versions 1-3)",
     )
+    removal_search: bool = knob(
+        True,
+        "let the encoder's cameras choose a stronger removal than the preset's where it codes the views "
+        "better for its bytes (gspc/encoder/removal.py; off: the preset's)",
+    )
     background: tuple[float, float, float] = knob(
         (0.0, 0.0, 0.0), "render background RGB in [0, 1] (1 1 1 for scenes trained on white)"
     )

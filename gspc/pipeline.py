@@ -38,6 +38,7 @@ from gspc.encoder.prepare import (
     sample_side_views,
     side_candidates,
 )
+from gspc.encoder.removal import RemovalParams
 from gspc.encoder.side import SideCandidate, view_residuals
 from gspc.errors import CodecError, InputError
 from gspc.format import container
@@ -139,10 +140,20 @@ def encode_scene(
     rep.info["renderer"] = renderer_info(device, progress, encoder=True)
     cameras = encoder_cameras(scene, cameras, opts)
     restorer = load_restorer(opts.restorer, device=device)  # fails early on a name the package lacks
+    removal = RemovalParams() if opts.removal_search else None
     with _stage(rep, progress, "attributes"):
         coded_attributes = code_attributes(
-            scene, cameras, codec_params(opts), opts.target_size, opts.background, progress
+            scene,
+            cameras,
+            codec_params(opts),
+            opts.target_size,
+            opts.background,
+            progress,
+            removal,
+            _deadline(opts, rep),
         )
+    if coded_attributes.removal is not None:
+        rep.info["removal"] = coded_attributes.removal.summary()
     choice = _side_information(scene, cameras, coded_attributes, restorer, opts, device, progress, rep)
     if opts.target_size is not None:  # what the search reached, so a missed target is visible
         enc = choice.attributes

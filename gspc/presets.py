@@ -58,6 +58,9 @@ class Preset:
 # (bench/precision.md). Removal at lambda x 3.5 / 100 of the median's weight (was 2 / 100) and lambda 8 (was
 # 10): the bird, lego and the five statues 2-7% fewer bytes at equal PSNR; at the preset every statue codes
 # 0.6-1.5% fewer bytes 0.3-0.7 dB closer (1x), the bird +1.5 dB for 1.9% more (bench/precision.md).
+# That removal is the least a scene gets: the encoder tries two, four and eight times it, each in the same
+# bytes, and keeps the strongest that views between its cameras show closer (gspc/encoder/removal.py; the
+# bird and lego take eight times, the statues and shells keep this).
 LOW_PRECISION = PrecisionParams(exponents=(-7, 2), bias=1.5, sh_keep=4.0, prune=0.035, min_class=256, tail=-4)
 HIGH_PRECISION = PrecisionParams(
     exponents=(-3, 2), bias=1.0, sh_keep=2.0, prune=0.0, min_class=256, per_component=False

@@ -152,3 +152,29 @@ def split_test_views(cameras: Sequence[Camera], every: int = 8) -> tuple[list[in
     test_set = set(test)
     train = [i for i in range(len(cameras)) if i not in test_set]
     return train, test
+
+
+def halfway(a: Camera, b: Camera) -> Camera:
+    """The camera halfway between ``a`` and ``b``: the midpoint of their centres, the rotation nearest the
+    mean of theirs (polar decomposition), ``a``'s intrinsics and size."""
+    u, _, vt = np.linalg.svd(a.world_to_cam[:3, :3] + b.world_to_cam[:3, :3])
+    R = u @ vt
+    if np.linalg.det(R) < 0:  # opposite views: no mean rotation, keep a's
+        R = a.world_to_cam[:3, :3]
+    w2c = np.eye(4)
+    w2c[:3, :3] = R
+    w2c[:3, 3] = -R @ (0.5 * (a.center + b.center))
+    return Camera(w2c, a.K.copy(), a.width, a.height, f"{a.name}~{b.name}")
+
+
+def between_views(cameras: Sequence[Camera], picked: Sequence[int]) -> list[Camera]:
+    """For each camera index in ``picked``, the view halfway to its nearest other camera (by centre; itself
+    where every other stands at its centre): views a scene's cameras do not hold, near the ones they do."""
+    centres = np.stack([c.center for c in cameras])
+    out = []
+    for i in picked:
+        d = np.linalg.norm(centres - centres[i], axis=1)
+        d[d <= 0] = np.inf
+        j = int(np.argmin(d))
+        out.append(halfway(cameras[i], cameras[j]) if np.isfinite(d[j]) else cameras[i])
+    return out

@@ -14,7 +14,15 @@ from gspc.io.camera_files import load_cameras
 from gspc.io.cameras_json import save_cameras_json
 from gspc.io.transforms import image_size
 from gspc.scene import make_scene
-from gspc.views import robust_bounds, sample_views, split_test_views, synthesize_views
+from gspc.views import (
+    between_views,
+    halfway,
+    look_at,
+    robust_bounds,
+    sample_views,
+    split_test_views,
+    synthesize_views,
+)
 
 
 def _project(cam: Camera, p) -> tuple[float, float, float]:
@@ -411,3 +419,32 @@ def test_views_of_a_scene_with_a_background_frame_its_object():
     alone, around = synthesize_views(obj, 6), synthesize_views(world, 6)
     for a, b in zip(alone, around):
         assert np.allclose(a.center, b.center, atol=0.05 * np.linalg.norm(a.center))
+
+
+def _looking(eye, target=(0.0, 0.0, 0.0), name=""):
+    K = np.array([[50.0, 0, 32], [0, 50.0, 32], [0, 0, 1]])
+    return Camera(look_at(np.array(eye), np.array(target), np.array([0.0, 0.0, 1.0])), K, 64, 64, name)
+
+
+def test_halfway_is_the_midpoint_and_the_mean_turn():
+    # Two cameras on a circle around the origin, 60 degrees apart: halfway stands between their centres
+    # and looks 30 degrees from each.
+    a = _looking([4.0, 0.0, 0.0], name="a")
+    b = _looking([4.0 * math.cos(math.pi / 3), 4.0 * math.sin(math.pi / 3), 0.0], name="b")
+    h = halfway(a, b)
+    R = h.world_to_cam[:3, :3]
+    assert np.allclose(R @ R.T, np.eye(3)) and np.isclose(np.linalg.det(R), 1.0)
+    assert np.allclose(h.center, 0.5 * (a.center + b.center))
+    for c in (a, b):
+        turn = math.degrees(math.acos(np.clip((np.trace(R @ c.world_to_cam[:3, :3].T) - 1) / 2, -1, 1)))
+        assert turn == pytest.approx(30.0, abs=1e-6)
+    assert np.allclose(halfway(a, a).world_to_cam, a.world_to_cam)
+
+
+def test_between_views_go_halfway_to_the_nearest_camera():
+    cams = [_looking([4.0, 0, 0]), _looking([4.0, 0.4, 0]), _looking([-4.0, 0, 0]), _looking([0, 4.0, 0])]
+    got = between_views(cams, [0, 2])
+    assert np.allclose(got[0].center, [4.0, 0.2, 0.0])  # camera 1 is camera 0's nearest
+    assert np.allclose(got[1].center, [-2.0, 2.0, 0.0])  # camera 3 is camera 2's
+    alone = between_views([cams[0], _looking([4.0, 0, 0], target=(0, 1.0, 0))], [0])
+    assert np.allclose(alone[0].world_to_cam, cams[0].world_to_cam)  # no other centre: itself

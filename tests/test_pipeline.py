@@ -275,3 +275,17 @@ def test_target_size_reports_the_lambda_it_reached(tmp_path):
     lam, reached = rep.info["lambda"].split(" ", 1)
     attribute_bytes = int(reached.split("attributes ")[1].split(" B")[0].replace(",", ""))
     assert float(lam) > 0 and 0.9 * 4000 <= attribute_bytes <= 4000, rep.info["lambda"]
+
+
+def test_the_encoder_reports_the_removal_it_chose_and_can_be_told_to_keep_the_presets(tmp_path):
+    # gspc/encoder/removal.py: at the low preset's lambda the encoder's cameras weigh stronger removals and
+    # the report says what they found; --no-removal-search codes the preset's removal without weighing.
+    src = tmp_path / "in.ply"
+    write_ply(scene(seed=5), src)
+    base = dict(synth_views=4, max_side=40, side_info=False)
+    searched = encode(src, tmp_path / "a.gspc", opts=EncodeOptions(**base))
+    assert "at 4 views" in searched.info["removal"], searched.info["removal"]
+    kept = encode(src, tmp_path / "b.gspc", opts=EncodeOptions(**base, removal_search=False))
+    assert "removal" not in kept.info
+    if searched.info["removal"].startswith("the preset's"):  # the same coding
+        assert (tmp_path / "a.gspc").read_bytes() == (tmp_path / "b.gspc").read_bytes()

@@ -231,6 +231,20 @@ def test_removal_keeps_half_at_any_lambda():
         assert 150 <= len(enc.kept) < 300
 
 
+def test_a_raised_cap_lets_the_floor_pass_the_medians_weight():
+    # The encoder's removal search (gspc/encoder/removal.py) measures stronger removals than the preset's
+    # cap allows: at twice the median's weight fewer than half stay.
+    from dataclasses import replace
+
+    from gspc.presets import QUALITY
+
+    scene = random_scene(300, sh_degree=0, seed=5)
+    params = QUALITY["low"].attributes.with_lambda(200.0)
+    params = replace(params, precision=replace(params.precision, prune_cap=2.0))
+    enc = encode_attributes(scene, params, significance=_significance(300, 0, seed=5))
+    assert len(enc.kept) < 150
+
+
 def test_the_high_preset_removes_nothing():
     from gspc.presets import QUALITY
 

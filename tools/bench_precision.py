@@ -61,6 +61,7 @@ from scenes import Shells, with_shells
 from gspc.cameras import Camera
 from gspc.codec.attributes import EncodedAttributes, encode_attributes
 from gspc.codec.params import CodecParams
+from gspc.encoder.removal import choose_removal
 from gspc.encoder.significance import (
     SIGNIFICANCE_VIEWS,
     SIGNIFICANCE_ZOOMS,
@@ -107,6 +108,7 @@ class Variant:
     params: Callable[[float], CodecParams]  # lambda -> the codec's parameters
     takes_significance: bool  # encode_attributes(..., significance=...) with the scene's measure
     presets: tuple[tuple[str, float], ...]  # (preset, its lambda) for the shells' table
+    chooses_removal: bool = False  # the encoder's cameras choose the removal (gspc/encoder/removal.py)
 
 
 VARIANTS: dict[str, Variant] = {
@@ -123,6 +125,15 @@ VARIANTS: dict[str, Variant] = {
         _classed("low"),
         True,
         (("low", quality_preset("low").attributes.lam),),
+    ),
+    "v4-low-chosen": Variant(
+        "v4-low-chosen",
+        "v4-low with the removal the encoder's cameras choose at each lambda (gspc/encoder/removal.py, as "
+        "`gspc encode` does by default)",
+        _classed("low"),
+        True,
+        (("low", quality_preset("low").attributes.lam),),
+        chooses_removal=True,
     ),
     "v4-high": Variant(
         "v4-high",
@@ -208,7 +219,11 @@ class Point:
 def code(b: Bench, variant: Variant, lam: float) -> tuple[EncodedAttributes, float]:
     extra = {"significance": b.measure} if variant.takes_significance else {}
     t0 = time.perf_counter()
-    enc = encode_attributes(b.scene, variant.params(lam), visible=b.visible, **extra)
+    params = variant.params(lam)
+    enc = encode_attributes(b.scene, params, visible=b.visible, **extra)
+    if variant.chooses_removal:
+        cams, bg = b.encoder_cams, b.views.background
+        enc = choose_removal(b.scene, enc, params, b.visible, b.measure, cams, bg).encoded
     return enc, time.perf_counter() - t0
 
 

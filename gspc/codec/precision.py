@@ -75,9 +75,9 @@ class PrecisionParams:
     class 0); a Gaussian's ``e`` is ``round(bias - log2(sensitivity / median) / 2)``, and beyond ``tail``
     (None: no tail) it follows at half the pace (:func:`class_exponents`). ``sh_keep``: a band is
     kept where its change of the views is at least this many of its coded steps (0 keeps every band).
-    ``prune``: a Gaussian whose blending weight over the views is below ``min(prune x lambda, 1)`` times the
-    median Gaussian's is removed (0: never). ``min_class``: the fewest Gaussians a class other than 0 may
-    hold; ``per_component``: how the class rule counts components (below).
+    ``prune``: a Gaussian whose blending weight over the views is below ``min(prune x lambda, prune_cap)``
+    times the median Gaussian's is removed (0: never). ``min_class``: the fewest Gaussians a class other
+    than 0 may hold; ``per_component``: how the class rule counts components (below).
     """
 
     exponents: tuple[int, int] = (-1, 2)  # (finest, coarsest)
@@ -88,6 +88,9 @@ class PrecisionParams:
     tail: int | None = None
     sh_keep: float = 0.0
     prune: float = 0.0
+    # 1: at least half the measured Gaussians stay (below); the encoder's removal search measures more
+    # (gspc/encoder/removal.py).
+    prune_cap: float = 1.0
     groups: tuple[str, ...] = field(default=CLASSED_GROUPS)
     # A class of fewer Gaussians joins its neighbour towards the rate's own steps: each class codes its own
     # matrices, whose models cost bytes whatever their rows (lego: 79 Gaussians in a class of 2^-4, 1.1 KB).
@@ -227,9 +230,9 @@ def plan_precision(
         # Blending weight, not a first-order change of the views: removing one of several Gaussians that
         # paint the same surface changes little, removing all of them removes the surface (a statue lost
         # 9 dB that way, bench/precision.md); a weight is what a Gaussian paints, however redundant.
-        # Never above the median's own weight, so at least half the measured Gaussians stay at any lambda
-        # (at lambda 200 the low preset's 3.5 lambda / 100 removed every Gaussian of a small scene).
-        floor = min(params.prune * lam, 1.0) * float(np.median(sig.weight[keep & measured]))
+        # Capped, by default at the median's own weight, so at least half the measured Gaussians stay at any
+        # lambda (at lambda 200 the low preset's 3.5 lambda / 100 removed every Gaussian of a small scene).
+        floor = min(params.prune * lam, params.prune_cap) * float(np.median(sig.weight[keep & measured]))
         keep &= (sig.weight >= floor) | ~measured
     exponent = merge_small_classes(class_exponents(sens, params, keep & measured), keep & measured, params)
     exponent[~measured] = 0

@@ -14,6 +14,7 @@ from gspc.codec import residuals
 from gspc.codec.attributes import EncodedAttributes, encode_attributes, search_lambda
 from gspc.codec.params import CodecParams
 from gspc.codec.precision import Significance
+from gspc.encoder.removal import RemovalChoice, RemovalParams, choose_removal
 from gspc.encoder.side import SideCandidate, side_candidate
 from gspc.encoder.significance import encoder_significance
 from gspc.limits import default_refine_iterations
@@ -49,6 +50,7 @@ class CodedAttributes:
     params: CodecParams
     visible: np.ndarray  # per input Gaussian: seen by some camera
     significance: Significance | None = None  # what each Gaussian does to the views, where measured
+    removal: RemovalChoice | None = None  # how the removal was chosen (None: the parameters' own)
 
 
 def code_attributes(
@@ -58,10 +60,14 @@ def code_attributes(
     target_size: int | None = None,
     background: tuple[float, float, float] = (0.0, 0.0, 0.0),
     progress: Progress | None = None,
+    removal: RemovalParams | None = None,
+    deadline: float | None = None,
 ) -> CodedAttributes:
     """Prune what no camera sees and code the rest (at ``target_size`` bytes when given), on the CPU: the
     visibility mask decides what is coded, so it is numpy like the codec. Where the parameters spend
-    precision per Gaussian, its significance is measured first (gspc/encoder/significance.py)."""
+    precision per Gaussian, its significance is measured first (gspc/encoder/significance.py), and with
+    ``removal`` views between the encoder's cameras choose how much to remove in the bytes that coding takes
+    (gspc/encoder/removal.py)."""
     visible = visible_mask(
         scene.means.detach().cpu().numpy(), scene.log_scales.detach().cpu().numpy(), cameras
     )
@@ -72,7 +78,13 @@ def code_attributes(
         enc = search_lambda(scene, target_size, params, visible=visible, significance=sig)
     else:
         enc = encode_attributes(scene, params, visible=visible, significance=sig)
-    return CodedAttributes(enc, params, visible, sig)
+    choice = None
+    if removal is not None and sig is not None:
+        choice = choose_removal(
+            scene.to("cpu"), enc, params, visible, sig, cameras, background, removal, deadline, progress
+        )
+        enc, params = choice.encoded, choice.params
+    return CodedAttributes(enc, params, visible, sig, choice)
 
 
 @dataclass(frozen=True)

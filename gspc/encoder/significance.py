@@ -49,6 +49,7 @@ __all__ = [
     "ViewMeasures",
     "encoder_significance",
     "evenly_spaced",
+    "evenly_spaced_indices",
     "measure_view",
     "significance",
     "wide_cameras",
@@ -138,9 +139,14 @@ def measure_view(scene: GaussianScene, camera: Camera, background: Sequence[floa
 def evenly_spaced(cameras: Sequence[Camera], count: int) -> list[Camera]:
     """``count`` cameras spread evenly over the list (all of them when there are fewer): 20 rank Gaussians as
     well as 161 on the bird capture (bench/significance.md)."""
-    if len(cameras) <= count:
-        return list(cameras)
-    return [cameras[int(i)] for i in np.linspace(0, len(cameras) - 1, count).round().astype(int)]
+    return [cameras[i] for i in evenly_spaced_indices(len(cameras), count)]
+
+
+def evenly_spaced_indices(n: int, count: int) -> list[int]:
+    """The indices :func:`evenly_spaced` picks of ``n`` cameras."""
+    if n <= count:
+        return list(range(n))
+    return [int(i) for i in np.linspace(0, n - 1, count).round().astype(int)]
 
 
 def significance(

@@ -1,0 +1,75 @@
+"""The encoder's choice of removal (gspc/encoder/removal.py): the equal-bytes rule, when no search runs, and
+that the coding kept is the one its parameters say, in no more bytes than the preset's."""
+
+import time
+from dataclasses import replace
+
+from scenes import random_scene
+
+import gspc.codec.attributes as attributes
+from gspc.codec.attributes import encode_attributes
+from gspc.encoder import removal
+from gspc.encoder.removal import RemovalParams, Trial, better, choose_removal
+from gspc.encoder.significance import encoder_significance
+from gspc.presets import quality_preset
+from gspc.views import synthesize_views
+
+
+def test_a_trial_is_better_only_in_no_more_bytes_and_past_the_margin():
+    best = Trial(0.035, 8.0, 1000, 40.0)
+    assert better(best, Trial(0.07, 7.0, 990, 40.2), 1000, 0.1)
+    assert not better(best, Trial(0.07, 7.0, 990, 40.05), 1000, 0.1)  # within the views' noise
+    assert not better(best, Trial(0.07, 7.0, 1001, 45.0), 1000, 0.1)  # the search missed the bytes
+
+
+def _small():
+    scene = random_scene(1500, sh_degree=1, seed=5, log_scale=-3.5)
+    cams = synthesize_views(scene, 6, width=48, height=48)
+    params = replace(quality_preset("low").attributes, lam=4.0)
+    sig = encoder_significance(scene, cams)
+    first = encode_attributes(scene, params, significance=sig)
+    return scene, cams, params, sig, first
+
+
+def _counting(monkeypatch) -> list[int]:
+    codings: list[int] = []
+    encode = attributes.encode_attributes
+    monkeypatch.setattr(attributes, "encode_attributes", lambda *a, **k: codings.append(1) or encode(*a, **k))
+    return codings
+
+
+def test_no_search_where_nothing_is_removed_or_past_the_deadline(monkeypatch):
+    scene, cams, params, sig, first = _small()
+    codings = _counting(monkeypatch)
+    high = quality_preset("high").attributes  # removes nothing
+    assert choose_removal(scene, first, high, None, sig, cams, (0, 0, 0)).base is None
+    uniform = replace(params, precision=None)
+    assert choose_removal(scene, first, uniform, None, sig, cams, (0, 0, 0)).base is None
+    late = choose_removal(scene, first, params, None, sig, cams, (0, 0, 0), deadline=time.perf_counter() - 1)
+    assert late.base is None and late.encoded is first and late.params is params
+    assert codings == []
+
+
+def test_a_better_removal_is_kept_with_its_own_parameters_in_no_more_bytes(monkeypatch):
+    # The scorer rewards fewer Gaussians (as a capture full of faint ones does): a stronger removal is
+    # chosen, coded in at most the preset's bytes, and the coding kept is the one its parameters make.
+    scene, cams, params, sig, first = _small()
+    monkeypatch.setattr(removal, "_scorer", lambda *a: lambda enc: 60.0 - 1e-2 * enc.decoded.num_gaussians)
+    choice = choose_removal(scene, first, params, None, sig, cams, (0, 0, 0))
+    chosen = choice.params.precision.prune
+    assert chosen > params.precision.prune
+    assert chosen in [t.prune for t in choice.trials]
+    assert choice.encoded.num_bytes <= first.num_bytes
+    again = encode_attributes(scene, choice.params, significance=sig)
+    assert again.num_bytes == choice.encoded.num_bytes and again.lam == choice.encoded.lam
+    assert choice.encoded.decoded.num_gaussians < first.decoded.num_gaussians
+    assert "the preset's" in choice.summary()
+
+
+def test_a_worse_removal_keeps_the_presets_coding_and_ends_the_search(monkeypatch):
+    # The scorer punishes every removed Gaussian: the preset's coding stays, after one step.
+    scene, cams, params, sig, first = _small()
+    monkeypatch.setattr(removal, "_scorer", lambda *a: lambda enc: 20.0 + 1e-2 * enc.decoded.num_gaussians)
+    choice = choose_removal(scene, first, params, None, sig, cams, (0, 0, 0), RemovalParams(steps=(2, 4, 8)))
+    assert choice.encoded is first and choice.params is params
+    assert len(choice.trials) == 1
