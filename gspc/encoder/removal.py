@@ -51,7 +51,8 @@ class RemovalParams:
     rel_tol: float = 0.02
     max_codings: int = 6
     first_lambda_ratio: float = 0.85  # where the first step's search starts, times the preset's lambda
-    # The encoder's cameras it scores at, fewer past ``work`` Gaussian-views (never fewer than min_views).
+    # How many encoder cameras it scores halfway from, fewer past ``work`` Gaussian-views (never fewer than
+    # min_views).
     views: int = 16
     min_views: int = 4
     work: int = 16 * 250_000
