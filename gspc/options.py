@@ -155,8 +155,8 @@ class EncodeOptions:
     )
     removal_search: bool = knob(
         True,
-        "let the encoder's cameras choose a stronger removal than the preset's where it codes the views "
-        "better for its bytes (gspc/encoder/removal.py; off: the preset's)",
+        "try stronger removals than the preset's, each in the same bytes, and keep one that views between "
+        "the encoder's cameras show closer to the original (gspc/encoder/removal.py; off: the preset's)",
     )
     background: tuple[float, float, float] = knob(
         (0.0, 0.0, 0.0), "render background RGB in [0, 1] (1 1 1 for scenes trained on white)"
