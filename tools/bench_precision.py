@@ -108,7 +108,7 @@ class Variant:
     params: Callable[[float], CodecParams]  # lambda -> the codec's parameters
     takes_significance: bool  # encode_attributes(..., significance=...) with the scene's measure
     presets: tuple[tuple[str, float], ...]  # (preset, its lambda) for the shells' table
-    chooses_removal: bool = False  # the encoder's cameras choose the removal (gspc/encoder/removal.py)
+    chooses_removal: bool = False  # the encoder chooses the removal (gspc/encoder/removal.py)
 
 
 VARIANTS: dict[str, Variant] = {
@@ -128,8 +128,8 @@ VARIANTS: dict[str, Variant] = {
     ),
     "v4-low-chosen": Variant(
         "v4-low-chosen",
-        "v4-low with the removal the encoder's cameras choose at each lambda (gspc/encoder/removal.py, as "
-        "`gspc encode` does by default)",
+        "v4-low with the removal that views between the encoder's cameras choose at each lambda "
+        "(gspc/encoder/removal.py, as `gspc encode` does by default)",
         _classed("low"),
         True,
         (("low", quality_preset("low").attributes.lam),),
