@@ -178,12 +178,11 @@ def run_point(
     target_size=None,
     precision=True,
     tag="",
-    removal_search=True,
 ) -> dict:
     cams_file = tmp / f"{s.name.split()[0]}_train_cameras.json"
     if not cams_file.exists():
         save_cameras_json(s.train_cams, cams_file)
-    knobs = f"{quality}_{lam}_{side_info}_{check}_{residual_scale}_{target_size}_{precision}_{removal_search}"
+    knobs = f"{quality}_{lam}_{side_info}_{check}_{residual_scale}_{target_size}_{precision}"
     gfile = tmp / f"{s.name.split()[0]}_{knobs}.gspc"
     max_side = max(max(c.width, c.height) for c in s.train_cams)
     t0 = time.perf_counter()
@@ -202,7 +201,6 @@ def run_point(
                 residual_scale=residual_scale,
                 target_size=target_size,
                 precision=precision,
-                removal_search=removal_search,
             ),
         )
     enc_s = time.perf_counter() - t0

@@ -72,8 +72,9 @@ def code_attributes(
         scene.means.detach().cpu().numpy(), scene.log_scales.detach().cpu().numpy(), cameras
     )
     sig = None
+    on_cpu = scene.to("cpu")
     if params.precision is not None:
-        sig = encoder_significance(scene.to("cpu"), cameras, background, progress)
+        sig = encoder_significance(on_cpu, cameras, background, progress)
     if target_size is not None:
         enc = search_lambda(scene, target_size, params, visible=visible, significance=sig)
     else:
@@ -81,7 +82,7 @@ def code_attributes(
     choice = None
     if removal is not None and sig is not None:
         choice = choose_removal(
-            scene.to("cpu"), enc, params, visible, sig, cameras, background, removal, deadline, progress
+            on_cpu, enc, params, visible, sig, cameras, background, removal, deadline, progress
         )
         enc, params = choice.encoded, choice.params
     return CodedAttributes(enc, params, visible, sig, choice)
