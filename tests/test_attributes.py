@@ -43,6 +43,14 @@ def _check_exact(scene, params=QUALITY["high"].attributes, visible=None):
     return enc
 
 
+def test_decoded_is_decoded_when_first_read():
+    # A lambda search passes over codings it only measures; only the one read is decoded.
+    enc = encode_attributes(_scene(), QUALITY["low"].attributes)
+    assert "decoded" not in vars(enc)
+    assert scene_equal(enc.decoded, decode_attributes(enc.chunks, enc.section))
+    assert enc.decoded is enc.decoded
+
+
 @pytest.mark.parametrize("degree", [0, 1, 2, 3])
 def test_sh_degrees(degree):
     enc = _check_exact(_scene(degree=degree))

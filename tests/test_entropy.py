@@ -3,6 +3,7 @@ import numpy as np
 import pytest
 
 import gspc.codec.entropy as entropy
+import gspc.codec.fit_cpu as fit_cpu
 from gspc.codec.entropy import (
     PRECISION,
     SYMBOL_LIMIT,
@@ -148,6 +149,12 @@ def test_bits_packed_in_blocks_are_the_bits_packed_at_once(monkeypatch):
     assert np.array_equal(unpack_bits(whole, lengths), v)
 
 
+def _cross_entropy_bits(counts: np.ndarray, w: np.ndarray) -> float:
+    p = w / w.sum()
+    nz = counts > 0
+    return float(-(counts[nz] * np.log2(p[nz])).sum())
+
+
 def _reference_fit(sym: np.ndarray) -> tuple[list[int], float]:
     """fit_model as first written, one context at a time: what fit_models must reproduce exactly."""
     if sym.size == 0:
@@ -173,10 +180,10 @@ def _reference_fit(sym: np.ndarray) -> tuple[list[int], float]:
     if hi - lo >= entropy._EMPIRICAL_MAX_WINDOW:
         return geo, float(cost[u, b]) + 64
     counts = np.bincount(sym - lo, minlength=hi - lo + 1)
-    geo_bits = entropy._cross_entropy_bits(counts, model_weights(geo)) + 64
+    geo_bits = _cross_entropy_bits(counts, model_weights(geo)) + 64
     w = np.where(counts > 0, np.maximum(counts * entropy._EMPIRICAL_SCALE // counts.max(), 1), 0)
     table_bits = 8.0 * float(np.where(w < 128, 1, np.where(w < 256, 2, 3)).sum()) + 32
-    emp_bits = entropy._cross_entropy_bits(counts, w.astype(np.float64)) + table_bits
+    emp_bits = _cross_entropy_bits(counts, w.astype(np.float64)) + table_bits
     return ([3, lo, hi, *(int(x) for x in w)], emp_bits) if emp_bits < geo_bits else (geo, geo_bits)
 
 
@@ -203,6 +210,16 @@ def test_fit_models_is_fit_model_per_context_exactly(seed):
         assert (specs[k], bits[k]) == _reference_fit(sym[ctx == k]), k
     assert fit_model(sym[ctx == 3]) == _reference_fit(sym[ctx == 3])
     assert fit_models(np.zeros(0, np.int64), np.zeros(0, np.int64), 3) == ([[0], [0], [0]], [0.0, 0.0, 0.0])
+
+
+def test_compiled_sums_are_numpys_sums():
+    # The compiled fit's cross-entropies are NumPy's bit for bit only if its sums add in NumPy's order:
+    # runs up to 128 in eight interleaved sums, longer ones split in two (lengths about the split points).
+    rng = np.random.default_rng(7)
+    for n in [*range(4, 40), 127, 128, 129, 135, 136, 255, 256, 257, 300, 511, 1000, 4099]:
+        a = rng.standard_normal(n) * 10.0 ** rng.integers(-6, 6, n)
+        assert fit_cpu._pairwise_sum(a, 0, n) == a.sum(), n
+        assert fit_cpu._pairwise_sum(a, 3, n - 3) == a[3:].sum(), n
 
 
 def test_bit_length_paths_agree():

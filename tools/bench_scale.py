@@ -60,7 +60,7 @@ def measure(args: list[str], code: Path = REPO) -> dict:
     return {"wall": wall, "cpu": ru.ru_utime + ru.ru_stime, "peak_mb": peak_kb / 1024.0, "log": log}
 
 
-def run_size(folder: Path, tmp: Path) -> dict:
+def run_size(folder: Path, tmp: Path, code: Path = REPO) -> dict:
     meta = json.loads((folder / "scene.json").read_text())
     coded, decoded = tmp / "scene.gspc", tmp / "decoded.ply"
     enc = measure(
@@ -72,10 +72,11 @@ def run_size(folder: Path, tmp: Path) -> dict:
             "--cameras",
             str(folder / "cameras.json"),
         ]
-        + ["--no-side-info"]
+        + ["--no-side-info"],
+        code,
     )
     size = coded.stat().st_size
-    dec = measure(["decode", str(coded), "-o", str(decoded), "--no-refine"])
+    dec = measure(["decode", str(coded), "-o", str(decoded), "--no-refine"], code)
     from gspc.io.ply import load_plydata
 
     kept = len(load_plydata(decoded)["vertex"])
@@ -90,12 +91,15 @@ def main() -> None:
     ap.add_argument("--scenes", default="/work/scale")
     ap.add_argument("--out", default="bench/scale.md")
     ap.add_argument("--sizes", default="100000,300000,1000000,3000000")
+    ap.add_argument(
+        "--code", type=Path, default=REPO, help="the gspc package tree to measure (a checkout's root)"
+    )
     args = ap.parse_args()
     load = os.getloadavg()[0]
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for s in args.sizes.split(","):
-            res = run_size(Path(args.scenes) / f"scale_{s}", Path(tmp))
+            res = run_size(Path(args.scenes) / f"scale_{s}", Path(tmp), args.code)
             brief = {k: v for k, v in res.items() if k not in ("enc", "dec")}
             for part in ("enc", "dec"):
                 brief |= {f"{part}_{k}": v for k, v in res[part].items() if k != "log"}
@@ -119,7 +123,8 @@ def main() -> None:
         "# Scale: the attribute-only path from 100k to 3M Gaussians (CPU, one thread)",
         "",
         f"Command: `python tools/make_scale_scenes.py -o {args.scenes}` then "
-        f"`python tools/bench_scale.py --scenes {args.scenes} --sizes {args.sizes}`",
+        f"`python tools/bench_scale.py --scenes {args.scenes} --sizes {args.sizes}"
+        + ("`" if args.code == REPO else f" --code {args.code}`"),
         "",
         f"Machine: {platform.machine()}, {os.cpu_count()} vCPUs, Python {platform.python_version()}, "
         f"torch {torch.__version__}, GSPC_THREADS=1 (one torch thread). No GPU was lent to this work: "

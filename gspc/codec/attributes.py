@@ -20,6 +20,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
+from functools import cached_property
 
 import msgpack
 import numpy as np
@@ -61,9 +62,14 @@ from gspc.scene import GaussianScene, num_sh_rest
 class EncodedAttributes:
     chunks: dict[str, bytes]
     section: AttributeSection  # the header section the file carries
-    decoded: GaussianScene  # G~, from decode_attributes on the chunks
     kept: np.ndarray  # indices into the input scene, in decoded (curve) order
     lam: float  # the rate knob it was coded at
+
+    @cached_property
+    def decoded(self) -> GaussianScene:
+        """G~, from decode_attributes on the chunks; decoded when first read (a lambda search reads only the
+        sizes of the codings it passes over)."""
+        return decode_attributes(self.chunks, self.section)
 
     @property
     def precision(self) -> PrecisionMap | None:
@@ -180,8 +186,7 @@ def encode_attributes(
         chunks, section = _encode_uniform(scene, params, kept, grid)
         chunks = {POSN: pos.encode_positions(voxels, grid), **chunks}
     chunks = {t: chunks[t] for t in ATTRIBUTE_TYPES if t in chunks}  # the order the file holds them in
-    decoded = decode_attributes(chunks, section)
-    return EncodedAttributes(chunks=chunks, section=section, decoded=decoded, kept=kept, lam=params.lam)
+    return EncodedAttributes(chunks=chunks, section=section, kept=kept, lam=params.lam)
 
 
 def _encode_uniform(

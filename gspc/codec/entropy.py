@@ -109,12 +109,6 @@ def _rate_grid_factors() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray
 _LOG2_Z, _LOG2_BOOST, _LOG2_THETA, _THETA_POSITIVE = _rate_grid_factors()
 
 
-def _cross_entropy_bits(counts: np.ndarray, w: np.ndarray) -> float:
-    p = w / w.sum()
-    nz = counts > 0
-    return float(-(counts[nz] * np.log2(p[nz])).sum())
-
-
 def fit_model(sym: np.ndarray) -> tuple[list[int], float]:
     """The cheapest model spec for these symbols and its estimated cost in bits (table included)."""
     sym = np.asarray(sym, dtype=np.int64)
@@ -125,8 +119,10 @@ def fit_model(sym: np.ndarray) -> tuple[list[int], float]:
 def fit_models(sym: np.ndarray, context: np.ndarray, contexts: int) -> tuple[list[list[int]], list[float]]:
     """:func:`fit_model` of the symbols of each context ``0 .. contexts - 1`` (``context`` beside ``sym``,
     each value below ``contexts``): the same specs and costs, the float arithmetic of each context's cost
-    unchanged, with one sort and one grid for all of them (the encoder fits four predictors x 15 buckets per
-    column)."""
+    unchanged, with one sort for all of them and one compiled pass over the contexts (gspc/codec/fit_cpu.py;
+    the encoder fits four predictors x 15 buckets per column). Each context's model: the cheapest of a
+    two-sided geometric over its window (the best theta and boost by their rate on the infinite support, then
+    costed on the window) and, for windows under 512 symbols, an explicit table of its counts."""
     sym, context = np.asarray(sym, dtype=np.int64), np.asarray(context, dtype=np.int64)
     specs: list[list[int]] = [[0] for _ in range(contexts)]
     bits = [0.0] * contexts
@@ -140,44 +136,31 @@ def fit_models(sym: np.ndarray, context: np.ndarray, contexts: int) -> tuple[lis
         ordered = np.sort(context * span + (sym - low)) % span + low
     else:
         ordered = sym[np.lexsort((sym, context))]
-    last = sym.size - 1  # an empty context's indices (its values are never used)
-    lo = ordered[np.minimum(first, last)]
-    hi = ordered[np.minimum(first + np.maximum(count, 1) - 1, last)]
-    centre = ordered[np.minimum(first + count // 2, last)]
-    # Per context: n0 symbols at the centre and the sum of distances to it, in int64 as fit_model summed them.
-    r = np.abs(ordered - np.repeat(centre, count))
-    used = np.flatnonzero(count)
-    n0, total = np.zeros(contexts, np.int64), np.zeros(contexts, np.int64)
-    n0[used] = np.add.reduceat((r == 0).astype(np.int64), first[used])
-    total[used] = np.add.reduceat(r, first[used])
-    # Rate of every (theta, boost) on the infinite support, from sufficient statistics.
-    with np.errstate(invalid="ignore"):
-        cost = (
-            count[:, None, None].astype(np.float64) * _LOG2_Z
-            - n0[:, None, None].astype(np.float64) * _LOG2_BOOST
-            - np.where(_THETA_POSITIVE, total[:, None, None].astype(np.float64) * _LOG2_THETA, -np.inf)
-        )
-    cost[~np.isfinite(cost)] = np.inf
-    choice = np.argmin(cost.reshape(contexts, -1), axis=1)
-    for k in range(contexts):
-        n, a, z = int(count[k]), int(lo[k]), int(hi[k])
-        if n == 0:
-            continue
-        if a == z:
-            specs[k], bits[k] = [1, a], 16.0
-            continue
-        u, b = np.unravel_index(int(choice[k]), cost.shape[1:])
-        geo = [2, a, z, int(centre[k]), int(u), int(b)]
-        best, best_bits = geo, float(cost[k, u, b]) + 64
-        if z - a < _EMPIRICAL_MAX_WINDOW:
-            counts = np.bincount(ordered[first[k] : first[k] + n] - a, minlength=z - a + 1)
-            best_bits = _cross_entropy_bits(counts, model_weights(geo)) + 64
-            w = np.where(counts > 0, np.maximum(counts * _EMPIRICAL_SCALE // counts.max(), 1), 0)
-            table_bits = 8.0 * float(np.where(w < 128, 1, np.where(w < 256, 2, 3)).sum()) + 32
-            emp_bits = _cross_entropy_bits(counts, w.astype(np.float64)) + table_bits
-            if emp_bits < best_bits:
-                best, best_bits = [3, a, z, *(int(x) for x in w)], emp_bits
-        specs[k], bits[k] = best, best_bits
+    from gspc.codec import fit_cpu  # numba: imported where an encoder fits models
+
+    kind, head, cost, table_start, tables = fit_cpu.fit_sorted(
+        ordered,
+        first,
+        count,
+        _LOG2_Z,
+        _LOG2_BOOST.ravel(),
+        _LOG2_THETA.ravel(),
+        _THETA_POSITIVE.ravel(),
+        THETAS,
+        BOOSTS,
+        _WEIGHT_SCALE,
+        _EMPIRICAL_MAX_WINDOW,
+        _EMPIRICAL_SCALE,
+    )
+    for k in np.flatnonzero(kind).tolist():
+        a, z, c, u, b = head[k].tolist()
+        if kind[k] == 1:
+            specs[k] = [1, a]
+        elif kind[k] == 2:
+            specs[k] = [2, a, z, c, u, b]
+        else:
+            specs[k] = [3, a, z, *tables[table_start[k] : table_start[k + 1]].tolist()]
+        bits[k] = float(cost[k])
     return specs, bits
 
 
@@ -360,10 +343,10 @@ def encode_matrix(q: np.ndarray) -> bytes:
         if int(np.abs(col).max()) > SYMBOL_LIMIT:
             raise CodecError(f"column {ch} holds a symbol beyond +-{SYMBOL_LIMIT} (windows are bounded)")
         nb, sb, lv = _full_context(col, levels)
+        bucket = sb * _NUM_INTRA + _intra_bucket(prev_res)
         best = None
         for mode in range(NUM_MODES if ch > 0 else 2):
             res = col - _prediction(mode, nb, prev_q, prev_nb)
-            bucket = sb * _NUM_INTRA + _intra_bucket(prev_res)
             specs, costs = fit_models(res, bucket, NUM_BUCKETS)
             bits = 0.0
             for spec, cost in zip(specs, costs):
@@ -371,20 +354,21 @@ def encode_matrix(q: np.ndarray) -> bytes:
                 # are within SYMBOL_LIMIT).
                 bits += cost if spec[0] < 2 or spec[2] - spec[1] < MAX_WINDOW else math.inf
             if best is None or bits < best[0]:
-                best = (bits, mode, res, bucket, specs)
-        _, mode, res, bucket, specs = best
+                best = (bits, mode, res, specs)
+        _, mode, res, specs = best
         header.append([mode, specs])
-        # One table per bucket, built when first used (as decode_matrix builds them): each level would
-        # otherwise build the same tables again.
+        # Symbols go level by level, bucket by bucket, each run in row order: one stable sort by (level,
+        # bucket) gives that order (16-bit keys: NumPy sorts them by radix). One table per bucket, built
+        # when first used (as decode_matrix builds them): each level would otherwise build the same tables.
+        key = (lv * NUM_BUCKETS + bucket).astype(np.int16)
+        order = np.argsort(key, kind="stable")
+        runs = np.flatnonzero(np.diff(key[order])) + 1
         models: dict[int, object] = {}
-        for k in range(len(levels)):
-            sel_level = lv == k
-            for bk in range(NUM_BUCKETS):
-                sel = sel_level & (bucket == bk)
-                if sel.any():
-                    if bk not in models and specs[bk][0] >= 2:
-                        models[bk] = _categorical(specs[bk])
-                    encode_symbols(enc, res[sel], specs[bk], models.get(bk))
+        for start, end in zip([0, *runs.tolist()], [*runs.tolist(), m]):
+            bk = int(key[order[start]]) % NUM_BUCKETS
+            if bk not in models and specs[bk][0] >= 2:
+                models[bk] = _categorical(specs[bk])
+            encode_symbols(enc, res[order[start:end]], specs[bk], models.get(bk))
         prev_q, prev_nb, prev_res = col, nb, res
     words = enc.get_compressed().astype("<u4").tobytes()
     # Model specs are small ints with much repetition: zstd halves them or better.
@@ -474,11 +458,12 @@ def decode_matrix(payload: bytes, shape: tuple[int, int] | None = None) -> np.nd
                 nb, sb = _context(col, rows, left, right)
                 bucket = sb * _NUM_INTRA + _intra_bucket(prev_res[rows])
                 res = np.zeros(rows.size, np.int64)
-                for bk in range(NUM_BUCKETS):
-                    sel = bucket == bk
-                    count = int(sel.sum())
-                    if count:
-                        res[sel] = decode_symbols(dec, count, specs[bk], models[bk])
+                # Bucket by bucket, each in row order (as encode_matrix wrote them).
+                order = np.argsort(bucket.astype(np.int16), kind="stable")
+                ends = np.cumsum(np.bincount(bucket, minlength=NUM_BUCKETS)).tolist()
+                for bk, (start, end) in enumerate(zip([0, *ends[:-1]], ends)):
+                    if end > start:
+                        res[order[start:end]] = decode_symbols(dec, end - start, specs[bk], models[bk])
                 col[rows] = res + _prediction(mode, nb, prev_q[rows], prev_nb[rows])
                 if rows.size and np.abs(col[rows]).max() > INT_LIMIT:
                     raise CodecError(f"column {ch} decodes to a value outside -2^48..2^48")
