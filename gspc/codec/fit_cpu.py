@@ -19,7 +19,7 @@ import numpy as np
 
 from gspc.render.kernels import JIT
 
-# NumPy's pairwise summation: runs under this length are summed in eight interleaved partial sums.
+# NumPy's pairwise summation: runs of up to this length are summed in eight interleaved partial sums.
 _PAIRWISE_BLOCK = 128
 
 
