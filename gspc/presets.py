@@ -66,7 +66,9 @@ LOW_PRECISION = PrecisionParams(exponents=(-7, 2), bias=1.5, sh_keep=4.0, prune=
 # bird, massa and trumpet code the same PSNR in 0.93-0.98 of the bytes, lego in 1.004-1.006, and massa inside
 # shells of sky-sized Gaussians gains 4.8 dB (cover 1) and 1.8 dB (cover 0.1) for 1-2% more bytes; a tail
 # from 2^-2 suited lego (0.98) but not the statues (1.005-1.03), a floor at 2^-5 without one neither the bird
-# nor lego (1.02-1.03) (bench/precision.md, "The high preset's classes past 2^-3").
+# nor lego (1.02-1.03). Past lambda 3 the tail costs the bird 0.5-3% (the low preset's rates); a coarsest
+# class of 2^3 fell off a cliff there (the bird 10 dB lower at lambda 8) (bench/precision.md, "The high
+# preset's classes past 2^-3").
 HIGH_PRECISION = PrecisionParams(
     exponents=(-7, 2), bias=1.0, sh_keep=2.0, prune=0.0, min_class=256, per_component=False, tail=-3
 )
