@@ -13,6 +13,8 @@ from __future__ import annotations
 # lego fit at 0.16 s per iteration (bench/pipeline.md), far past the point where more iterations gain
 # anything (3000: +0.2 dB over 1000).
 MAX_REFINE_ITERATIONS = 100_000
+# The encoder's tuning of its coded values (gspc/encoder/tuning.py): each iteration codes the scene once.
+MAX_TUNE_ITERATIONS = 1_000
 
 # The header's refine_iterations is the decoder's DEFAULT refinement (no --iterations given), and a file may
 # not make that default longer than its Gaussians warrant: at most max(REFINE_DEFAULT_FLOOR, n) iterations

@@ -22,6 +22,7 @@ from gspc.limits import (
     MAX_LAMBDA,
     MAX_REFINE_ITERATIONS,
     MAX_SYNTH_VIEWS,
+    MAX_TUNE_ITERATIONS,
     MIN_LAMBDA,
     MIN_MAX_SIDE,
     MIN_TARGET_SIZE,
@@ -104,6 +105,8 @@ def check_encode_options(o: Any) -> None:
     _check_name("--restorer", o.restorer)
     check_background(o.background)
     check_iterations(o.check_iterations, "--check-iterations")
+    if o.tune_iterations is not None:
+        check_int("--tune-iterations", o.tune_iterations, 0, MAX_TUNE_ITERATIONS)
     check_int("check_views", o.check_views, 1)
     check_real("check_margin_db", o.check_margin_db, -100.0, 100.0)
     check_time_budget(o.time_budget)
@@ -157,6 +160,11 @@ class EncodeOptions:
         True,
         "try stronger removals than the preset's, each in the same bytes, and keep one that views between "
         "the encoder's cameras show closer to the original (gspc/encoder/removal.py; off: the preset's)",
+    )
+    tune_iterations: int | None = knob(
+        None,
+        "iterations of tuning the coded values so that the decoded scene renders closer at the encoder's "
+        f"cameras (default: the preset's, {_per_preset('tune_iterations')}; 0: none; gspc/encoder/tuning.py)",
     )
     background: tuple[float, float, float] = knob(
         (0.0, 0.0, 0.0), "render background RGB in [0, 1] (1 1 1 for scenes trained on white)"

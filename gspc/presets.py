@@ -25,6 +25,10 @@ class Preset:
     residual_distance: float = 4.0  # the residual image codecs' rate knob (larger is coarser)
     residual_scale: int = 1  # residuals coded at 1/scale resolution
     refine_iterations: int = 300  # the decoder's refinement, validated by the encoder's check
+    # Iterations of the encoder's tuning of its coded values (gspc/encoder/tuning.py; 0: none). Four gave the
+    # statue angel +1.29 / +1.50 dB (1x / 2x) at the low preset, eight +1.39 / +1.59 in twice the time; the
+    # bird reached its byte limit in four (bench/tuning.md).
+    tune_iterations: int = 4
 
 
 # Attribute rate points: lam 1 (14 position bits) and lam 8 (11 position bits; <= 10 B/G on the SH-3 lego

@@ -291,3 +291,25 @@ def test_the_encoder_reports_the_removal_it_chose_and_can_be_told_to_keep_the_pr
     # The preset's removal kept: the very file the unsearched encode writes; a stronger one: another file.
     same = (tmp_path / "a.gspc").read_bytes() == (tmp_path / "b.gspc").read_bytes()
     assert same == said.startswith("the preset's"), said
+
+
+def test_the_encoder_tunes_its_coded_values_unless_told_not_to(encoded, tmp_path):
+    # gspc/encoder/tuning.py: on by default for a file without side information (the report says what it
+    # did), off with --tune-iterations 0; both files decode the same Gaussians. A file whose side information
+    # the decoder refines against is not tuned.
+    assert "tuning" not in encoded[2].info
+    src = tmp_path / "in.ply"
+    write_ply(scene(seed=6), src)
+    base = dict(synth_views=4, max_side=40, side_info=False)
+    tuned = encode(src, tmp_path / "a.gspc", opts=EncodeOptions(**base))
+    assert "4 iterations at" in tuned.info["tuning"], tuned.info["tuning"]
+    plain = encode(src, tmp_path / "b.gspc", opts=EncodeOptions(**base, tune_iterations=0))
+    assert "tuning" not in plain.info
+    a, b = decode(tmp_path / "a.gspc", tmp_path / "a.ply"), decode(tmp_path / "b.gspc", tmp_path / "b.ply")
+    assert a.num_gaussians_out == b.num_gaussians_out == tuned.num_gaussians_out
+
+
+@pytest.mark.parametrize("value", [-1, 1001, 2.5, "4"])
+def test_bad_tune_iterations_are_refused(tmp_path, value):
+    with pytest.raises(InputError, match="--tune-iterations"):
+        encode(tmp_path / "in.ply", tmp_path / "x.gspc", opts=EncodeOptions(tune_iterations=value))

@@ -72,6 +72,7 @@ from gspc.encoder.significance import (
     significance,
     wide_cameras,
 )
+from gspc.encoder.tuning import TuningParams, tune_coding
 from gspc.format import container
 from gspc.format.chunks import SIDE
 from gspc.io import read_scene
@@ -109,6 +110,7 @@ class Variant:
     takes_significance: bool  # encode_attributes(..., significance=...) with the scene's measure
     presets: tuple[tuple[str, float], ...]  # (preset, its lambda) for the shells' table
     chooses_removal: bool = False  # the encoder chooses the removal (gspc/encoder/removal.py)
+    tunes: bool = False  # the encoder tunes the coded values at its cameras (gspc/encoder/tuning.py)
 
 
 VARIANTS: dict[str, Variant] = {
@@ -134,6 +136,16 @@ VARIANTS: dict[str, Variant] = {
         True,
         (("low", quality_preset("low").attributes.lam),),
         chooses_removal=True,
+    ),
+    "v4-low-tuned": Variant(
+        "v4-low-tuned",
+        "v4-low-chosen with its coded values tuned at the encoder's cameras (gspc/encoder/tuning.py, the "
+        "preset's iterations, as `gspc encode` does for files without side information)",
+        _classed("low"),
+        True,
+        (("low", quality_preset("low").attributes.lam),),
+        chooses_removal=True,
+        tunes=True,
     ),
     "v4-high": Variant(
         "v4-high",
@@ -221,9 +233,13 @@ def code(b: Bench, variant: Variant, lam: float) -> tuple[EncodedAttributes, flo
     t0 = time.perf_counter()
     params = variant.params(lam)
     enc = encode_attributes(b.scene, params, visible=b.visible, **extra)
+    cams, bg = b.encoder_cams, b.views.background
     if variant.chooses_removal:
-        cams, bg = b.encoder_cams, b.views.background
-        enc = choose_removal(b.scene, enc, params, b.visible, b.measure, cams, bg).encoded
+        choice = choose_removal(b.scene, enc, params, b.visible, b.measure, cams, bg)
+        enc, params = choice.encoded, choice.params
+    if variant.tunes:
+        tuning = TuningParams(iterations=quality_preset("low").tune_iterations)
+        enc = tune_coding(b.scene, enc, params, cams, bg, b.visible, b.measure, tuning).encoded
     return enc, time.perf_counter() - t0
 
 

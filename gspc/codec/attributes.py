@@ -150,18 +150,23 @@ def encode_attributes(
     params: CodecParams,
     visible: np.ndarray | None = None,
     significance: Significance | None = None,
+    planned_on: GaussianScene | None = None,
 ) -> EncodedAttributes:
     """Encode a scene; ``decoded`` is what :func:`decode_attributes` returns for these chunks. With
     ``params.precision`` and the ``significance`` of the scene's Gaussians, per-Gaussian precision
-    (version 4, gspc/codec/precision.py); otherwise every Gaussian at the rate's steps."""
+    (version 4, gspc/codec/precision.py); otherwise every Gaussian at the rate's steps. ``planned_on``: the
+    scene (of the same Gaussians) whose opacities and sizes decide which Gaussians are coded, their classes
+    and the far set (default: ``scene``): the encoder's tuning codes moved values under the original's plan
+    (gspc/encoder/tuning.py)."""
     scene.validate()
-    keep = prune_mask(scene, params, visible)
+    base = scene if planned_on is None else planned_on
+    keep = prune_mask(base, params, visible)
     plan = None
     if params.precision is not None and significance is not None:
         # Values no rate can code are refused whether or not the plan would remove their Gaussian: removal
         # is an R-D choice, not a check of the input.
         _check_ranges(scene, class_steps(params, scene.sh_degree), params, np.flatnonzero(keep))
-        plan = _plan(scene, params, significance, keep)
+        plan = _plan(base, params, significance, keep)
         keep = plan.keep
     keep_idx = np.flatnonzero(keep)
     if keep_idx.size == 0:
@@ -169,7 +174,7 @@ def encode_attributes(
             "every Gaussian was pruned (transparent or unseen); use the keep flags to code them"
         )
     means = _np(scene.means, keep_idx)
-    sizes = np.exp(np.median(_np(scene.log_scales, keep_idx).astype(np.float64), axis=1))
+    sizes = np.exp(np.median(_np(base.log_scales, keep_idx).astype(np.float64), axis=1))
     if plan is not None:
         # The far set (spec 10.1) codes a Gaussian's position coarsely where its size allows; a Gaussian the
         # plan gives finer steps needs its position as much finer (a shell of sky-sized Gaussians: +3.7 dB).
