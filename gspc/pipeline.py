@@ -274,7 +274,7 @@ def _tuned(
 
     Only files without side information are tuned: where the decoder refines against side information it
     moves the same values inside the same cells, and tuning before the check gained the bird 0.15 dB and lego
-    0.27 dB end to end for 56 s and 14 s more encode, against 1.2-3.2 dB on the files it decodes as they are
+    0.27 dB end to end for 56 s and 14 s more encode, against +1.2 .. +3.2 dB codec alone at the low preset
     (bench/tuning.md)."""
     tuning = tuning_params(opts)
     if tuning is None:

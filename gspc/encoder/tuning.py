@@ -4,17 +4,17 @@ decoded scene renders closer (an encoder choice: the bitstream and the decoder a
 Quantisation codes every attribute as the grid point nearest the original, one value at a time. What the
 views show is the sum of many Gaussians' rounding errors through the renderer, and the encoder holds the
 original's renders: moving a value to the grid point beside its nearest one may cancel a neighbour's error
-(the consistent choice of an encoder that measures its output, as a video encoder picks its quantised
-coefficients). Tuning moves the values the codec quantises, each within ``reach`` cells of the original, so
-that the decoded scene renders closer at the encoder's cameras:
+(as a video encoder picks its quantised coefficients by what they cost the picture, not one by one).
+Tuning moves the values the codec quantises, each within ``reach`` cells of the original, so that the
+decoded scene renders closer at the encoder's cameras:
 
 - each iteration codes the moved values at the rate under the original's plan (the same parameters,
   visibility and measure, and the original's opacities and sizes: the same classes, removal and far set),
-  renders the decoded scene at a share of the cameras, and moves the values by
-  Adam along the gradient at the decoded ones (straight through the rounding), in units of each Gaussian's
-  own cell, so that a step means the same to every class;
-- the shares rotate, so the iterations together see every camera; a quarter of them per iteration gained as
-  much per iteration as all of them on the statue massa (bench/tuning.md);
+  renders the decoded scene at a share of the cameras, and moves the values by Adam along the gradient at
+  the decoded ones (straight through the rounding), in units of each Gaussian's own cell, so that a step
+  means the same to every class;
+- the shares rotate, so the iterations together see every camera; with a quarter of them per iteration the
+  statue massa came within 0.1 dB per iteration of all of them, in 40% of the time (bench/tuning.md);
 - the tuning stops at the first coding over the byte limit; the last coding within it is kept where it
   renders closer than the untuned one at the first share of cameras, else the untuned one.
 
@@ -67,7 +67,8 @@ class TuningParams:
     reach: float = 1.0  # cells a value may move from the original
     share: int = 4  # each iteration renders every share-th of the cameras
     # The tuned coding may grow by this share of the untuned one's bytes (tuned values sit off the contexts'
-    # predictions: the bird +1-2% after 5-6 iterations); a byte target (--target-size) bounds it instead.
+    # predictions: the bird's low coding +1.9% in four iterations, bench/tuning.md); a byte target
+    # (--target-size) bounds it instead.
     growth: float = 0.02
 
 
@@ -161,9 +162,9 @@ def tune_coding(
         if progress:
             progress("tune", done, tuning.iterations)
         if current.num_bytes > limit:
-            # The bytes grow as the values leave their nearest grid points: the bird's (lambda 8, the preset's
-            # removal) at every iteration from the second, 440,571 to 449,748 B in eight; a later coding would
-            # not fit either.
+            # The bytes grow as the values leave their nearest grid points, and go on growing (the bird's
+            # high coding +0.84% after four iterations, +1.46% after eight; bench/tuning.md): a later coding
+            # would not fit either.
             break
         best = current
     if before is None or best is enc:
