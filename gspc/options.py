@@ -163,8 +163,9 @@ class EncodeOptions:
     )
     tune_iterations: int | None = knob(
         None,
-        "iterations of tuning the coded values so that the decoded scene renders closer at the encoder's "
-        f"cameras (default: the preset's, {_per_preset('tune_iterations')}; 0: none; gspc/encoder/tuning.py)",
+        "iterations of tuning the coded values of a file without side information so that it decodes closer "
+        f"at the encoder's cameras (default: the preset's, {_per_preset('tune_iterations')}; 0: none; "
+        "gspc/encoder/tuning.py)",
     )
     background: tuple[float, float, float] = knob(
         (0.0, 0.0, 0.0), "render background RGB in [0, 1] (1 1 1 for scenes trained on white)"

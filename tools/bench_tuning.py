@@ -1,6 +1,8 @@
 """The encoder's tuning of its coded values (gspc/encoder/tuning.py): what it gains, what it costs, by scene.
 
-    GSPC_THREADS=1 python tools/bench_tuning.py -o bench/tuning.md
+    GSPC_THREADS=1 python tools/bench_tuning.py -o F
+
+(bench/tuning.md quotes its runs' tables beside other measurements, so the tool writes elsewhere.)
 
 Codec alone (no side information, no refinement), the scenes of tools/bench_precision.py (the bird fit with
 its held-out photos' cameras, the statues between their 60 synthesised views, massa inside shells of sky-sized
@@ -33,7 +35,6 @@ from gspc.encoder.tuning import TuningParams, tune_coding
 from gspc.io import read_scene
 from gspc.presets import quality_preset
 
-ROOT = Path(__file__).resolve().parents[1]
 PRESETS = ("low", "high")
 LAMBDA_DIVISORS = (1.0, 1.5, 2.25, 3.4)
 
@@ -72,7 +73,7 @@ def main(
     iterations: str = typer.Option("4,8", help="tuning lengths, each from the untuned coding"),
     steps: str = typer.Option("0.03", help="Adam's learning rates in cells (TuningParams.step), each a run"),
     presets: str = typer.Option("low,high"),
-    out: Path = typer.Option(ROOT / "bench" / "tuning.md", "-o"),
+    out: Path = typer.Option(..., "-o", help="the Markdown file to write"),
 ) -> None:
     torch.set_num_threads(1)
     counts = [int(x) for x in iterations.split(",") if x]
@@ -145,7 +146,7 @@ def _report(rows, counts, load0, load1, secs) -> str:
     lines = [
         "# Tuning the coded values: gain and cost by scene",
         "",
-        __doc__.split("\n\n", 2)[2].strip(),
+        __doc__[__doc__.index("Codec alone") :].strip(),
         "",
         f"Machine: {platform.machine()}, {os.cpu_count()} CPUs, torch {torch.__version__}, one thread; load "
         f"{load0[0]:.2f} at the start, {load1[0]:.2f} at the end; {secs / 60:.0f} min in all.",
