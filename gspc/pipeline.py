@@ -37,10 +37,11 @@ from gspc.encoder.prepare import (
     iteration_counts,
     sample_side_views,
     side_candidates,
+    tuning_params,
 )
 from gspc.encoder.removal import RemovalParams
 from gspc.encoder.side import SideCandidate, view_residuals
-from gspc.encoder.tuning import TuningParams, tune_coding
+from gspc.encoder.tuning import tune_coding
 from gspc.errors import CodecError, InputError
 from gspc.format import container
 from gspc.format.attribute_section import attribute_chunks
@@ -53,7 +54,6 @@ from gspc.io.camera_files import load_cameras
 from gspc.limits import default_refine_iterations
 from gspc.options import DecodeOptions, EncodeOptions
 from gspc.paths import refuse_output_over_input
-from gspc.presets import quality_preset
 from gspc.progress import Progress
 from gspc.reconstruct import refine_in_cells, render_images, restored_targets
 from gspc.restore.restorer import load_restorer
@@ -249,14 +249,6 @@ def _side_information(
 def _deadline(opts: EncodeOptions | DecodeOptions, rep: Report) -> float | None:
     """The ``time.perf_counter()`` by which the command should end (``--time-budget``), or None."""
     return None if opts.time_budget is None else rep.started + opts.time_budget
-
-
-def tuning_params(opts: EncodeOptions) -> TuningParams | None:
-    """The tuning of the coded values the options ask for (None: none)."""
-    iterations = quality_preset(opts.quality).tune_iterations
-    if opts.tune_iterations is not None:
-        iterations = opts.tune_iterations
-    return TuningParams(iterations=iterations) if iterations > 0 else None
 
 
 def _tuned(

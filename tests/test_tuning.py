@@ -78,6 +78,7 @@ def test_the_untuned_coding_where_tuning_cannot_help():
     # No coding fits the limit.
     tight = tune_coding(scene, enc, params, cams, (0, 0, 0), None, sig, TuningParams(iterations=2), 100)
     assert tight.encoded is enc and not tight.report.kept
+    assert tight.report.before_db == tight.report.after_db > 0  # measured once, nothing kept
     # Past the deadline no iteration starts.
     late = tune_coding(
         scene,

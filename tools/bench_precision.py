@@ -137,16 +137,6 @@ VARIANTS: dict[str, Variant] = {
         (("low", quality_preset("low").attributes.lam),),
         chooses_removal=True,
     ),
-    "v4-low-tuned": Variant(
-        "v4-low-tuned",
-        "v4-low-chosen with its coded values tuned at the encoder's cameras (gspc/encoder/tuning.py, the "
-        "preset's iterations, as `gspc encode` does for files without side information)",
-        _classed("low"),
-        True,
-        (("low", quality_preset("low").attributes.lam),),
-        chooses_removal=True,
-        tunes=True,
-    ),
     "v4-high": Variant(
         "v4-high",
         "version 4 with the high preset's precision parameters (HIGH_PRECISION), any lambda",
@@ -155,6 +145,13 @@ VARIANTS: dict[str, Variant] = {
         (("high", quality_preset("high").attributes.lam),),
     ),
 }
+VARIANTS["v4-low-tuned"] = replace(
+    VARIANTS["v4-low-chosen"],
+    name="v4-low-tuned",
+    about="v4-low-chosen with its coded values tuned at the encoder's cameras (gspc/encoder/tuning.py, the "
+    "preset's iterations, as `gspc encode` does for files without side information)",
+    tunes=True,
+)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -229,8 +226,14 @@ class Point:
 
 
 def code(b: Bench, variant: Variant, lam: float) -> tuple[EncodedAttributes, float]:
-    extra = {"significance": b.measure} if variant.takes_significance else {}
     t0 = time.perf_counter()
+    enc, _ = coding(b, variant, lam)
+    return enc, time.perf_counter() - t0
+
+
+def coding(b: Bench, variant: Variant, lam: float) -> tuple[EncodedAttributes, CodecParams]:
+    """The variant's coding at ``lam`` and the parameters it was coded with (a chosen removal's own)."""
+    extra = {"significance": b.measure} if variant.takes_significance else {}
     params = variant.params(lam)
     enc = encode_attributes(b.scene, params, visible=b.visible, **extra)
     cams, bg = b.encoder_cams, b.views.background
@@ -240,7 +243,7 @@ def code(b: Bench, variant: Variant, lam: float) -> tuple[EncodedAttributes, flo
     if variant.tunes:
         tuning = TuningParams(iterations=quality_preset("low").tune_iterations)
         enc = tune_coding(b.scene, enc, params, cams, bg, b.visible, b.measure, tuning).encoded
-    return enc, time.perf_counter() - t0
+    return enc, params
 
 
 def coded_point(b: Bench, variant: Variant, lam: float) -> Point:

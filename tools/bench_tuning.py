@@ -24,18 +24,18 @@ from pathlib import Path
 
 import torch
 import typer
-from bench_precision import STATUES, Bench
+from bench_precision import STATUES, VARIANTS, Bench, coding
 from bench_setups import SHARED, bytes_at, fit_setup, synth_setup
 from scenes import Shells, with_shells
 
-from gspc.codec.attributes import EncodedAttributes, encode_attributes
-from gspc.codec.params import CodecParams
-from gspc.encoder.removal import choose_removal
+from gspc.codec.attributes import encode_attributes
 from gspc.encoder.tuning import TuningParams, tune_coding
 from gspc.io import read_scene
 from gspc.presets import quality_preset
 
 PRESETS = ("low", "high")
+# Each preset as `gspc encode` codes it before tuning (the low preset with the removal the encoder chooses).
+PRESET_VARIANTS = {"low": "v4-low-chosen", "high": "v4-high"}
 LAMBDA_DIVISORS = (1.0, 1.5, 2.25, 3.4)
 
 
@@ -85,7 +85,7 @@ def main(
         print(f"== {b.name}", flush=True)
         b.measure_significance()
         for preset in wanted:
-            enc, params = preset_coding(b, preset)
+            enc, params = coding(b, VARIANTS[PRESET_VARIANTS[preset]], quality_preset(preset).attributes.lam)
             lam = enc.lam
             base = (enc.num_bytes, *b.views.psnr(enc.decoded))
             curve = [(enc.num_bytes, base[1], base[2])]
@@ -111,18 +111,6 @@ def main(
     tmp.write_text(text)
     os.replace(tmp, out)
     print(text)
-
-
-def preset_coding(b: Bench, preset: str) -> tuple[EncodedAttributes, CodecParams]:
-    """The preset's coding as ``gspc encode`` makes it before tuning (the low preset with the removal the
-    encoder chooses, gspc/encoder/removal.py), and the parameters it was coded with."""
-    params = quality_preset(preset).attributes
-    enc = encode_attributes(b.scene, params, b.visible, b.measure)
-    if preset == "low":
-        cams, bg = b.encoder_cams, b.views.background
-        choice = choose_removal(b.scene, enc, params, b.visible, b.measure, cams, bg)
-        enc, params = choice.encoded, choice.params
-    return enc, params
 
 
 def _row(name, preset, lam, what, point, base, curve, secs) -> str:

@@ -17,6 +17,7 @@ from gspc.codec.precision import Significance
 from gspc.encoder.removal import RemovalChoice, RemovalParams, choose_removal
 from gspc.encoder.side import SideCandidate, side_candidate
 from gspc.encoder.significance import encoder_significance
+from gspc.encoder.tuning import TuningParams
 from gspc.limits import default_refine_iterations
 from gspc.options import EncodeOptions
 from gspc.presets import quality_preset, refine_iterations_for
@@ -42,6 +43,14 @@ def codec_params(opts: EncodeOptions) -> CodecParams:
     if not opts.precision:
         params = replace(params, precision=None)
     return params
+
+
+def tuning_params(opts: EncodeOptions) -> TuningParams | None:
+    """The tuning of the coded values the options ask for (gspc/encoder/tuning.py; None: none)."""
+    iterations = quality_preset(opts.quality).tune_iterations
+    if opts.tune_iterations is not None:
+        iterations = opts.tune_iterations
+    return TuningParams(iterations=iterations) if iterations > 0 else None
 
 
 @dataclass

@@ -88,7 +88,7 @@ class TuningReport:
     def summary(self) -> str:
         if self.iterations == 0:
             return "none (no time left, or a scene past the tuning's work bound)"
-        verdict = "kept" if self.kept else "not kept (no closer)"
+        verdict = "kept" if self.kept else "not kept (no closer within the byte limit)"
         return (
             f"{self.iterations} iterations at {self.views} views each: {self.before_db:.2f} -> "
             f"{self.after_db:.2f} dB, {self.before_bytes:,} -> {self.after_bytes:,} B, {verdict}, "
@@ -167,8 +167,11 @@ def tune_coding(
             # would not fit either.
             break
         best = current
-    if before is None or best is enc:
+    if before is None:
         return Tuned(enc, _report(done, len(first_share), 0.0, 0.0, enc, enc, False, t0))
+    if best is enc:  # the first coding already passed the byte limit (or the rate's range)
+        at = _db(before, views, first_share)
+        return Tuned(enc, _report(done, len(first_share), at, at, enc, enc, False, t0))
     after = _loss(best, views, refs, first_share, bg)
     before_db, after_db = _db(before, views, first_share), _db(after, views, first_share)
     kept = after < before
