@@ -171,10 +171,13 @@ def between_views(cameras: Sequence[Camera], picked: Sequence[int]) -> list[Came
     """For each camera index in ``picked``, the view halfway to its nearest other camera (by centre; itself
     where every other stands at its centre): views a scene's cameras do not hold, near the ones they do."""
     centres = np.stack([c.center for c in cameras])
+    # A centre is recovered from its camera's rotation and translation: two cameras at one place may differ
+    # by rounding (seen with numpy 2.4), so "the same centre" has a tolerance.
+    same = 1e-9 * max(1.0, float(np.abs(centres).max()))
     out = []
     for i in picked:
         d = np.linalg.norm(centres - centres[i], axis=1)
-        d[d <= 0] = np.inf
+        d[d <= same] = np.inf
         j = int(np.argmin(d))
         out.append(halfway(cameras[i], cameras[j]) if np.isfinite(d[j]) else cameras[i])
     return out
