@@ -70,9 +70,10 @@ def test_unseen_views_are_none_of_the_encoders_and_look_alike(obj):
     from gspc.views import synthesize_views
 
     cams = synthesize_views(obj, 60, width=40, height=40)
-    views = unseen_views(obj, cams, 12)
-    assert len(views) == 12
     centres = np.array([c.center for c in cams])
-    gap = min(np.linalg.norm(centres - np.asarray(v.center), axis=1).min() for v in views)
-    assert gap > 1e-3 * np.linalg.norm(centres[0])
-    assert all(v.width == 40 and v.height == 40 and np.isclose(v.fx, cams[0].fx) for v in views)
+    for n in (12, 67):  # the tables; the whole sphere (bench_precision.py --shell-views)
+        views = unseen_views(obj, cams, n)
+        assert len(views) == n and len({tuple(np.round(v.center, 9)) for v in views}) == n
+        gap = min(np.linalg.norm(centres - np.asarray(v.center), axis=1).min() for v in views)
+        assert gap > 1e-3 * np.linalg.norm(centres[0])
+        assert all(v.width == 40 and v.height == 40 and np.isclose(v.fx, cams[0].fx) for v in views)

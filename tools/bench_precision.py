@@ -14,7 +14,9 @@ tuned to a small image. Scenes:
 - **statues** (``--statues``, SH degree 0): bench_setups.synth_setup: 60 views synthesised at 320x320 for the
   encoder, black background, scored at 12 views between them (``unseen``: none is an encoder camera);
 - **shells**: the statue ``--shells-object`` alone and inside tools/scenes.py's shells (``with_shells``: skies
-  of large Gaussians at 10, 30 and 100 radii and far floaters), both at the object's statue setup.
+  of large Gaussians at 10, 30 and 100 radii and far floaters), both at the object's statue setup, scored
+  at ``--shell-views`` of the sphere the statues' 12 come from (12 by default; one view of a sky can decide
+  a mean of 12, bench/tuning.md: 67 takes all of it).
 
 Codec alone (no side information, no refinement): per variant, a lambda sweep of ``encode_attributes`` with
 the visibility mask of the encoder's cameras, as ``gspc encode --no-side-info`` codes them; bytes are the
@@ -374,11 +376,12 @@ def rate_table(b: Bench, spz: Point | None, curves: dict[str, list[Point]]) -> l
 
 
 def shells_section(
-    path: Path, covers: str, chosen: list[Variant]
+    path: Path, covers: str, chosen: list[Variant], views: int = 12
 ) -> tuple[list[str], list[str], list[Bench]]:
     """The object at ``path`` alone and inside tools/scenes.py's shells at each sky cover, every variant at
-    the low and high presets: (table rows, the description, the scenes for the significance table)."""
-    setup = synth_setup(path.stem, path, unseen=True)
+    the low and high presets, scored at ``views`` of the unseen sphere: (table rows, the description, the
+    scenes for the significance table)."""
+    setup = synth_setup(path.stem, path, n_eval=views, unseen=True)
     obj = read_scene(path)
     alone = Bench.of(f"{path.stem} alone", "shells", None, obj, setup)
     alone.measure_significance()
@@ -423,6 +426,13 @@ def main(
     shells_object: str = typer.Option("massa", help="the statue the shells surround ('' to skip)"),
     covers: str = typer.Option(
         "1,0.1", help="the shells' sky cover (tools/scenes.py Shells.cover), each a world"
+    ),
+    shell_views: int = typer.Option(
+        12,
+        min=1,
+        max=67,
+        help="the shells' scoring views, evenly spaced on the 67-view sphere between the encoder's 60 (12: "
+        "the issue's tables; 67: all of it, where no single view decides; bench/tuning.md)",
     ),
     variants: str = typer.Option("today,v4-low,v4-high", help=f"codec variants: {', '.join(VARIANTS)}"),
     lams: str = typer.Option("0.5,1,2,4,8,16,32", help="lambdas of every variant's sweep"),
@@ -469,7 +479,7 @@ def main(
     shell_rows, shell_text = [], []
     if shells_object:
         shell_rows, shell_text, shell_benches = shells_section(
-            statue_dir / f"{shells_object}.sog", covers, chosen
+            statue_dir / f"{shells_object}.sog", covers, chosen, shell_views
         )
         results += [(b, None, {}) for b in shell_benches]
 
