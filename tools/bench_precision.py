@@ -50,6 +50,7 @@ import torch
 import typer
 from bench_setups import (
     SHARED,
+    UNSEEN_EXTRA,
     Setup,
     bytes_at,
     default_encode_setup,
@@ -86,6 +87,7 @@ from gspc.visibility import visible_mask
 
 ROOT = Path(__file__).resolve().parents[1]
 STATUES = "angel,angel-kneeling,angel-with-candlestick,massa,trumpet"
+STATUE_VIEWS = 60  # the shells' encoder cameras (bench_setups.synth_setup's default, as the statues')
 TARGETS = {"bird": 0.36, "statue": 0.55, "file B/G": 6.0, "shells dB": 0.3}
 
 
@@ -381,7 +383,7 @@ def shells_section(
     """The object at ``path`` alone and inside tools/scenes.py's shells at each sky cover, every variant at
     the low and high presets, scored at ``views`` of the unseen sphere: (table rows, the description, the
     scenes for the significance table)."""
-    setup = synth_setup(path.stem, path, n_eval=views, unseen=True)
+    setup = synth_setup(path.stem, path, views=STATUE_VIEWS, n_eval=views, unseen=True)
     obj = read_scene(path)
     alone = Bench.of(f"{path.stem} alone", "shells", None, obj, setup)
     alone.measure_significance()
@@ -430,7 +432,7 @@ def main(
     shell_views: int = typer.Option(
         12,
         min=1,
-        max=67,
+        max=STATUE_VIEWS + UNSEEN_EXTRA,
         help="the shells' scoring views, evenly spaced on the 67-view sphere between the encoder's 60 (12: "
         "the issue's tables; 67: all of it, where no single view decides; bench/tuning.md)",
     ),
