@@ -627,6 +627,17 @@ def test_encode_on_gpu_codes_the_same_attribute_bytes_and_decodes_on_cpu():
 
 
 @needs_cuda
+def test_encode_without_side_info_tunes_to_the_cpu_bytes():
+    # A file without side information has its coded values tuned (gspc/encoder/tuning.py), which renders
+    # on the CPU whatever the run's device: a GPU encode tunes to the CPU's bytes.
+    cpu_data, _ = encode_scene(scene(), opts=small_encode(side_info=False))
+    gpu_data, rep = encode_scene(scene(), opts=small_encode(side_info=False, device="cuda"))
+    assert "cuda" in str(rep.info["renderer"]) and "iterations" in rep.info["tuning"]
+    cpu_c, gpu_c = container.unpack(cpu_data), container.unpack(gpu_data)
+    assert attribute_chunks(gpu_c.chunks) == attribute_chunks(cpu_c.chunks)
+
+
+@needs_cuda
 @pytest.mark.slow  # the check's rivals run the attribute codec (CPU) several times
 def test_check_restorer_and_refinement_run_on_gpu():
     restorer = load_restorer(DEFAULT_RESTORER, device="cuda")
