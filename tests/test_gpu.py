@@ -434,8 +434,7 @@ def test_gpu_bench_runs_its_steps_on_the_cpu(tmp_path):
     folder = tmp_path / "scale_400"
     _one_copy_scale_scene(folder)
     tool = Path(__file__).resolve().parent.parent / "tools" / "bench_gpu.py"
-    out, logs, keep = tmp_path / "gpu.md", tmp_path / "logs", tmp_path / "keep"
-    keep.mkdir()
+    out, logs, keep = tmp_path / "gpu.md", tmp_path / "logs", tmp_path / "keep" / "files"  # made by the tool
     args = [
         "--device",
         "cpu",

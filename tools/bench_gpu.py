@@ -303,6 +303,8 @@ def main() -> None:
     if args.device == "cuda" and not torch.cuda.is_available():
         raise SystemExit("bench_gpu: no CUDA GPU here: nothing measured, nothing written")
     clock = Clock(args.deadline)
+    if args.keep is not None:  # made here: a missing folder stops the encode only at its write
+        args.keep.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     logs = args.logs or Path(tempfile.mkdtemp(prefix="bench_gpu_"))
     logs.mkdir(parents=True, exist_ok=True)
