@@ -172,14 +172,21 @@ def test_the_compiled_sums_are_the_plain_ones():
     from gspc.encoder import significance_cpu as kern
 
     g = torch.Generator().manual_seed(3)
+    every = np.arange(500)
+    some = every[::3]  # the drawn rows: the others are read as zero
     for dtype in (torch.float32, torch.float64):
         rows = torch.randn(500, 7, generator=g, dtype=dtype)
         expected = rows.double().abs().sum(1).numpy()
-        np.testing.assert_allclose(kern.abs_row_sums(rows.numpy()), expected, rtol=1e-6)
+        np.testing.assert_allclose(kern.abs_row_sums(rows.numpy(), every), expected, rtol=1e-6)
+        part = kern.abs_row_sums(rows.numpy(), some)
+        assert np.array_equal(part[some], kern.abs_row_sums(rows.numpy(), every)[some])
+        assert not np.delete(part, some).any()
         grad, coef = torch.randn(2, 500, 15, 3, generator=g, dtype=dtype).unbind(0)
         product = (grad * coef).double()
         for degree in (1, 2, 3):
             bands = [product[:, b * b - 1 : (b + 1) ** 2 - 1].sum((1, 2)).abs() for b in range(1, degree + 1)]
-            got = kern.band_changes(grad.numpy(), coef.numpy(), degree)
+            got = kern.band_changes(grad.numpy(), coef.numpy(), degree, every)
             assert got.shape == (500, degree)
             np.testing.assert_allclose(got, torch.stack(bands, 1).numpy(), rtol=1e-9, atol=1e-12)
+            part = kern.band_changes(grad.numpy(), coef.numpy(), degree, some)
+            assert np.array_equal(part[some], got[some]) and not np.delete(part, some, axis=0).any()

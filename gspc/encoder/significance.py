@@ -117,9 +117,14 @@ def measure_view(scene: GaussianScene, camera: Camera, background: Sequence[floa
     from gspc.encoder import significance_cpu as kern  # numba: imported where a measure runs
 
     n = scene.num_gaussians
+    # The sums read only the drawn Gaussians' rows: the rest are zero, and a close-up view of a large scene
+    # draws few of them (bench/speed.md).
+    drawn = p.index[p.drawn].numpy()
     zero = torch.zeros(n, dtype=torch.float64)
     gradient = {
-        k: zero if g is None else torch.from_numpy(kern.abs_row_sums(g.reshape(n, -1).contiguous().numpy()))
+        k: zero
+        if g is None
+        else torch.from_numpy(kern.abs_row_sums(g.reshape(n, -1).contiguous().numpy(), drawn))
         for k, g in zip(leaves, grads[:-1])
     }
     # d sum(image) / d colour_i is sum_pixels alpha_i T_i in each channel; the projection may keep only the
@@ -132,7 +137,7 @@ def measure_view(scene: GaussianScene, camera: Camera, background: Sequence[floa
     g_rest = grads[ATTRIBUTE_NAMES.index("sh_rest")]
     if d > 0 and g_rest is not None:
         coef = scene.sh_rest.detach().contiguous().numpy()
-        change = torch.from_numpy(kern.band_changes(g_rest.contiguous().numpy(), coef, d))
+        change = torch.from_numpy(kern.band_changes(g_rest.contiguous().numpy(), coef, d, drawn))
     return ViewMeasures(weight, gradient, change)
 
 

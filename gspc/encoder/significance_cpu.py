@@ -17,11 +17,12 @@ from gspc.render.kernels import JIT
 
 
 @numba.njit(**JIT)
-def abs_row_sums(rows: np.ndarray) -> np.ndarray:
-    """(N, K) -> (N,) float64: sum_k |rows[i, k]|."""
+def abs_row_sums(rows: np.ndarray, drawn: np.ndarray) -> np.ndarray:
+    """(N, K) -> (N,) float64: sum_k |rows[i, k]| for i in ``drawn``, 0 elsewhere (the rows that are all
+    zero: a view's never-drawn Gaussians have no gradient)."""
     n, k = rows.shape
-    out = np.empty(n)
-    for i in range(n):
+    out = np.zeros(n)
+    for i in drawn:
         s = 0.0
         for j in range(k):
             s += abs(rows[i, j])
@@ -30,12 +31,13 @@ def abs_row_sums(rows: np.ndarray) -> np.ndarray:
 
 
 @numba.njit(**JIT)
-def band_changes(grad: np.ndarray, coef: np.ndarray, degree: int) -> np.ndarray:
+def band_changes(grad: np.ndarray, coef: np.ndarray, degree: int, drawn: np.ndarray) -> np.ndarray:
     """(N, R, C) SH-rest gradient and coefficients -> (N, degree) float64: per band b = 1..degree,
-    |sum over the band's coefficients (rows b^2 - 1 .. (b + 1)^2 - 2) and channels of grad x coef|."""
+    |sum over the band's coefficients (rows b^2 - 1 .. (b + 1)^2 - 2) and channels of grad x coef|, for
+    the Gaussians in ``drawn`` (0 for the rest, whose gradient is 0)."""
     n, _, channels = grad.shape
-    out = np.empty((n, degree))
-    for i in range(n):
+    out = np.zeros((n, degree))
+    for i in drawn:
         for b in range(1, degree + 1):
             s = 0.0
             for r in range(b * b - 1, (b + 1) * (b + 1) - 1):

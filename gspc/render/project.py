@@ -221,15 +221,11 @@ class _ProjectCompiled(torch.autograd.Function):
         from gspc.render import project_cpu as kern
 
         arrays, cam, degree = ctx.saved
-        grad_out = np.zeros((len(arrays[0]), kern.OUTPUTS))
-        for cols, g in (
-            (slice(0, 2), g_means2d),
-            (slice(2, 5), g_conics),
-            (5, g_opacities),
-            (slice(6, 9), g_colors),
-            (9, g_depths),
-        ):
-            if g is not None:
-                grad_out[:, cols] = g.detach().numpy()
-        grads = kern.project_backward(arrays, cam, degree, grad_out, torch.get_num_threads())
+        n = len(arrays[0])
+        outs = [
+            np.zeros((n, k)) if g is None else g.detach().reshape(n, k).numpy()
+            for g, k in ((g_means2d, 2), (g_conics, 3), (g_opacities, 1), (g_colors, 3), (g_depths, 1))
+        ]
+        rows, grad_out = kern.output_gradients(*outs)
+        grads = kern.project_backward(arrays, cam, degree, rows, grad_out, torch.get_num_threads())
         return (*(torch.from_numpy(g) for g in grads), None, None)

@@ -223,7 +223,11 @@ def _zero_row(i, grads):
 
 
 @numba.njit(**JIT)
-def _backward_rows(lo, hi, means, quats, log_scales, logits, sh_dc, sh_rest, cam, degree, grad_out, grads):
+def _backward_rows(
+    rows, lo, hi, means, quats, log_scales, logits, sh_dc, sh_rest, cam, degree, grad_out, grads
+):
+    """Rows rows[lo:hi] of project_backward, grad_out[r] the gradient of Gaussian rows[r]'s outputs; every
+    gradient is linear in it, so the Gaussians not listed (no gradient: the never-drawn) keep zeros."""
     d_means, d_quats, d_scales, d_logits, d_dc, d_rest = grads
     scratch = np.empty(45 + 2 * BASIS)
     rq, jw = scratch[0:9].reshape((3, 3)), scratch[9:15].reshape((2, 3))
@@ -232,14 +236,9 @@ def _backward_rows(lo, hi, means, quats, log_scales, logits, sh_dc, sh_rest, cam
     d_rq, d_jw = scratch[30:39].reshape((3, 3)), scratch[39:45].reshape((2, 3))
     basis, d_basis = scratch[45 : 45 + BASIS], scratch[45 + BASIS : 45 + 2 * BASIS]
     nb = (degree + 1) * (degree + 1)
-    for i in range(lo, hi):
-        g = grad_out[i]
-        nothing = True
-        for k in range(OUTPUTS):
-            nothing = nothing and g[k] == 0.0
-        if nothing:  # every gradient is linear in g (the never-drawn get none)
-            _zero_row(i, grads)
-            continue
+    for r in range(lo, hi):
+        i = rows[r]
+        g = grad_out[r]  # not all zero (output_gradients keeps only such rows)
         x, y, z, front, quat, clamp, cov = _geometry(i, means, quats, log_scales, cam, rq, jw, a, s, t)
         if not front:  # the culled pass none
             _zero_row(i, grads)
@@ -328,17 +327,19 @@ def _backward_rows(lo, hi, means, quats, log_scales, logits, sh_dc, sh_rest, cam
 
 
 @numba.njit(**JIT)
-def _backward_serial(means, quats, log_scales, logits, sh_dc, sh_rest, cam, degree, grad_out, grads):
-    n = len(means)
-    _backward_rows(0, n, means, quats, log_scales, logits, sh_dc, sh_rest, cam, degree, grad_out, grads)
+def _backward_serial(rows, means, quats, log_scales, logits, sh_dc, sh_rest, cam, degree, grad_out, grads):
+    n = len(rows)
+    _backward_rows(rows, 0, n, means, quats, log_scales, logits, sh_dc, sh_rest, cam, degree, grad_out, grads)
 
 
 @numba.njit(parallel=True, **JIT)
-def _backward_parallel(means, quats, log_scales, logits, sh_dc, sh_rest, cam, degree, grad_out, grads):
-    n = len(means)
+def _backward_parallel(rows, means, quats, log_scales, logits, sh_dc, sh_rest, cam, degree, grad_out, grads):
+    n = len(rows)
     for c in numba.prange((n + CHUNK - 1) // CHUNK):
         lo, hi = c * CHUNK, min(n, (c + 1) * CHUNK)
-        _backward_rows(lo, hi, means, quats, log_scales, logits, sh_dc, sh_rest, cam, degree, grad_out, grads)
+        _backward_rows(
+            rows, lo, hi, means, quats, log_scales, logits, sh_dc, sh_rest, cam, degree, grad_out, grads
+        )
 
 
 def project_forward(arrays: tuple, cam: np.ndarray, degree: int, threads: int) -> tuple[np.ndarray, ...]:
@@ -355,15 +356,45 @@ def project_forward(arrays: tuple, cam: np.ndarray, degree: int, threads: int) -
     return outs
 
 
+@numba.njit(**JIT)
+def output_gradients(g_uv, g_conic, g_opacity, g_color, g_depth):
+    """(rows, grad_out): the Gaussians whose outputs have a gradient that is not all zero, and those
+    gradients as (len(rows), OUTPUTS) float64 (u, v, conic a, b, c, opacity, r, g, b, depth), from the
+    outputs' (N, 2), (N, 3), (N, 1), (N, 3), (N, 1) gradients. One pass over them: a close-up view of a
+    large scene draws few of its Gaussians, and the rest need no work at all."""
+    n = len(g_uv)
+    keep = np.empty(n, np.bool_)
+    m = 0
+    for i in range(n):
+        nz = g_uv[i, 0] != 0.0 or g_uv[i, 1] != 0.0 or g_opacity[i, 0] != 0.0 or g_depth[i, 0] != 0.0
+        for k in range(3):
+            nz = nz or g_conic[i, k] != 0.0 or g_color[i, k] != 0.0
+        keep[i] = nz
+        m += nz
+    rows = np.empty(m, np.int64)
+    grad_out = np.empty((m, OUTPUTS))
+    r = 0
+    for i in range(n):
+        if keep[i]:
+            rows[r] = i
+            grad_out[r, 0], grad_out[r, 1] = g_uv[i, 0], g_uv[i, 1]
+            for k in range(3):
+                grad_out[r, 2 + k] = g_conic[i, k]
+                grad_out[r, 6 + k] = g_color[i, k]
+            grad_out[r, 5], grad_out[r, 9] = g_opacity[i, 0], g_depth[i, 0]
+            r += 1
+    return rows, grad_out
+
+
 def project_backward(
-    arrays: tuple, cam: np.ndarray, degree: int, grad_out: np.ndarray, threads: int
+    arrays: tuple, cam: np.ndarray, degree: int, rows: np.ndarray, grad_out: np.ndarray, threads: int
 ) -> tuple[np.ndarray, ...]:
-    """dL/d (means, quats, log_scales, logits, sh_dc, sh_rest), in the inputs' dtype, for grad_out (N, 10)
-    float64 = dL/d (u, v, conic a, b, c, opacity, r, g, b, depth)."""
-    grads = tuple(np.empty(x.shape, x.dtype) for x in arrays)
+    """dL/d (means, quats, log_scales, logits, sh_dc, sh_rest), in the inputs' dtype, for the Gaussians
+    ``rows`` with their outputs' gradients grad_out (from output_gradients); zero for the rest."""
+    grads = tuple(np.zeros(x.shape, x.dtype) for x in arrays)  # zero pages: only the rows' are written
     if threads > 1:
         set_threads(threads)
-        _backward_parallel(*arrays, cam, degree, grad_out, grads)
+        _backward_parallel(rows, *arrays, cam, degree, grad_out, grads)
     else:
-        _backward_serial(*arrays, cam, degree, grad_out, grads)
+        _backward_serial(rows, *arrays, cam, degree, grad_out, grads)
     return grads
