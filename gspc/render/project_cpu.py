@@ -211,23 +211,13 @@ def _forward_parallel(means, quats, log_scales, logits, sh_dc, sh_rest, cam, deg
         _forward_rows(lo, hi, means, quats, log_scales, logits, sh_dc, sh_rest, cam, degree, outs)
 
 
-@numba.njit(inline="always", error_model="numpy")
-def _zero_row(i, grads):
-    d_means, d_quats, d_scales, d_logits, d_dc, d_rest = grads
-    d_means[i, :] = 0.0
-    d_quats[i, :] = 0.0
-    d_scales[i, :] = 0.0
-    d_logits[i] = 0.0
-    d_dc[i, :] = 0.0
-    d_rest[i, :, :] = 0.0
-
-
 @numba.njit(**JIT)
 def _backward_rows(
     rows, lo, hi, means, quats, log_scales, logits, sh_dc, sh_rest, cam, degree, grad_out, grads
 ):
     """Rows rows[lo:hi] of project_backward, grad_out[r] the gradient of Gaussian rows[r]'s outputs; every
-    gradient is linear in it, so the Gaussians not listed (no gradient: the never-drawn) keep zeros."""
+    gradient is linear in it, so the Gaussians not listed (no gradient: the never-drawn) keep the zeros
+    project_backward made, as do the culled and the SH coefficients above ``degree``."""
     d_means, d_quats, d_scales, d_logits, d_dc, d_rest = grads
     scratch = np.empty(45 + 2 * BASIS)
     rq, jw = scratch[0:9].reshape((3, 3)), scratch[9:15].reshape((2, 3))
@@ -240,8 +230,7 @@ def _backward_rows(
         i = rows[r]
         g = grad_out[r]  # not all zero (output_gradients keeps only such rows)
         x, y, z, front, quat, clamp, cov = _geometry(i, means, quats, log_scales, cam, rq, jw, a, s, t)
-        if not front:  # the culled pass none
-            _zero_row(i, grads)
+        if not front:  # the culled pass none: their rows stay zero
             continue
         w, qx, qy, qz, qn = quat
         tx, ty, in_x, in_y = clamp
@@ -261,9 +250,6 @@ def _backward_rows(
             for k in range(1, nb):
                 d_rest[i, k - 1, c] = basis[k] * gc
                 d_basis[k] += np.float64(sh_rest[i, k - 1, c]) * gc
-        for k in range(nb - 1, d_rest.shape[1]):  # coefficients above the degree rendered
-            for c in range(3):
-                d_rest[i, k, c] = 0.0
         gx, gy, gz = _basis_grad(ux, uy, uz, degree, d_basis)
         dot = gx * ux + gy * uy + gz * uz  # through the normalisation of the direction
         dmx, dmy, dmz = (gx - ux * dot) / dn, (gy - uy * dot) / dn, (gz - uz * dot) / dn
