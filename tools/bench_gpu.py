@@ -181,9 +181,12 @@ def run_size(folder: Path, tmp: Path, args, clock: Clock, logs: Path, record) ->
     eval_cams = [cams[i] for i in test]
     save_cameras_json([cams[i] for i in train], tmp / "train.json")
 
+    # The torch renderer (the file's rules) scores every row alike, whatever decoded it; on the GPU where
+    # there is one, so that a CPU run on a GPU machine is not held up by its scoring.
+    scorer = "cuda" if torch.cuda.is_available() else "cpu"
+
     def score(ply: Path, reference=None) -> tuple[float, list]:
-        # The torch renderer (the file's rules) on the GPU scores every row alike, whatever decoded it.
-        scene = read_scene(ply).to(args.device)
+        scene = read_scene(ply).to(scorer)
         images = [im.cpu() for im in render_images(scene, eval_cams, (0.0, 0.0, 0.0), backend="torch")]
         return (mean_psnr(images, reference) if reference is not None else math.nan), images
 
