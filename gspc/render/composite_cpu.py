@@ -15,9 +15,11 @@ transmittance below 1e-4. Arithmetic is float64 whatever the input dtype; result
 
 Backward: the closed form of compositing (rasterize.py), walked front to back as the forward walked:
 dL/dalpha_i = g_i T_i - R_i / (1 - alpha_i), g_i = dL/dw_i, R_i = sum_{j > i} w_j g_j, which starts as
-the pixel's grad . output. On one thread each pair adds its gradient straight into its Gaussian's; on
-several, tiles run in parallel, each pair writes its own row (a pair belongs to one tile: no races) and
-the rows are summed per Gaussian afterwards. Either way the result does not depend on scheduling.
+the pixel's grad . output. On one thread each pair adds its gradient straight into its Gaussian's, in list
+order (tile by tile). On several, tiles run in parallel: a Gaussian's first pair in list order adds into
+its Gaussian's row (no other pair touches it meanwhile), each later pair writes a row of its own, and those
+are added to their Gaussians' rows afterwards, in list order. Either way each Gaussian's gradient is the
+same sum in the same order, whatever the threads and their schedule.
 """
 
 from __future__ import annotations
@@ -28,7 +30,7 @@ import numba
 import numpy as np
 
 from gspc.render.intrinsics import prefetch, stack_array
-from gspc.render.kernels import JIT, set_threads
+from gspc.render.kernels import JIT, parallel
 from gspc.render.rules import (
     ALPHA_MAX,
     ALPHA_MIN,
@@ -51,6 +53,9 @@ FEATURES = 5
 GRADS = 6  # gradient columns before the features: d mean x, d mean y, d a, d b, d c, d opacity
 AHEAD = 4  # pairs: each pair's record is prefetched while the pair AHEAD before it is walked
 STATS = 2  # composite_forward's counts per tile: pairs walked, pixel visits
+# Tiles handed to a thread at a time: a close-up view's tiles differ in work by orders of magnitude.
+TILES_PER_TASK = 8
+ROWS_PER_TASK = 4096  # records or Gaussians a thread takes at a time in the per-row kernels
 if TILE != 8:  # _lane_total adds up exactly 8 columns
     raise ImportError("the compiled compositor is written for 8x8 tiles")
 # Divisors (kernels.JIT has no zero checks): conic a and its determinant are bounded away from 0 by the
@@ -241,16 +246,18 @@ def _forward_serial(gaussians, gauss, start, count, tiles_x, size, image, stats,
 
 @numba.njit(parallel=True, **JIT)
 def _forward_parallel(gaussians, gauss, start, count, tiles_x, size, image, stats, counting):
-    for t in numba.prange(len(start)):
+    for t in numba.prange(len(start)):  # handed out TILES_PER_TASK at a time (composite_forward)
         _tile_forward(t, gaussians, gauss, start, count, tiles_x, size, image, stats, counting)
 
 
 @numba.njit(**JIT)
 def _tile_backward(
-    t, gaussians, gauss, start, count, tiles_x, size, grad_image, image, rows, per_pair, grads, used
+    t, gaussians, gauss, start, count, tiles_x, size, grad_image, image, rows, slot, grads, own, used
 ):
     """Tile t of composite_backward, walked as _tile_forward walks it. A pair's sums over its pixels are
-    kept per tile column (vector lanes) and added up when the pair is done."""
+    kept per tile column (vector lanes) and added up when the pair is done: into its Gaussian's row of
+    ``grads`` (rows[gauss[p]]), or, where slot[p] >= 0 (``slot`` may be empty: none), into row slot[p] of
+    ``own``; the pairs not walked get slot -1."""
     n = count[t]
     if n == 0:
         return
@@ -322,17 +329,30 @@ def _tile_backward(
         g_pow, g_dx, g_dx2 = _lane_moments(lanes, 5, dxs)
         g_dy, g_dxdy, _ = _lane_moments(lanes, 6, dxs)
         g_dy2 = _lane_total(lanes, 7)
-        out_row = grads[p] if per_pair else grads[rows[gauss[p]]]  # (composite_backward says which)
-        out_row[0] += a * g_dx + b * g_dy
-        out_row[1] += b * g_dx + c * g_dy
-        out_row[2] -= 0.5 * g_dx2
-        out_row[3] -= g_dxdy
-        out_row[4] -= 0.5 * g_dy2
-        out_row[5] += g_pow / o
+        k_own = slot[p] if len(slot) else -1  # (composite_backward says which)
+        add = k_own < 0
+        out_row = grads[rows[gauss[p]]] if add else own[k_own]
+        _put(out_row, 0, a * g_dx + b * g_dy, add)
+        _put(out_row, 1, b * g_dx + c * g_dy, add)
+        _put(out_row, 2, -0.5 * g_dx2, add)
+        _put(out_row, 3, -g_dxdy, add)
+        _put(out_row, 4, -0.5 * g_dy2, add)
+        _put(out_row, 5, g_pow / o, add)
         for k in range(FEATURES):
-            out_row[GRADS + k] += _lane_total(lanes, k)
+            _put(out_row, GRADS + k, _lane_total(lanes, k), add)
         if live == 0:  # the pairs after this one touch no pixel: their gradients are zero
+            if len(slot):  # their own rows are never written: nothing to add
+                slot[p + 1 : start[t] + n] = -1
             break
+
+
+@numba.njit(inline="always", error_model="numpy")
+def _put(row, j, v, add):
+    """row[j] += v (``add``) or row[j] = v."""
+    if add:
+        row[j] += v
+    else:
+        row[j] = v
 
 
 @numba.njit(inline="always", error_model="numpy")
@@ -358,22 +378,21 @@ def _lane_moments(lanes, k, dxs):
 
 
 @numba.njit(**JIT)
-def _backward_serial(
-    gaussians, gauss, start, count, tiles_x, size, grad_image, image, rows, per_pair, grads, used
-):
+def _backward_serial(gaussians, gauss, start, count, tiles_x, size, grad_image, image, rows, grads, used):
+    none, own = np.empty(0, np.int64), np.empty((0, GRADS + FEATURES))
     for t in range(len(start)):
         _tile_backward(
-            t, gaussians, gauss, start, count, tiles_x, size, grad_image, image, rows, per_pair, grads, used
+            t, gaussians, gauss, start, count, tiles_x, size, grad_image, image, rows, none, grads, own, used
         )
 
 
 @numba.njit(parallel=True, **JIT)
 def _backward_parallel(
-    gaussians, gauss, start, count, tiles_x, size, grad_image, image, rows, per_pair, grads, used
+    gaussians, gauss, start, count, tiles_x, size, grad_image, image, rows, slot, grads, own, used
 ):
-    for t in numba.prange(len(start)):
+    for t in numba.prange(len(start)):  # handed out TILES_PER_TASK at a time (composite_backward)
         _tile_backward(
-            t, gaussians, gauss, start, count, tiles_x, size, grad_image, image, rows, per_pair, grads, used
+            t, gaussians, gauss, start, count, tiles_x, size, grad_image, image, rows, slot, grads, own, used
         )
 
 
@@ -412,57 +431,120 @@ def tile_columns(ty, mx, my, a, b, terms, lo_x, hi_x):
     return max(int(lo), lo_x), min(int(hi), hi_x)
 
 
-@numba.njit(**JIT)
-def bin_ellipses(lo, hi, means2d, conics, thr, exact, tiles_x, num_tiles):
+def bin_ellipses(
+    lo: np.ndarray,
+    hi: np.ndarray,
+    means2d: np.ndarray,
+    conics: np.ndarray,
+    thr: np.ndarray,
+    exact: bool,
+    tiles_x: int,
+    num_tiles: int,
+    threads: int = 1,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Tile lists by a counting sort: (gauss, start, count), pairs grouped by tile, Gaussians in input order
     inside each tile, for Gaussian i in the tiles lo[i]..hi[i] (x, y; none when hi < lo) of its box that its
-    ellipse q <= thr[i] reaches (``exact``; else every tile of the box)."""
-    rows = 0
-    for i in range(len(lo)):
-        if hi[i, 0] >= lo[i, 0]:
-            rows += max(hi[i, 1] - lo[i, 1] + 1, 0)
-    cols = np.empty((rows, 2), np.int64)  # each (Gaussian, tile row)'s first and last tile column
-    count = np.zeros(num_tiles, np.int64)
-    r = 0
-    for i in range(len(lo)):
-        if hi[i, 0] < lo[i, 0]:
-            continue
-        mx, my, a, b, c = means2d[i, 0], means2d[i, 1], conics[i, 0], conics[i, 1], conics[i, 2]
-        terms = ellipse_terms(mx, my, a, b, c, thr[i]) if exact else (0.0, 1.0, 0.0, 0.0, 0.0)
-        for ty in range(lo[i, 1], hi[i, 1] + 1):
-            c0, c1 = lo[i, 0], hi[i, 0]
-            if exact:
-                c0, c1 = tile_columns(ty, mx, my, a, b, terms, c0, c1)
-            cols[r, 0], cols[r, 1] = c0, c1
-            r += 1
-            for tx in range(c0, c1 + 1):
-                count[ty * tiles_x + tx] += 1
-    start = np.cumsum(count) - count
-    fill = start.copy()
-    total = start[-1] + count[-1] if num_tiles else 0
-    gauss = np.empty(total, np.int32)  # (half the bytes of int64 to scatter)
-    r = 0
-    for i in range(len(lo)):
-        if hi[i, 0] < lo[i, 0]:
-            continue
-        for ty in range(lo[i, 1], hi[i, 1] + 1):
-            for tx in range(cols[r, 0], cols[r, 1] + 1):
-                t = ty * tiles_x + tx
-                gauss[fill[t]] = i
-                fill[t] += 1
-            r += 1
+    ellipse q <= thr[i] reaches (``exact``; else every tile of the box).
+
+    On several threads each takes blocks of consecutive Gaussians, counting their pairs per tile, and
+    places them after the earlier blocks' pairs of that tile: the same lists."""
+    blocks = 1 if threads <= 1 else max(1, min(4 * threads, len(lo) // ROWS_PER_TASK))
+    bounds = (np.arange(blocks + 1, dtype=np.int64) * len(lo)) // blocks
+    with parallel(threads, 1):
+        return _bin_blocks(lo, hi, means2d, conics, thr, exact, tiles_x, num_tiles, bounds)
+
+
+@numba.njit(parallel=True, **JIT)
+def _bin_blocks(lo, hi, means2d, conics, thr, exact, tiles_x, num_tiles, bounds):
+    """bin_ellipses for the blocks of Gaussians bounds[b]..bounds[b + 1] - 1."""
+    # No whole-array expressions here: in a parallel function numba runs each as a loop of its own, handed
+    # out one element at a time under parallel(threads, 1).
+    blocks = len(bounds) - 1
+    first_row = np.empty(blocks + 1, np.int64)  # each block's first (Gaussian, tile row) entry
+    first_row[0] = 0
+    for b in numba.prange(blocks):
+        rows = 0
+        for i in range(bounds[b], bounds[b + 1]):
+            if hi[i, 0] >= lo[i, 0]:
+                rows += max(hi[i, 1] - lo[i, 1] + 1, 0)
+        first_row[b + 1] = rows
+    for b in range(blocks):
+        first_row[b + 1] += first_row[b]
+    cols = np.empty((first_row[blocks], 2), np.int64)  # each (Gaussian, tile row)'s first, last tile column
+    place = np.empty((blocks, num_tiles), np.int64)  # each block's pairs per tile, then where they go
+    for b in numba.prange(blocks):
+        r, count = first_row[b], place[b]
+        for t in range(num_tiles):
+            count[t] = 0
+        for i in range(bounds[b], bounds[b + 1]):
+            if hi[i, 0] < lo[i, 0]:
+                continue
+            mx, my, a, c_ = means2d[i, 0], means2d[i, 1], conics[i, 0], conics[i, 2]
+            bb = conics[i, 1]
+            terms = ellipse_terms(mx, my, a, bb, c_, thr[i]) if exact else (0.0, 1.0, 0.0, 0.0, 0.0)
+            for ty in range(lo[i, 1], hi[i, 1] + 1):
+                c0, c1 = lo[i, 0], hi[i, 0]
+                if exact:
+                    c0, c1 = tile_columns(ty, mx, my, a, bb, terms, c0, c1)
+                cols[r, 0], cols[r, 1] = c0, c1
+                r += 1
+                for tx in range(c0, c1 + 1):
+                    count[ty * tiles_x + tx] += 1
+    count = np.empty(num_tiles, np.int64)
+    for g in numba.prange((num_tiles + 255) // 256):
+        for t in range(g * 256, min(num_tiles, g * 256 + 256)):
+            total = 0
+            for b in range(blocks):
+                n = place[b, t]
+                place[b, t] = total
+                total += n
+            count[t] = total
+    start = np.empty(num_tiles, np.int64)
+    total = 0
+    for t in range(num_tiles):
+        start[t] = total
+        total += count[t]
+    gauss = np.empty(total, np.int32)  # (half the bytes of int64)
+    for b in numba.prange(blocks):
+        r, fill = first_row[b], place[b]
+        for i in range(bounds[b], bounds[b + 1]):
+            if hi[i, 0] < lo[i, 0]:
+                continue
+            for ty in range(lo[i, 1], hi[i, 1] + 1):
+                for tx in range(cols[r, 0], cols[r, 1] + 1):
+                    t = ty * tiles_x + tx
+                    gauss[start[t] + fill[t]] = i
+                    fill[t] += 1
+                r += 1
     return gauss, start, count
 
 
-@numba.njit(**JIT)
-def pack(order, means2d, conics, opacities, features):
+def pack(
+    order: np.ndarray,
+    means2d: np.ndarray,
+    conics: np.ndarray,
+    opacities: np.ndarray,
+    features: np.ndarray,
+    threads: int = 1,
+) -> np.ndarray:
     """(len(order), FIELDS + FEATURES) float64 records of the Gaussians ``order``, in that order: mean x,
     mean y, conic a, b, c, opacity, threshold, the FEATURES - 1 features (colour, depth) and a 1 (its
     composite is the alpha image): one Gaussian's data in one or two cache lines (the kernels read Gaussians
-    scattered). Reads the projection's arrays in their own dtype; the gather (latency-bound at 1M Gaussians)
-    and the logarithms run in separate passes."""
+    scattered). Reads the projection's arrays in their own dtype."""
     out = np.empty((len(order), FIELDS + FEATURES))
-    for r in range(len(order)):
+    if threads > 1:
+        with parallel(threads, 1):
+            _pack_parallel(order, means2d, conics, opacities, features, out)
+    else:
+        _pack_rows(0, len(order), order, means2d, conics, opacities, features, out)
+    return out
+
+
+@numba.njit(**JIT)
+def _pack_rows(lo, hi, order, means2d, conics, opacities, features, out):
+    """Records lo..hi - 1 of pack(). The gather (latency-bound at 1M Gaussians) and the logarithms run in
+    separate passes."""
+    for r in range(lo, hi):
         i = order[r]
         rec = out[r]
         rec[0], rec[1] = means2d[i, 0], means2d[i, 1]
@@ -471,43 +553,72 @@ def pack(order, means2d, conics, opacities, features):
         for k in range(FEATURES - 1):
             rec[FIELDS + k] = features[i, k]
         rec[FIELDS + FEATURES - 1] = 1.0
-    for r in range(len(order)):
+    for r in range(lo, hi):
         o = out[r, 5]
         thr = 2.0 * math.log(o / ALPHA_MIN) if o > 0.0 else -np.inf
         out[r, 6] = thr * (1.0 + THRESHOLD_REL_MARGIN) + THRESHOLD_REL_MARGIN
-    return out
 
 
-@numba.njit(**JIT)
-def _radix_order(keys):
-    """Stable ascending order of unsigned 64-bit keys: least-significant-byte radix sort, 8 passes (a pass
-    whose byte is the same for every key is skipped)."""
-    n = len(keys)
-    idx, tmp = np.arange(n), np.empty(n, np.int64)
-    for shift in range(0, 64, 8):
-        count = np.zeros(257, np.int64)
-        for i in range(n):
-            count[((keys[idx[i]] >> shift) & 255) + 1] += 1
-        if count.max() == n:
-            continue
-        for b in range(256):
-            count[b + 1] += count[b]
-        for i in range(n):
-            j = idx[i]
-            b = (keys[j] >> shift) & 255
-            tmp[count[b]] = j
-            count[b] += 1
-        idx, tmp = tmp, idx
-    return idx
+@numba.njit(parallel=True, **JIT)
+def _pack_parallel(order, means2d, conics, opacities, features, out):
+    n = len(order)
+    for c in numba.prange((n + ROWS_PER_TASK - 1) // ROWS_PER_TASK):
+        lo, hi = c * ROWS_PER_TASK, min(n, (c + 1) * ROWS_PER_TASK)
+        _pack_rows(lo, hi, order, means2d, conics, opacities, features, out)
 
 
-def depth_order(depths: np.ndarray) -> np.ndarray:
+def depth_order(depths: np.ndarray, threads: int = 1) -> np.ndarray:
     """Indices sorting ``depths`` (finite floats) ascending, ties in input order: torch.sort(stable=True)'s
     result, by a radix sort on the float64 bit patterns made order-preserving (negative: all bits flipped;
     otherwise the sign bit set). Several times faster than the comparison sort at 100k depths."""
     bits = depths.astype(np.float64).view(np.uint64)
     keys = np.where(bits >> np.uint64(63), ~bits, bits | np.uint64(1 << 63))
-    return _radix_order(keys)
+    blocks = 1 if threads <= 1 else max(1, min(4 * threads, len(keys) // ROWS_PER_TASK))
+    with parallel(threads, 1):
+        return _radix_order(keys, (np.arange(blocks + 1, dtype=np.int64) * len(keys)) // blocks)
+
+
+@numba.njit(parallel=True, **JIT)
+def _radix_order(keys, bounds):
+    """Stable ascending order of unsigned 64-bit keys: least-significant-byte radix sort, 8 passes (a pass
+    whose byte is the same for every key is skipped). Each pass counts the blocks of positions
+    bounds[b]..bounds[b + 1] - 1 apart and moves each block's keys after the earlier blocks' of the same
+    byte: stable, so the order is unique, whatever the blocks."""
+    n, blocks = len(keys), len(bounds) - 1
+    idx, tmp = np.empty(n, np.int64), np.empty(n, np.int64)
+    for i in range(n):  # (a loop: see _bin_blocks)
+        idx[i] = i
+    place = np.empty((blocks, 256), np.int64)  # each block's keys per byte value, then where they go
+    for shift in range(0, 64, 8):
+        for b in numba.prange(blocks):
+            count = place[b]
+            for v in range(256):
+                count[v] = 0
+            for i in range(bounds[b], bounds[b + 1]):
+                count[(keys[idx[i]] >> shift) & 255] += 1
+        same = False  # one byte value for every key: nothing moves
+        for v in range(256):
+            m = 0
+            for b in range(blocks):
+                m += place[b, v]
+            same = same or m == n
+        if same:
+            continue
+        total = 0
+        for v in range(256):
+            for b in range(blocks):
+                m = place[b, v]
+                place[b, v] = total
+                total += m
+        for b in numba.prange(blocks):
+            fill = place[b]
+            for i in range(bounds[b], bounds[b + 1]):
+                j = idx[i]
+                v = (keys[j] >> shift) & 255
+                tmp[fill[v]] = j
+                fill[v] += 1
+        idx, tmp = tmp, idx
+    return idx
 
 
 def composite_forward(
@@ -527,8 +638,8 @@ def composite_forward(
     stats = np.zeros((len(lists[1]), STATS), np.int64)
     size = np.asarray(size, np.int64)
     if threads > 1:
-        set_threads(threads)
-        _forward_parallel(gaussians, *lists, tiles_x, size, image, stats, counting)
+        with parallel(threads, TILES_PER_TASK):
+            _forward_parallel(gaussians, *lists, tiles_x, size, image, stats, counting)
     else:
         _forward_serial(gaussians, *lists, tiles_x, size, image, stats, counting)
     return stats
@@ -554,25 +665,46 @@ def composite_backward(
     used = np.ones(FEATURES, np.bool_)
     used[3:] = np.any(grad_image[..., 3:] != 0.0, axis=(0, 1))
     size = np.asarray(size, np.int64)
+    grads = np.zeros((num, cols))
     if threads <= 1:  # one thread: every pair adds straight into its Gaussian's row, rows[gauss]
-        grads = np.zeros((num, cols))
-        _backward_serial(gaussians, *lists, tiles_x, size, grad_image, image, rows, False, grads, used)
+        _backward_serial(gaussians, *lists, tiles_x, size, grad_image, image, rows, grads, used)
         return grads
-    # Threads own tiles, and a Gaussian's pairs lie in several: each pair gets its own row, summed after.
-    set_threads(threads)
-    per_pair = np.zeros((len(lists[0]), cols))
-    _backward_parallel(gaussians, *lists, tiles_x, size, grad_image, image, rows, True, per_pair, used)
-    return _sum_per_gaussian(per_pair, rows[lists[0]], num)  # rows[gauss]: the caller's row of each pair
+    # Threads own tiles, and a Gaussian's pairs lie in several: all but its first get a row of their own.
+    slot, later = _later_pairs(lists[0], len(gaussians))
+    own = np.empty((later, cols))  # every row is written before it is read
+    with parallel(threads, TILES_PER_TASK):
+        _backward_parallel(gaussians, *lists, tiles_x, size, grad_image, image, rows, slot, grads, own, used)
+    with parallel(threads, 1):
+        _add_later(own, slot, lists[0], rows, grads, threads)
+    return grads
 
 
 @numba.njit(**JIT)
-def _sum_per_gaussian(per_pair, dest, num):
-    """(num, columns): row r the sum of the rows p of per_pair with dest[p] == r, added in the order of p
-    (as np.bincount adds its weights, which this replaced: eleven bincounts and a stack of their N-long
-    columns cost twice the parallel walk itself on a 1M-Gaussian view, bench/speed.md)."""
-    out = np.zeros((num, per_pair.shape[1]))
-    for p in range(len(dest)):
-        d = dest[p]
-        for c in range(per_pair.shape[1]):
-            out[d, c] += per_pair[p, c]
-    return out
+def _later_pairs(gauss, records):
+    """(slot, count): slot[p] = -1 for the first pair of each record in list order, else its row in a
+    (count, columns) array of the later pairs' rows, in list order."""
+    seen = np.zeros(records, np.bool_)
+    slot = np.empty(len(gauss), np.int64)
+    k = 0
+    for p in range(len(gauss)):
+        r = gauss[p]
+        if seen[r]:
+            slot[p] = k
+            k += 1
+        else:
+            seen[r] = True
+            slot[p] = -1
+    return slot, k
+
+
+@numba.njit(parallel=True, **JIT)
+def _add_later(own, slot, gauss, rows, grads, parts):
+    """grads[rows[gauss[p]]] += own[slot[p]] for the later pairs p walked, in list order per Gaussian; the
+    records are split into ``parts`` (by index mod parts), each part's Gaussians summed by one task."""
+    for part in numba.prange(parts):
+        for p in range(len(slot)):
+            k = slot[p]
+            if k >= 0 and gauss[p] % parts == part:
+                row = grads[rows[gauss[p]]]
+                for c in range(own.shape[1]):
+                    row[c] += own[k, c]

@@ -4,6 +4,9 @@ tests' second opinion on the CPU. Also what the compiled kernels share: their co
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
+
 import torch
 
 KERNELS = ("auto", "torch", "compiled")
@@ -25,8 +28,23 @@ def pick_kernel(kernel: str, ref: torch.Tensor) -> str:
     return kernel
 
 
-def set_threads(n: int) -> None:
-    """Run the compiled kernels' parallel loops on ``n`` threads (at most numba's pool)."""
+@contextmanager
+def parallel(threads: int, chunk: int) -> Iterator[None]:
+    """Run the compiled kernels' parallel loops inside on ``threads`` threads (at most numba's pool), handing
+    out their iterations ``chunk`` at a time to whichever thread is free (0: numba's default, one equal
+    block per thread). Equal blocks leave threads idle where the work is uneven, and a close-up view's is:
+    its tiles by what they show, the Gaussians (in Morton order) by whether the view sees them. Each
+    iteration writes its own outputs, so results do not depend on the schedule.
+
+    numba's OpenMP pool, started by its first parallel loop, sets the OpenMP thread count that torch also
+    reads to the pool's size (every core): torch's own count (GSPC_THREADS) is put back after each run."""
     import numba  # only the compiled kernels need it
 
-    numba.set_num_threads(max(1, min(int(n), numba.config.NUMBA_NUM_THREADS)))
+    torch_threads = torch.get_num_threads()
+    numba.set_num_threads(max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS)))
+    try:
+        with numba.parallel_chunksize(chunk):
+            yield
+    finally:
+        if torch.get_num_threads() != torch_threads:
+            torch.set_num_threads(torch_threads)

@@ -24,7 +24,7 @@ import math
 import numba
 import numpy as np
 
-from gspc.render.kernels import JIT, set_threads
+from gspc.render.kernels import JIT, parallel
 from gspc.render.rules import ALPHA_MIN, EXTENT_ABS_MARGIN, EXTENT_REL_MARGIN, LOWPASS, NEAR
 from gspc.render.sh import C1, C2, C3
 from gspc.scene import SH_C0
@@ -335,8 +335,8 @@ def project_forward(arrays: tuple, cam: np.ndarray, degree: int, threads: int) -
     n, dt = len(arrays[0]), arrays[0].dtype
     outs = tuple(np.empty(shape, dt) for shape in ((n, 2), (n, 3), n, (n, 3), n, (n, 2)))
     if threads > 1:
-        set_threads(threads)
-        _forward_parallel(*arrays, cam, degree, outs)
+        with parallel(threads, 1):
+            _forward_parallel(*arrays, cam, degree, outs)
     else:
         _forward_serial(*arrays, cam, degree, outs)
     return outs
@@ -379,8 +379,8 @@ def project_backward(
     ``rows`` with their outputs' gradients grad_out (from output_gradients); zero for the rest."""
     grads = tuple(np.zeros(x.shape, x.dtype) for x in arrays)  # zero pages: only the rows' are written
     if threads > 1:
-        set_threads(threads)
-        _backward_parallel(rows, *arrays, cam, degree, grad_out, grads)
+        with parallel(threads, 1):
+            _backward_parallel(rows, *arrays, cam, degree, grad_out, grads)
     else:
         _backward_serial(rows, *arrays, cam, degree, grad_out, grads)
     return grads

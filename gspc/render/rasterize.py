@@ -171,7 +171,7 @@ def _drawn_in_depth_order(depths: torch.Tensor, extents: torch.Tensor, compiled:
     if compiled:
         from gspc.render.composite_cpu import depth_order
 
-        return drawn.index_select(0, torch.from_numpy(depth_order(key.numpy())))
+        return drawn.index_select(0, torch.from_numpy(depth_order(key.numpy(), torch.get_num_threads())))
     return drawn.index_select(0, torch.sort(key, stable=True).indices)
 
 
@@ -182,7 +182,7 @@ def _records(means2d, conics, opacities, features, order: torch.Tensor) -> np.nd
     if features.shape[1] != FEATURES - 1:
         raise ValueError(f"the compiled compositor takes {FEATURES - 1} features (colour, depth)")
     arrays = (x.detach().contiguous().numpy() for x in (means2d, conics, opacities, features))
-    return pack(order.numpy(), *arrays)
+    return pack(order.numpy(), *arrays, torch.get_num_threads())
 
 
 def bin_tiles(
@@ -217,7 +217,7 @@ def bin_tiles(
         from gspc.render.composite_cpu import bin_ellipses
 
         args = (x.contiguous().numpy() for x in (lo, hi, means2d, conics, thr))
-        lists = bin_ellipses(*args, exact, tiles_x, tiles_x * tiles_y)
+        lists = bin_ellipses(*args, exact, tiles_x, tiles_x * tiles_y, torch.get_num_threads())
         return TileBins(*(torch.from_numpy(x) for x in lists), tiles_x, tiles_y)
     # One entry per (Gaussian, tile row of its box), then per tile of that row the ellipse reaches.
     rows_n = (hi[:, 1] - lo[:, 1] + 1).clamp_min(0) * (hi[:, 0] >= lo[:, 0])
