@@ -459,24 +459,26 @@ def test_compiled_projection_matches_pytorch(behind, dtype):
     assert not gb[5][:, 3:].any() and not gb[0][:behind].any()
 
 
-def test_only_gaussians_with_a_gradient_are_differentiated():
+@pytest.mark.parametrize("threads", [1, 3])
+def test_only_gaussians_with_a_gradient_are_differentiated(monkeypatch, threads):
     # The compiled backward walks the Gaussians whose outputs have any gradient (output_gradients), each
     # with its own row; every other Gaussian's gradients are zero. One output's gradient is enough, a NaN
-    # counts as one, and the gradients are read in float64 from either dtype.
+    # counts as one, and the gradients are read in float64 from either dtype. On 3 threads: blocks of 2.
     from gspc.render import project_cpu as kern
 
+    monkeypatch.setattr(kern, "CHUNK", 2)
     n = 9
     outs = [np.zeros((n, k), np.float32) for k in (2, 3, 1, 3, 1)]
     outs[0][1, 1] = 2.0
     outs[4][4, 0] = -1.5  # depth only
     outs[3][7, 2] = np.nan
     outs[1][7, 0] = 0.25
-    rows, grad_out = kern.output_gradients(*outs)
+    rows, grad_out = kern.output_gradients(*outs, threads)
     assert rows.tolist() == [1, 4, 7] and grad_out.dtype == np.float64 and grad_out.shape == (3, kern.OUTPUTS)
     assert grad_out[0].tolist() == [0, 2.0, 0, 0, 0, 0, 0, 0, 0, 0]
     assert grad_out[1].tolist() == [0, 0, 0, 0, 0, 0, 0, 0, 0, -1.5]
     assert grad_out[2, 2] == 0.25 and np.isnan(grad_out[2, 8])
-    assert kern.output_gradients(*[np.zeros((n, k)) for k in (2, 3, 1, 3, 1)])[0].size == 0
+    assert kern.output_gradients(*[np.zeros((n, k)) for k in (2, 3, 1, 3, 1)], threads)[0].size == 0
     # Through the projection: a loss on one drawn Gaussian's colour moves that Gaussian alone.
     scene = random_scene(50, 2, seed=4, spread=0.6)
     params = [scene.tensors()[name].requires_grad_(True) for name in ATTRIBUTE_NAMES]

@@ -53,8 +53,6 @@ FEATURES = 5
 GRADS = 6  # gradient columns before the features: d mean x, d mean y, d a, d b, d c, d opacity
 AHEAD = 4  # pairs: each pair's record is prefetched while the pair AHEAD before it is walked
 STATS = 2  # composite_forward's counts per tile: pairs walked, pixel visits
-# Tiles handed to a thread at a time: a close-up view's tiles differ in work by orders of magnitude.
-TILES_PER_TASK = 8
 ROWS_PER_TASK = 4096  # records or Gaussians a thread takes at a time in the per-row kernels
 if TILE != 8:  # _lane_total adds up exactly 8 columns
     raise ImportError("the compiled compositor is written for 8x8 tiles")
@@ -246,7 +244,7 @@ def _forward_serial(gaussians, gauss, start, count, tiles_x, size, image, stats,
 
 @numba.njit(parallel=True, **JIT)
 def _forward_parallel(gaussians, gauss, start, count, tiles_x, size, image, stats, counting):
-    for t in numba.prange(len(start)):  # handed out TILES_PER_TASK at a time (composite_forward)
+    for t in numba.prange(len(start)):
         _tile_forward(t, gaussians, gauss, start, count, tiles_x, size, image, stats, counting)
 
 
@@ -390,7 +388,7 @@ def _backward_serial(gaussians, gauss, start, count, tiles_x, size, grad_image, 
 def _backward_parallel(
     gaussians, gauss, start, count, tiles_x, size, grad_image, image, rows, slot, grads, own, used
 ):
-    for t in numba.prange(len(start)):  # handed out TILES_PER_TASK at a time (composite_backward)
+    for t in numba.prange(len(start)):
         _tile_backward(
             t, gaussians, gauss, start, count, tiles_x, size, grad_image, image, rows, slot, grads, own, used
         )
@@ -448,48 +446,98 @@ def bin_ellipses(
 
     On several threads each takes blocks of consecutive Gaussians, counting their pairs per tile, and
     places them after the earlier blocks' pairs of that tile: the same lists."""
-    blocks = 1 if threads <= 1 else max(1, min(4 * threads, len(lo) // ROWS_PER_TASK))
+    if threads <= 1:
+        return _bin_serial(lo, hi, means2d, conics, thr, exact, tiles_x, num_tiles)
+    blocks = max(1, min(4 * threads, len(lo) // ROWS_PER_TASK))
     bounds = (np.arange(blocks + 1, dtype=np.int64) * len(lo)) // blocks
-    with parallel(threads, 1):
-        return _bin_blocks(lo, hi, means2d, conics, thr, exact, tiles_x, num_tiles, bounds)
+    with parallel(threads):
+        return _bin_parallel(lo, hi, means2d, conics, thr, exact, tiles_x, num_tiles, bounds)
+
+
+@numba.njit(**JIT)
+def _bin_rows(lo, hi, i0, i1):
+    """(Gaussian, tile row) entries of Gaussians i0..i1 - 1."""
+    rows = 0
+    for i in range(i0, i1):
+        if hi[i, 0] >= lo[i, 0]:
+            rows += max(hi[i, 1] - lo[i, 1] + 1, 0)
+    return rows
+
+
+@numba.njit(**JIT)
+def _bin_count(lo, hi, means2d, conics, thr, exact, tiles_x, i0, i1, r, cols, count):
+    """Gaussians i0..i1 - 1: each (Gaussian, tile row)'s first and last tile column into cols from row r,
+    and their pairs per tile into count (made zero first)."""
+    count[:] = 0
+    for i in range(i0, i1):
+        if hi[i, 0] < lo[i, 0]:
+            continue
+        mx, my, a, b, c = means2d[i, 0], means2d[i, 1], conics[i, 0], conics[i, 1], conics[i, 2]
+        terms = ellipse_terms(mx, my, a, b, c, thr[i]) if exact else (0.0, 1.0, 0.0, 0.0, 0.0)
+        for ty in range(lo[i, 1], hi[i, 1] + 1):
+            c0, c1 = lo[i, 0], hi[i, 0]
+            if exact:
+                c0, c1 = tile_columns(ty, mx, my, a, b, terms, c0, c1)
+            cols[r, 0], cols[r, 1] = c0, c1
+            r += 1
+            for tx in range(c0, c1 + 1):
+                count[ty * tiles_x + tx] += 1
+
+
+@numba.njit(**JIT)
+def _bin_fill(lo, hi, tiles_x, i0, i1, r, cols, start, fill, gauss):
+    """Gaussians i0..i1 - 1 (their columns from row r of cols) into their tiles' lists: tile t's next at
+    start[t] + fill[t]."""
+    for i in range(i0, i1):
+        if hi[i, 0] < lo[i, 0]:
+            continue
+        for ty in range(lo[i, 1], hi[i, 1] + 1):
+            for tx in range(cols[r, 0], cols[r, 1] + 1):
+                t = ty * tiles_x + tx
+                gauss[start[t] + fill[t]] = i
+                fill[t] += 1
+            r += 1
+
+
+@numba.njit(**JIT)
+def _starts(count):
+    """Where each tile's list starts (exclusive prefix sums), and the pairs in all."""
+    start = np.empty(len(count), np.int64)
+    total = 0
+    for t in range(len(count)):
+        start[t] = total
+        total += count[t]
+    return start, total
+
+
+@numba.njit(**JIT)
+def _bin_serial(lo, hi, means2d, conics, thr, exact, tiles_x, num_tiles):
+    n = len(lo)
+    cols = np.empty((_bin_rows(lo, hi, 0, n), 2), np.int64)
+    count = np.empty(num_tiles, np.int64)
+    _bin_count(lo, hi, means2d, conics, thr, exact, tiles_x, 0, n, 0, cols, count)
+    start, total = _starts(count)
+    gauss = np.empty(total, np.int32)  # (half the bytes of int64 to scatter)
+    _bin_fill(lo, hi, tiles_x, 0, n, 0, cols, start, np.zeros(num_tiles, np.int64), gauss)
+    return gauss, start, count
 
 
 @numba.njit(parallel=True, **JIT)
-def _bin_blocks(lo, hi, means2d, conics, thr, exact, tiles_x, num_tiles, bounds):
+def _bin_parallel(lo, hi, means2d, conics, thr, exact, tiles_x, num_tiles, bounds):
     """bin_ellipses for the blocks of Gaussians bounds[b]..bounds[b + 1] - 1."""
-    # No whole-array expressions here: in a parallel function numba runs each as a loop of its own, handed
-    # out one element at a time under parallel(threads, 1).
+    # Loops only, no whole-array expressions: in a parallel function numba makes each a parallel loop.
     blocks = len(bounds) - 1
     first_row = np.empty(blocks + 1, np.int64)  # each block's first (Gaussian, tile row) entry
     first_row[0] = 0
     for b in numba.prange(blocks):
-        rows = 0
-        for i in range(bounds[b], bounds[b + 1]):
-            if hi[i, 0] >= lo[i, 0]:
-                rows += max(hi[i, 1] - lo[i, 1] + 1, 0)
-        first_row[b + 1] = rows
+        first_row[b + 1] = _bin_rows(lo, hi, bounds[b], bounds[b + 1])
     for b in range(blocks):
         first_row[b + 1] += first_row[b]
-    cols = np.empty((first_row[blocks], 2), np.int64)  # each (Gaussian, tile row)'s first, last tile column
+    cols = np.empty((first_row[blocks], 2), np.int64)
     place = np.empty((blocks, num_tiles), np.int64)  # each block's pairs per tile, then where they go
     for b in numba.prange(blocks):
-        r, count = first_row[b], place[b]
-        for t in range(num_tiles):
-            count[t] = 0
-        for i in range(bounds[b], bounds[b + 1]):
-            if hi[i, 0] < lo[i, 0]:
-                continue
-            mx, my, a, c_ = means2d[i, 0], means2d[i, 1], conics[i, 0], conics[i, 2]
-            bb = conics[i, 1]
-            terms = ellipse_terms(mx, my, a, bb, c_, thr[i]) if exact else (0.0, 1.0, 0.0, 0.0, 0.0)
-            for ty in range(lo[i, 1], hi[i, 1] + 1):
-                c0, c1 = lo[i, 0], hi[i, 0]
-                if exact:
-                    c0, c1 = tile_columns(ty, mx, my, a, bb, terms, c0, c1)
-                cols[r, 0], cols[r, 1] = c0, c1
-                r += 1
-                for tx in range(c0, c1 + 1):
-                    count[ty * tiles_x + tx] += 1
+        i0, i1 = bounds[b], bounds[b + 1]
+        _bin_count(lo, hi, means2d, conics, thr, exact, tiles_x, i0, i1, first_row[b], cols, place[b])
     count = np.empty(num_tiles, np.int64)
     for g in numba.prange((num_tiles + 255) // 256):
         for t in range(g * 256, min(num_tiles, g * 256 + 256)):
@@ -499,23 +547,10 @@ def _bin_blocks(lo, hi, means2d, conics, thr, exact, tiles_x, num_tiles, bounds)
                 place[b, t] = total
                 total += n
             count[t] = total
-    start = np.empty(num_tiles, np.int64)
-    total = 0
-    for t in range(num_tiles):
-        start[t] = total
-        total += count[t]
-    gauss = np.empty(total, np.int32)  # (half the bytes of int64)
+    start, total = _starts(count)
+    gauss = np.empty(total, np.int32)
     for b in numba.prange(blocks):
-        r, fill = first_row[b], place[b]
-        for i in range(bounds[b], bounds[b + 1]):
-            if hi[i, 0] < lo[i, 0]:
-                continue
-            for ty in range(lo[i, 1], hi[i, 1] + 1):
-                for tx in range(cols[r, 0], cols[r, 1] + 1):
-                    t = ty * tiles_x + tx
-                    gauss[start[t] + fill[t]] = i
-                    fill[t] += 1
-                r += 1
+        _bin_fill(lo, hi, tiles_x, bounds[b], bounds[b + 1], first_row[b], cols, start, place[b], gauss)
     return gauss, start, count
 
 
@@ -533,7 +568,7 @@ def pack(
     scattered). Reads the projection's arrays in their own dtype."""
     out = np.empty((len(order), FIELDS + FEATURES))
     if threads > 1:
-        with parallel(threads, 1):
+        with parallel(threads):
             _pack_parallel(order, means2d, conics, opacities, features, out)
     else:
         _pack_rows(0, len(order), order, means2d, conics, opacities, features, out)
@@ -573,51 +608,82 @@ def depth_order(depths: np.ndarray, threads: int = 1) -> np.ndarray:
     otherwise the sign bit set). Several times faster than the comparison sort at 100k depths."""
     bits = depths.astype(np.float64).view(np.uint64)
     keys = np.where(bits >> np.uint64(63), ~bits, bits | np.uint64(1 << 63))
-    blocks = 1 if threads <= 1 else max(1, min(4 * threads, len(keys) // ROWS_PER_TASK))
-    with parallel(threads, 1):
-        return _radix_order(keys, (np.arange(blocks + 1, dtype=np.int64) * len(keys)) // blocks)
+    if threads <= 1:
+        return _radix_serial(keys)
+    blocks = max(1, min(4 * threads, len(keys) // ROWS_PER_TASK))
+    with parallel(threads):
+        return _radix_parallel(keys, (np.arange(blocks + 1, dtype=np.int64) * len(keys)) // blocks)
+
+
+# A least-significant-byte radix sort: stable ascending order of unsigned 64-bit keys in 8 passes (a pass
+# whose byte is the same for every key is skipped). On several threads each pass counts blocks of positions
+# apart and moves each block's keys after the earlier blocks' of the same byte: stable, so the order is
+# unique, whatever the blocks.
+
+
+@numba.njit(**JIT)
+def _radix_count(keys, idx, i0, i1, shift, count):
+    count[:] = 0
+    for i in range(i0, i1):
+        count[(keys[idx[i]] >> shift) & 255] += 1
+
+
+@numba.njit(**JIT)
+def _radix_place(place, n):
+    """place (blocks, 256) from counts to where each block's keys of each byte go; False where one byte
+    holds all n keys (nothing moves)."""
+    for v in range(256):
+        m = 0
+        for b in range(place.shape[0]):
+            m += place[b, v]
+        if m == n:
+            return False
+    total = 0
+    for v in range(256):
+        for b in range(place.shape[0]):
+            m = place[b, v]
+            place[b, v] = total
+            total += m
+    return True
+
+
+@numba.njit(**JIT)
+def _radix_move(keys, idx, tmp, i0, i1, shift, fill):
+    for i in range(i0, i1):
+        j = idx[i]
+        v = (keys[j] >> shift) & 255
+        tmp[fill[v]] = j
+        fill[v] += 1
+
+
+@numba.njit(**JIT)
+def _radix_serial(keys):
+    n = len(keys)
+    idx, tmp = np.arange(n), np.empty(n, np.int64)
+    place = np.empty((1, 256), np.int64)
+    for shift in range(0, 64, 8):
+        _radix_count(keys, idx, 0, n, shift, place[0])
+        if _radix_place(place, n):
+            _radix_move(keys, idx, tmp, 0, n, shift, place[0])
+            idx, tmp = tmp, idx
+    return idx
 
 
 @numba.njit(parallel=True, **JIT)
-def _radix_order(keys, bounds):
-    """Stable ascending order of unsigned 64-bit keys: least-significant-byte radix sort, 8 passes (a pass
-    whose byte is the same for every key is skipped). Each pass counts the blocks of positions
-    bounds[b]..bounds[b + 1] - 1 apart and moves each block's keys after the earlier blocks' of the same
-    byte: stable, so the order is unique, whatever the blocks."""
+def _radix_parallel(keys, bounds):
+    # (loops only: see _bin_parallel)
     n, blocks = len(keys), len(bounds) - 1
     idx, tmp = np.empty(n, np.int64), np.empty(n, np.int64)
-    for i in range(n):  # (a loop: see _bin_blocks)
+    for i in range(n):
         idx[i] = i
-    place = np.empty((blocks, 256), np.int64)  # each block's keys per byte value, then where they go
+    place = np.empty((blocks, 256), np.int64)
     for shift in range(0, 64, 8):
         for b in numba.prange(blocks):
-            count = place[b]
-            for v in range(256):
-                count[v] = 0
-            for i in range(bounds[b], bounds[b + 1]):
-                count[(keys[idx[i]] >> shift) & 255] += 1
-        same = False  # one byte value for every key: nothing moves
-        for v in range(256):
-            m = 0
-            for b in range(blocks):
-                m += place[b, v]
-            same = same or m == n
-        if same:
-            continue
-        total = 0
-        for v in range(256):
-            for b in range(blocks):
-                m = place[b, v]
-                place[b, v] = total
-                total += m
-        for b in numba.prange(blocks):
-            fill = place[b]
-            for i in range(bounds[b], bounds[b + 1]):
-                j = idx[i]
-                v = (keys[j] >> shift) & 255
-                tmp[fill[v]] = j
-                fill[v] += 1
-        idx, tmp = tmp, idx
+            _radix_count(keys, idx, bounds[b], bounds[b + 1], shift, place[b])
+        if _radix_place(place, n):
+            for b in numba.prange(blocks):
+                _radix_move(keys, idx, tmp, bounds[b], bounds[b + 1], shift, place[b])
+            idx, tmp = tmp, idx
     return idx
 
 
@@ -638,7 +704,7 @@ def composite_forward(
     stats = np.zeros((len(lists[1]), STATS), np.int64)
     size = np.asarray(size, np.int64)
     if threads > 1:
-        with parallel(threads, TILES_PER_TASK):
+        with parallel(threads):
             _forward_parallel(gaussians, *lists, tiles_x, size, image, stats, counting)
     else:
         _forward_serial(gaussians, *lists, tiles_x, size, image, stats, counting)
@@ -672,9 +738,9 @@ def composite_backward(
     # Threads own tiles, and a Gaussian's pairs lie in several: all but its first get a row of their own.
     slot, later = _later_pairs(lists[0], len(gaussians))
     own = np.empty((later, cols))  # every row is written before it is read
-    with parallel(threads, TILES_PER_TASK):
+    with parallel(threads):
         _backward_parallel(gaussians, *lists, tiles_x, size, grad_image, image, rows, slot, grads, own, used)
-    with parallel(threads, 1):
+    with parallel(threads):
         _add_later(own, slot, lists[0], rows, grads, threads)
     return grads
 

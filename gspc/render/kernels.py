@@ -29,22 +29,18 @@ def pick_kernel(kernel: str, ref: torch.Tensor) -> str:
 
 
 @contextmanager
-def parallel(threads: int, chunk: int) -> Iterator[None]:
-    """Run the compiled kernels' parallel loops inside on ``threads`` threads (at most numba's pool), handing
-    out their iterations ``chunk`` at a time to whichever thread is free (0: numba's default, one equal
-    block per thread). Equal blocks leave threads idle where the work is uneven, and a close-up view's is:
-    its tiles by what they show, the Gaussians (in Morton order) by whether the view sees them. Each
-    iteration writes its own outputs, so results do not depend on the schedule.
+def parallel(threads: int) -> Iterator[None]:
+    """Run the compiled kernels' parallel loops inside on ``threads`` threads (at most numba's pool).
 
     numba's OpenMP pool, started by its first parallel loop, sets the OpenMP thread count that torch also
-    reads to the pool's size (every core): torch's own count (GSPC_THREADS) is put back after each run."""
+    reads to the pool's size (every core): torch's own count (GSPC_THREADS) is put back after each run. One
+    thread runs the kernels' serial versions and never starts the pool (idle pool threads may wait busily)."""
     import numba  # only the compiled kernels need it
 
     torch_threads = torch.get_num_threads()
     numba.set_num_threads(max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS)))
     try:
-        with numba.parallel_chunksize(chunk):
-            yield
+        yield
     finally:
         if torch.get_num_threads() != torch_threads:
             torch.set_num_threads(torch_threads)

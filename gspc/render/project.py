@@ -226,6 +226,6 @@ class _ProjectCompiled(torch.autograd.Function):
             np.zeros((n, k)) if g is None else g.detach().reshape(n, k).numpy()
             for g, k in ((g_means2d, 2), (g_conics, 3), (g_opacities, 1), (g_colors, 3), (g_depths, 1))
         ]
-        rows, grad_out = kern.output_gradients(*outs)
+        rows, grad_out = kern.output_gradients(*outs, torch.get_num_threads())
         grads = kern.project_backward(arrays, cam, degree, rows, grad_out, torch.get_num_threads())
         return (*(torch.from_numpy(g) for g in grads), None, None)

@@ -335,32 +335,52 @@ def project_forward(arrays: tuple, cam: np.ndarray, degree: int, threads: int) -
     n, dt = len(arrays[0]), arrays[0].dtype
     outs = tuple(np.empty(shape, dt) for shape in ((n, 2), (n, 3), n, (n, 3), n, (n, 2)))
     if threads > 1:
-        with parallel(threads, 1):
+        with parallel(threads):
             _forward_parallel(*arrays, cam, degree, outs)
     else:
         _forward_serial(*arrays, cam, degree, outs)
     return outs
 
 
-@numba.njit(**JIT)
-def output_gradients(g_uv, g_conic, g_opacity, g_color, g_depth):
-    """(rows, grad_out): the Gaussians whose outputs have a gradient that is not all zero, and those
-    gradients as (len(rows), OUTPUTS) float64 (u, v, conic a, b, c, opacity, r, g, b, depth), from the
-    outputs' (N, 2), (N, 3), (N, 1), (N, 3), (N, 1) gradients. One pass over them: a close-up view of a
-    large scene draws few of its Gaussians, and the rest need no work at all."""
+def output_gradients(
+    g_uv: np.ndarray,
+    g_conic: np.ndarray,
+    g_opacity: np.ndarray,
+    g_color: np.ndarray,
+    g_depth: np.ndarray,
+    threads: int = 1,
+) -> tuple[np.ndarray, np.ndarray]:
+    """(rows, grad_out): the Gaussians whose outputs have a gradient that is not all zero, in row order, and
+    those gradients as (len(rows), OUTPUTS) float64 (u, v, conic a, b, c, opacity, r, g, b, depth), from the
+    outputs' (N, 2), (N, 3), (N, 1), (N, 3), (N, 1) gradients. A close-up view of a large scene draws few of
+    its Gaussians, and the rest need no work at all. On several threads, blocks of rows are counted, then
+    gathered, in parallel."""
+    grads = (g_uv, g_conic, g_opacity, g_color, g_depth)
     n = len(g_uv)
-    keep = np.empty(n, np.bool_)
+    if threads <= 1:
+        return _gather_serial(*grads)
+    blocks = max(1, min(4 * threads, n // CHUNK))
+    with parallel(threads):
+        return _gather_parallel(*grads, (np.arange(blocks + 1, dtype=np.int64) * n) // blocks)
+
+
+@numba.njit(**JIT)
+def _mark_rows(g_uv, g_conic, g_opacity, g_color, g_depth, i0, i1, keep):
+    """keep[i] for rows i0..i1 - 1: whether any output gradient is not zero; returns how many are kept."""
     m = 0
-    for i in range(n):
+    for i in range(i0, i1):
         nz = g_uv[i, 0] != 0.0 or g_uv[i, 1] != 0.0 or g_opacity[i, 0] != 0.0 or g_depth[i, 0] != 0.0
         for k in range(3):
             nz = nz or g_conic[i, k] != 0.0 or g_color[i, k] != 0.0
         keep[i] = nz
         m += nz
-    rows = np.empty(m, np.int64)
-    grad_out = np.empty((m, OUTPUTS))
-    r = 0
-    for i in range(n):
+    return m
+
+
+@numba.njit(**JIT)
+def _gather_rows(g_uv, g_conic, g_opacity, g_color, g_depth, i0, i1, keep, r, rows, grad_out):
+    """The kept rows of i0..i1 - 1 into rows and grad_out from output row r."""
+    for i in range(i0, i1):
         if keep[i]:
             rows[r] = i
             grad_out[r, 0], grad_out[r, 1] = g_uv[i, 0], g_uv[i, 1]
@@ -369,6 +389,32 @@ def output_gradients(g_uv, g_conic, g_opacity, g_color, g_depth):
                 grad_out[r, 6 + k] = g_color[i, k]
             grad_out[r, 5], grad_out[r, 9] = g_opacity[i, 0], g_depth[i, 0]
             r += 1
+
+
+@numba.njit(**JIT)
+def _gather_serial(g_uv, g_conic, g_opacity, g_color, g_depth):
+    n = len(g_uv)
+    keep = np.empty(n, np.bool_)
+    m = _mark_rows(g_uv, g_conic, g_opacity, g_color, g_depth, 0, n, keep)
+    rows, grad_out = np.empty(m, np.int64), np.empty((m, OUTPUTS))
+    _gather_rows(g_uv, g_conic, g_opacity, g_color, g_depth, 0, n, keep, 0, rows, grad_out)
+    return rows, grad_out
+
+
+@numba.njit(parallel=True, **JIT)
+def _gather_parallel(g_uv, g_conic, g_opacity, g_color, g_depth, bounds):
+    """Over the blocks of rows bounds[b]..bounds[b + 1] - 1 (loops only: see composite_cpu._bin_parallel)."""
+    grads, blocks = (g_uv, g_conic, g_opacity, g_color, g_depth), len(bounds) - 1
+    keep = np.empty(len(g_uv), np.bool_)
+    first = np.empty(blocks + 1, np.int64)  # each block's first output row
+    first[0] = 0
+    for b in numba.prange(blocks):
+        first[b + 1] = _mark_rows(*grads, bounds[b], bounds[b + 1], keep)
+    for b in range(blocks):
+        first[b + 1] += first[b]
+    rows, grad_out = np.empty(first[blocks], np.int64), np.empty((first[blocks], OUTPUTS))
+    for b in numba.prange(blocks):
+        _gather_rows(*grads, bounds[b], bounds[b + 1], keep, first[b], rows, grad_out)
     return rows, grad_out
 
 
@@ -379,7 +425,7 @@ def project_backward(
     ``rows`` with their outputs' gradients grad_out (from output_gradients); zero for the rest."""
     grads = tuple(np.zeros(x.shape, x.dtype) for x in arrays)  # zero pages: only the rows' are written
     if threads > 1:
-        with parallel(threads, 1):
+        with parallel(threads):
             _backward_parallel(rows, *arrays, cam, degree, grad_out, grads)
     else:
         _backward_serial(rows, *arrays, cam, degree, grad_out, grads)
