@@ -15,7 +15,7 @@ import torch
 
 from gspc.cameras import Camera
 from gspc.errors import DeviceError, InputError
-from gspc.render import api, composite_cpu, render
+from gspc.render import api, composite_cpu, kernels, render
 from gspc.render import project as proj
 from gspc.render import rasterize as rast
 from gspc.render.kernels import pick_kernel
@@ -321,7 +321,7 @@ def test_compiled_kernel_on_several_threads_matches_one(monkeypatch, log_scale):
     # (each tile is walked alone, the lists and the order are unique, each Gaussian's gradient is the same
     # sum in the same order). Small blocks, so that 300 Gaussians make several; log scale -0.8: large
     # Gaussians, each in many tiles, whose later pairs' rows are added after the walk.
-    monkeypatch.setattr(composite_cpu, "ROWS_PER_TASK", 16)
+    monkeypatch.setattr(kernels, "ROWS_PER_TASK", 16)
     scene = random_scene(300, 2, seed=9, spread=0.5, log_scale=log_scale)
     before = torch.get_num_threads()
     try:
@@ -356,7 +356,7 @@ def random_ellipses(n: int, seed: int, spread=(60.0, 40.0), log_scale=(0.0, 1.0)
 @pytest.mark.parametrize("threads", [1, 3])
 @pytest.mark.parametrize("exact", [True, False])
 def test_compiled_tile_lists_equal_the_torch_ones(monkeypatch, exact, threads):
-    monkeypatch.setattr(composite_cpu, "ROWS_PER_TASK", 16)  # on 3 threads: 12 blocks of Gaussians
+    monkeypatch.setattr(kernels, "ROWS_PER_TASK", 16)  # on 3 threads: 12 blocks of Gaussians
     means, conics, opacities, extents = random_ellipses(400, seed=3)
     extents[::7] = -1.0  # never drawn
     a = rast.bin_tiles(means, conics, opacities, extents, 45, 29, exact=exact)
@@ -466,7 +466,7 @@ def test_only_gaussians_with_a_gradient_are_differentiated(monkeypatch, threads)
     # counts as one, and the gradients are read in float64 from either dtype. On 3 threads: blocks of 2.
     from gspc.render import project_cpu as kern
 
-    monkeypatch.setattr(kern, "CHUNK", 2)
+    monkeypatch.setattr(kernels, "ROWS_PER_TASK", 2)
     n = 9
     outs = [np.zeros((n, k), np.float32) for k in (2, 3, 1, 3, 1)]
     outs[0][1, 1] = 2.0
@@ -494,7 +494,7 @@ def test_only_gaussians_with_a_gradient_are_differentiated(monkeypatch, threads)
 @pytest.mark.parametrize("threads", [1, 3])
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
 def test_depth_order_is_torchs_stable_sort(monkeypatch, dtype, threads):
-    monkeypatch.setattr(composite_cpu, "ROWS_PER_TASK", 16)  # on 3 threads: 12 blocks of keys
+    monkeypatch.setattr(kernels, "ROWS_PER_TASK", 16)  # on 3 threads: 12 blocks of keys
     g = np.random.default_rng(0)
     depths = np.concatenate([g.normal(size=500) * 3, np.repeat([0.5, 2.0, -1.0, 1e-3, 1e6], 40)]).astype(
         dtype
@@ -612,17 +612,20 @@ def test_compiled_kernels_keep_torchs_thread_count():
     # numba's OpenMP pool, started by its first parallel loop, set the OpenMP thread count torch reads to
     # the pool's size: GSPC_THREADS=2 on a larger machine became every core after the first render. A fresh
     # process, so that this render starts the pool; a pool of 3 is more than the 1 and 2 threads asked for.
+    lego = Path(__file__).resolve().parents[1] / "examples" / "lego"
     code = (
-        "import torch, sys\n"
-        f"sys.path.insert(0, {str(Path(__file__).parent)!r})\n"
-        "from test_render import random_scene, camera\n"
+        "import sys, torch\n"
+        "from gspc.io import read_scene\n"
+        "from gspc.io.camera_files import load_cameras\n"
         "from gspc.render import render\n"
+        "scene, cam = read_scene(sys.argv[1]), load_cameras(sys.argv[2])[0]\n"
         "for n in (1, 2):\n"
         "    torch.set_num_threads(n)\n"
         "    torch.get_num_threads()\n"
-        "    render(random_scene(50, 1, seed=1), camera())\n"
+        "    render(scene, cam)\n"
         "    assert torch.get_num_threads() == n, (n, torch.get_num_threads())\n"
     )
     env = dict(os.environ, NUMBA_NUM_THREADS="3")
-    proc = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=300)
+    args = [sys.executable, "-c", code, str(lego / "point_cloud.ply"), str(lego / "cameras.json")]
+    proc = subprocess.run(args, env=env, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr[-2000:]

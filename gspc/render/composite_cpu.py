@@ -30,7 +30,7 @@ import numba
 import numpy as np
 
 from gspc.render.intrinsics import prefetch, stack_array
-from gspc.render.kernels import JIT, parallel
+from gspc.render.kernels import JIT, ROWS_PER_TASK, block_bounds, parallel
 from gspc.render.rules import (
     ALPHA_MAX,
     ALPHA_MIN,
@@ -53,7 +53,6 @@ FEATURES = 5
 GRADS = 6  # gradient columns before the features: d mean x, d mean y, d a, d b, d c, d opacity
 AHEAD = 4  # pairs: each pair's record is prefetched while the pair AHEAD before it is walked
 STATS = 2  # composite_forward's counts per tile: pairs walked, pixel visits
-ROWS_PER_TASK = 4096  # records or Gaussians a thread takes at a time in the per-row kernels
 if TILE != 8:  # _lane_total adds up exactly 8 columns
     raise ImportError("the compiled compositor is written for 8x8 tiles")
 # Divisors (kernels.JIT has no zero checks): conic a and its determinant are bounded away from 0 by the
@@ -448,8 +447,7 @@ def bin_ellipses(
     places them after the earlier blocks' pairs of that tile: the same lists."""
     if threads <= 1:
         return _bin_serial(lo, hi, means2d, conics, thr, exact, tiles_x, num_tiles)
-    blocks = max(1, min(4 * threads, len(lo) // ROWS_PER_TASK))
-    bounds = (np.arange(blocks + 1, dtype=np.int64) * len(lo)) // blocks
+    bounds = block_bounds(len(lo), threads)
     with parallel(threads):
         return _bin_parallel(lo, hi, means2d, conics, thr, exact, tiles_x, num_tiles, bounds)
 
@@ -610,9 +608,8 @@ def depth_order(depths: np.ndarray, threads: int = 1) -> np.ndarray:
     keys = np.where(bits >> np.uint64(63), ~bits, bits | np.uint64(1 << 63))
     if threads <= 1:
         return _radix_serial(keys)
-    blocks = max(1, min(4 * threads, len(keys) // ROWS_PER_TASK))
     with parallel(threads):
-        return _radix_parallel(keys, (np.arange(blocks + 1, dtype=np.int64) * len(keys)) // blocks)
+        return _radix_parallel(keys, block_bounds(len(keys), threads))
 
 
 # A least-significant-byte radix sort: stable ascending order of unsigned 64-bit keys in 8 passes (a pass

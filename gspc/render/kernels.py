@@ -7,6 +7,7 @@ from __future__ import annotations
 from collections.abc import Iterator
 from contextlib import contextmanager
 
+import numpy as np
 import torch
 
 KERNELS = ("auto", "torch", "compiled")
@@ -14,6 +15,7 @@ KERNELS = ("auto", "torch", "compiled")
 # seconds). error_model "numpy": no zero check per division; each kernel's docstring says why its divisors
 # are bounded away from 0.
 JIT = {"cache": True, "error_model": "numpy"}
+ROWS_PER_TASK = 4096  # rows (Gaussians, records, sort keys) a parallel task takes at least
 
 
 def pick_kernel(kernel: str, ref: torch.Tensor) -> str:
@@ -44,3 +46,10 @@ def parallel(threads: int) -> Iterator[None]:
     finally:
         if torch.get_num_threads() != torch_threads:
             torch.set_num_threads(torch_threads)
+
+
+def block_bounds(n: int, threads: int) -> np.ndarray:
+    """Bounds b[0] = 0 .. b[-1] = n of the blocks of consecutive rows a parallel kernel's threads take:
+    about four blocks a thread, of at least ROWS_PER_TASK rows (one block when n is smaller)."""
+    blocks = max(1, min(4 * threads, n // ROWS_PER_TASK))
+    return (np.arange(blocks + 1, dtype=np.int64) * n) // blocks

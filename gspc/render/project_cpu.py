@@ -24,13 +24,12 @@ import math
 import numba
 import numpy as np
 
-from gspc.render.kernels import JIT, parallel
+from gspc.render.kernels import JIT, ROWS_PER_TASK, block_bounds, parallel
 from gspc.render.rules import ALPHA_MIN, EXTENT_ABS_MARGIN, EXTENT_REL_MARGIN, LOWPASS, NEAR
 from gspc.render.sh import C1, C2, C3
 from gspc.scene import SH_C0
 
 # Divisors (kernels.JIT has no zero checks): z > NEAR, |q| > 0, det > 0.
-CHUNK = 4096  # Gaussians per parallel task
 BASIS = 16  # SH basis functions up to degree 3
 C2_0, C2_1, C2_2, C2_3, C2_4 = C2
 C3_0, C3_1, C3_2, C3_3, C3_4, C3_5, C3_6 = C3
@@ -206,8 +205,8 @@ def _forward_serial(means, quats, log_scales, logits, sh_dc, sh_rest, cam, degre
 @numba.njit(parallel=True, **JIT)
 def _forward_parallel(means, quats, log_scales, logits, sh_dc, sh_rest, cam, degree, outs):
     n = len(means)
-    for c in numba.prange((n + CHUNK - 1) // CHUNK):
-        lo, hi = c * CHUNK, min(n, (c + 1) * CHUNK)
+    for c in numba.prange((n + ROWS_PER_TASK - 1) // ROWS_PER_TASK):
+        lo, hi = c * ROWS_PER_TASK, min(n, (c + 1) * ROWS_PER_TASK)
         _forward_rows(lo, hi, means, quats, log_scales, logits, sh_dc, sh_rest, cam, degree, outs)
 
 
@@ -321,8 +320,8 @@ def _backward_serial(rows, means, quats, log_scales, logits, sh_dc, sh_rest, cam
 @numba.njit(parallel=True, **JIT)
 def _backward_parallel(rows, means, quats, log_scales, logits, sh_dc, sh_rest, cam, degree, grad_out, grads):
     n = len(rows)
-    for c in numba.prange((n + CHUNK - 1) // CHUNK):
-        lo, hi = c * CHUNK, min(n, (c + 1) * CHUNK)
+    for c in numba.prange((n + ROWS_PER_TASK - 1) // ROWS_PER_TASK):
+        lo, hi = c * ROWS_PER_TASK, min(n, (c + 1) * ROWS_PER_TASK)
         _backward_rows(
             rows, lo, hi, means, quats, log_scales, logits, sh_dc, sh_rest, cam, degree, grad_out, grads
         )
@@ -356,12 +355,10 @@ def output_gradients(
     its Gaussians, and the rest need no work at all. On several threads, blocks of rows are counted, then
     gathered, in parallel."""
     grads = (g_uv, g_conic, g_opacity, g_color, g_depth)
-    n = len(g_uv)
     if threads <= 1:
         return _gather_serial(*grads)
-    blocks = max(1, min(4 * threads, n // CHUNK))
     with parallel(threads):
-        return _gather_parallel(*grads, (np.arange(blocks + 1, dtype=np.int64) * n) // blocks)
+        return _gather_parallel(*grads, block_bounds(len(g_uv), threads))
 
 
 @numba.njit(**JIT)
