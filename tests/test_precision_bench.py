@@ -77,3 +77,21 @@ def test_unseen_views_are_none_of_the_encoders_and_look_alike(obj):
         gap = min(np.linalg.norm(centres - np.asarray(v.center), axis=1).min() for v in views)
         assert gap > 1e-3 * np.linalg.norm(centres[0])
         assert all(v.width == 40 and v.height == 40 and np.isclose(v.fx, cams[0].fx) for v in views)
+
+
+def test_scores_float_beside_8_bit(obj):
+    """tools/bench_precision.py Views.scores: the 8-bit PSNR the tables use and the float one beside it. A
+    change of a hundredth of a level flips a few 8-bit roundings, which cost the 8-bit score far more than
+    the error itself (bench/precision.md, "The shells scored in float")."""
+    from bench_precision import Views
+
+    from gspc.views import synthesize_views
+
+    views = Views.of(obj, synthesize_views(obj, 2, width=64, height=64), (0.0, 0.0, 0.0))
+    nudged = obj.map(lambda t: t.detach().clone())
+    nudged.sh_dc.add_(1e-2 / 255 / 0.2820948)  # a hundredth of a level of colour (C0 = 0.2820948)
+    eight, flt = views.scores(nudged)
+    assert eight == views.psnr(nudged)
+    assert all(np.isfinite(eight)) and all(np.isfinite(flt))
+    assert flt[0] > eight[0] + 10 and flt[1] > eight[1] + 10
+    assert all(x > 80 for x in flt)  # 20 log10(100 x 255) = 88 dB where every pixel moves by that much

@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import os
 import platform
+import shlex
 import subprocess
 import sys
 import tempfile
@@ -79,7 +80,7 @@ from gspc.encoder.tuning import TuningParams, tune_coding
 from gspc.format import container
 from gspc.format.chunks import SIDE
 from gspc.io import read_scene
-from gspc.metrics import mean_psnr
+from gspc.metrics import mean_psnr, psnr
 from gspc.presets import quality_preset
 from gspc.reconstruct import render_images
 from gspc.scene import GaussianScene
@@ -176,9 +177,23 @@ class Views:
         return cls(both, tuple(render_images(scene, c, background) for c in both), tuple(background))
 
     def psnr(self, scene: GaussianScene) -> tuple[float, float]:
-        return tuple(
-            mean_psnr(render_images(scene, c, self.background), r) for c, r in zip(self.cams, self.refs)
-        )
+        return self.scores(scene)[0]
+
+    def scores(self, scene: GaussianScene) -> tuple[tuple[float, float], tuple[float, float]]:
+        """((8-bit PSNR 1x, 2x), (float PSNR 1x, 2x)), each a mean over the views of each view's PSNR.
+
+        Float: the renders clamped to [0, 1] and not rounded. Where two renders of nearly the same scene
+        are both rounded to 8 bits, a pixel whose value lies near a rounding boundary differs by a whole
+        level for a tiny error, so at 50+ dB the 8-bit MSE grows with the mean error, not its square, on
+        every pixel that is not exactly black in both (bench/precision.md, "The shells scored in float").
+        """
+        eight, flt = [], []
+        for c, refs in zip(self.cams, self.refs):
+            images = render_images(scene, c, self.background)
+            eight.append(mean_psnr(images, refs))
+            pairs = zip(images, refs)
+            flt.append(float(np.mean([float(psnr(a.clamp(0, 1), b.clamp(0, 1))) for a, b in pairs])))
+        return (eight[0], eight[1]), (flt[0], flt[1])
 
     def size(self, k: int = 0) -> str:
         return f"{self.cams[k][0].width}x{self.cams[k][0].height}"
@@ -227,6 +242,7 @@ class Point:
     kept: int
     psnr: tuple[float, float]  # 1x, 2x
     seconds: float
+    float_psnr: tuple[float, float] = (float("nan"), float("nan"))  # 1x, 2x (Views.scores)
 
 
 def code(b: Bench, variant: Variant, lam: float) -> tuple[EncodedAttributes, float]:
@@ -252,9 +268,8 @@ def coding(b: Bench, variant: Variant, lam: float) -> tuple[EncodedAttributes, C
 
 def coded_point(b: Bench, variant: Variant, lam: float) -> Point:
     enc, secs = code(b, variant, lam)
-    return Point(
-        f"{variant.name} lambda {lam:g}", enc.num_bytes, int(enc.kept.size), b.views.psnr(enc.decoded), secs
-    )
+    eight, flt = b.views.scores(enc.decoded)
+    return Point(f"{variant.name} lambda {lam:g}", enc.num_bytes, int(enc.kept.size), eight, secs, flt)
 
 
 def spz_point(b: Bench, npm_dir: Path, tmp: Path) -> Point:
@@ -356,6 +371,10 @@ def _dual(p: tuple[float, float]) -> str:
     return f"{p[0]:.2f} / {p[1]:.2f}"
 
 
+def _gap(with_: tuple[float, float], alone: tuple[float, float]) -> str:
+    return f"{with_[0] - alone[0]:+.2f} / {with_[1] - alone[1]:+.2f}"
+
+
 def rate_table(b: Bench, spz: Point | None, curves: dict[str, list[Point]]) -> list[str]:
     n = b.scene.num_gaussians
     lines = [
@@ -378,11 +397,11 @@ def rate_table(b: Bench, spz: Point | None, curves: dict[str, list[Point]]) -> l
 
 
 def shells_section(
-    path: Path, covers: str, chosen: list[Variant], views: int = 12
+    path: Path, covers: str, chosen: list[Variant], views: int = 12, low_lams: tuple[float, ...] = ()
 ) -> tuple[list[str], list[str], list[Bench]]:
     """The object at ``path`` alone and inside tools/scenes.py's shells at each sky cover, every variant at
-    the low and high presets, scored at ``views`` of the unseen sphere: (table rows, the description, the
-    scenes for the significance table)."""
+    the low and high presets (the low preset's at ``low_lams`` instead where given), scored at ``views`` of
+    the unseen sphere: (table rows, the description, the scenes for the significance table)."""
     setup = synth_setup(path.stem, path, views=STATUE_VIEWS, n_eval=views, unseen=True)
     obj = read_scene(path)
     alone = Bench.of(f"{path.stem} alone", "shells", None, obj, setup)
@@ -409,13 +428,16 @@ def shells_section(
         benches.append(inside)
         added = world.num_gaussians - obj.num_gaussians
         for v in chosen:
-            for preset, lam in v.presets:
+            points = [(p, lam) for p, lam in v.presets if p != "low" or not low_lams]
+            points += [("low", lam) for lam in low_lams if any(p == "low" for p, _ in v.presets)]
+            for preset, lam in points:
                 a, w = coded_point(alone, v, lam), coded_point(inside, v, lam)
                 per_obj, per_added = a.bytes / obj.num_gaussians, (w.bytes - a.bytes) / added
                 rows.append(
                     f"| {v.name} | {cover:g} | {preset} (lambda {lam:g}) | {a.bytes:,} ({per_obj:.2f} B/G) "
                     f"| {_dual(a.psnr)} | {w.bytes:,} ({w.kept - a.kept:,} of {added:,} added kept) "
-                    f"| {_dual(w.psnr)} | {w.psnr[0] - a.psnr[0]:+.2f} / {w.psnr[1] - a.psnr[1]:+.2f} "
+                    f"| {_dual(w.psnr)} | {_gap(w.psnr, a.psnr)} | {_dual(a.float_psnr)} "
+                    f"| {_dual(w.float_psnr)} | {_gap(w.float_psnr, a.float_psnr)} "
                     f"| {per_added:.2f} ({per_added / per_obj:.2f}x) |"
                 )
                 print(rows[-1], flush=True)
@@ -435,6 +457,9 @@ def main(
         max=STATUE_VIEWS + UNSEEN_EXTRA,
         help="the shells' scoring views, evenly spaced on the 67-view sphere between the encoder's 60 (12: "
         "the issue's tables; 67: all of it, where no single view decides; bench/tuning.md)",
+    ),
+    shell_lams: str = typer.Option(
+        "", help="the shells' lambdas for the low preset's variants (default: the preset's own)"
     ),
     variants: str = typer.Option("today,v4-low,v4-high", help=f"codec variants: {', '.join(VARIANTS)}"),
     lams: str = typer.Option("0.5,1,2,4,8,16,32", help="lambdas of every variant's sweep"),
@@ -481,8 +506,9 @@ def main(
     shell_rows, shell_text = [], []
     if shells_object:
         shell_rows, shell_text, shell_benches = shells_section(
-            statue_dir / f"{shells_object}.sog", covers, chosen, shell_views
-        )
+            statue_dir / f"{shells_object}.sog", covers, chosen, shell_views,
+            tuple(float(x) for x in shell_lams.split(",") if x),
+        )  # fmt: skip
         results += [(b, None, {}) for b in shell_benches]
 
     file_rows: list[FileRow] = []
@@ -509,37 +535,44 @@ def report(results, chosen, lam_list, shell_rows, shell_text, file_rows, trees, 
     head = subprocess.run(
         ["git", "-C", str(ROOT), "describe", "--always", "--dirty"], capture_output=True, text=True
     )
+    # A run of the shells alone writes no SPZ (nor needs splat-transform installed).
+    spz = any(peer is not None for _, peer, _ in results)
+    version = splat_transform_version(npm_dir) if spz else ""
+    peer = f" SPZ v4: splat-transform {version} (Niantic's writer in WASM)." if spz else ""
     lines = [
         "# Per-Gaussian precision: the attribute codec, today's and its variants, against SPZ v4 (issue 25)",
         "",
-        f"Command: `GSPC_THREADS=1 python tools/bench_precision.py {' '.join(sys.argv[1:])}` at commit "
+        f"Command: `GSPC_THREADS=1 python tools/bench_precision.py {shlex.join(sys.argv[1:])}` at commit "
         f"{head.stdout.strip()}; {secs / 60:.0f} min.",
         "",
         f"Machine: {platform.machine()}, {os.cpu_count()} vCPUs shared with other jobs (load average "
-        f"{load0[0]:.1f} at the start, {load1[0]:.1f} at the end), one torch thread. SPZ v4: splat-transform "
-        f"{splat_transform_version(npm_dir)} (Niantic's writer in WASM). How each number is made: the "
-        "docstring of tools/bench_precision.py. Codec alone: no side information, no refinement; PSNR of "
-        "8-bit renders against the original's renders at views the encoder did not use, at the scene's size "
-        "(1x) and at twice it (2x).",
+        f"{load0[0]:.1f} at the start, {load1[0]:.1f} at the end), one torch thread.{peer} How each number "
+        "is made: the docstring of tools/bench_precision.py. Codec alone: no side information, no "
+        "refinement; PSNR of 8-bit renders against the original's renders at views the encoder did not use, "
+        "at the scene's size (1x) and at twice it (2x).",
         "",
         "Variants: " + "; ".join(f"**{v.name}**: {v.about}" for v in chosen) + ".",
         "",
-        "## Against SPZ v4: gspc's bytes at SPZ v4's PSNR / SPZ v4's bytes",
-        "",
-        f"Targets: bird <= {TARGETS['bird']}, statues <= {TARGETS['statue']}. Sweep: lambda "
-        f"{', '.join(f'{x:g}' for x in lam_list)}.",
-        "",
-        "| scene | SPZ v4 bytes (B/G) | SPZ v4 PSNR 1x / 2x | "
-        + " | ".join(f"{v.name} 1x | {v.name} 2x" for v in chosen)
-        + " |",
-        "|---|---|---|" + "---|---|" * len(chosen),
     ]
-    for b, spz, curves in results:
-        if spz is None:
+    if spz:
+        lines += [
+            "## Against SPZ v4: gspc's bytes at SPZ v4's PSNR / SPZ v4's bytes",
+            "",
+            f"Targets: bird <= {TARGETS['bird']}, statues <= {TARGETS['statue']}. Sweep: lambda "
+            f"{', '.join(f'{x:g}' for x in lam_list)}.",
+            "",
+            "| scene | SPZ v4 bytes (B/G) | SPZ v4 PSNR 1x / 2x | "
+            + " | ".join(f"{v.name} 1x | {v.name} 2x" for v in chosen)
+            + " |",
+            "|---|---|---|" + "---|---|" * len(chosen),
+        ]
+    for b, peer_point, curves in results:
+        if peer_point is None:
             continue
-        cells = [f"{_f(ratio_at(curves[v.name], spz, k))}" for v in chosen for k in (0, 1)]
+        cells = [f"{_f(ratio_at(curves[v.name], peer_point, k))}" for v in chosen for k in (0, 1)]
+        n = b.scene.num_gaussians
         lines.append(
-            f"| {b.name} | {spz.bytes:,} ({spz.bytes / b.scene.num_gaussians:.2f}) | {_dual(spz.psnr)} | "
+            f"| {b.name} | {peer_point.bytes:,} ({peer_point.bytes / n:.2f}) | {_dual(peer_point.psnr)} | "
             + " | ".join(cells)
             + " |"
         )
@@ -552,9 +585,13 @@ def report(results, chosen, lam_list, shell_rows, shell_text, file_rows, trees, 
             f"Targets (low preset): the whole frame within {TARGETS['shells dB']} dB of the object coded "
             "alone, and bytes per added Gaussian at most an object Gaussian's (ratio <= 1).",
             "",
+            "PSNR columns: 8-bit renders (the 3DGS convention, as every table here), then float renders "
+            "(clamped to [0, 1], not rounded; `Views.scores`).",
+            "",
             "| variant | cover | preset | object alone: bytes | alone PSNR 1x / 2x | object + shells: bytes "
-            "| with shells PSNR 1x / 2x | with - alone dB 1x / 2x | bytes per added Gaussian (/ object's) |",
-            "|---|---|---|---|---|---|---|---|---|",
+            "| with shells PSNR 1x / 2x | with - alone dB 1x / 2x | float: alone 1x / 2x "
+            "| float: with shells | float: with - alone | bytes per added Gaussian (/ object's) |",
+            "|---|---|---|---|---|---|---|---|---|---|---|---|",
             *shell_rows,
             "",
         ]
