@@ -20,9 +20,10 @@ def test_positions_roundtrip(bits):
     means = rng.uniform(-1, 1, size=(3000, 3)) * [1, 10, 0.1]
     voxels, order, grid = pos.curve_order(means, bits)
     assert not grid.is_contracted  # a bounded box: the plain grid
+    assert bits <= grid.bits <= pos.MAX_BITS  # the long axis takes the bits it needs, up to the format's
     out = pos.decode_positions(pos.encode_positions(voxels, grid), grid, len(voxels))
     assert np.array_equal(out, voxels)
-    codes = pos.morton_encode(out, bits)
+    codes = pos.morton_encode(out, grid.bits)
     assert (np.diff(codes) >= 0).all()  # decoded order is the curve order
     err = np.abs(pos.dequantise(voxels, grid.lo, grid.step) - means[order])
     assert (err <= np.asarray(grid.step) * 0.5 + 1e-6 * np.abs(means[order]).max()).all()
@@ -38,7 +39,8 @@ def test_fractional_precision_lies_between_whole_bits(scene):
     grids = {p: pos.curve_order(means, p) for p in (11.0, 11.4, 12.0)}
     if scene == "box":
         lo, hi = means.min(0), means.max(0)
-        assert np.allclose(grids[11.0][2].step, (hi - lo) / 2047, rtol=0, atol=0)
+        side = np.exp(np.log(hi - lo).mean()) / 2047  # cubic voxels, as many as 11 bits per axis make
+        assert np.allclose(grids[11.0][2].step, side, rtol=1e-12, atol=0)
     voxels, order, grid = grids[11.4]
     assert 12 <= grid.bits <= grids[12.0][2].bits  # a contracted grid adds what its extent needs
     assert all(c < f < w for c, f, w in zip(grids[12.0][2].step, grid.step, grids[11.0][2].step))
@@ -47,6 +49,31 @@ def test_fractional_precision_lies_between_whole_bits(scene):
     if scene == "box":
         err = np.abs(pos.dequantise(voxels, grid.lo, grid.step) - means[order])
         assert (err <= np.asarray(grid.step) * 0.5 + 1e-6).all()
+
+
+@pytest.mark.parametrize("aspect", [(1.0, 1.0, 1.0), (1.0, 2.9, 0.8), (1.0, 1000.0, 1.0), (1.0, 5.0, 0.0)])
+def test_voxels_are_cubic_and_as_many_as_the_precision_gives(aspect):
+    """Every axis the points spread along gets the same step, the voxel count over the bounds is what p bits
+    per axis would give (a tall statue's voxels were 2.9 times longer than wide), the grid's bits hold the
+    longest axis, and beyond MAX_BITS the voxels grow; a flat axis keeps step 1."""
+    rng = np.random.default_rng(7)
+    means = rng.uniform(0, 1, size=(5000, 3)) * aspect
+    extent = means.max(0) - means.min(0)
+    p = 11.0
+    voxels, order, grid = pos.curve_order(means, p)
+    spread = extent > 0
+    steps = np.asarray(grid.step)
+    assert np.allclose(steps[spread], steps[spread][0], rtol=1e-12) and (steps[~spread] == 1.0).all()
+    cells = np.prod(extent[spread] / steps[spread])
+    if grid.bits < pos.MAX_BITS:
+        assert np.isclose(cells, (2.0**p - 1) ** spread.sum(), rtol=1e-9)
+        assert (extent / steps).max() <= (1 << grid.bits) - 1 < 2 * (extent / steps).max() + 1
+    else:  # 1000:1:1 at 11 bits needs 17.6 bits on its long axis: coarser voxels, within the format
+        assert cells < (2.0**p - 1) ** 3 and (extent / steps).max() <= (1 << pos.MAX_BITS) - 1
+    out = pos.decode_positions(pos.encode_positions(voxels, grid), grid, len(voxels))
+    assert np.array_equal(out, voxels)
+    err = np.abs(pos.dequantise(voxels, grid.lo, grid.step) - means[order])
+    assert (err <= steps * 0.5 + 1e-7 * np.abs(means).max()).all()  # and float32's rounding
 
 
 def test_degenerate_points():

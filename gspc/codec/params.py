@@ -65,11 +65,11 @@ class CodecParams:
 
     @property
     def position_precision(self) -> float:
-        """Bits per axis ``p`` of the positions' grid over their extent (the voxel step is the extent over
-        ``2^p - 1``). Fractional between whole bits, so that sizes follow lambda without a jump: rounded
-        to whole bits, sizes jumped a few % at lam 2^(k + 1/2), and a --target-size window inside a jump
-        had no lambda. At equal PSNR the rounded schedule's bytes were within 1.4% of these either way
-        (lam 3-6, three statues, lego, the bird fit; bench/precision.md)."""
+        """Bits per axis ``p`` of the positions' grid over their extent (cubic voxels, as many as ``2^p - 1``
+        steps per axis make: gspc/codec/positions.py). Fractional between whole bits, so that sizes follow
+        lambda without a jump: rounded to whole bits, sizes jumped a few % at lam 2^(k + 1/2), and a
+        --target-size window inside a jump had no lambda. At equal PSNR the rounded schedule's bytes were
+        within 1.4% of these either way (lam 3-6, three statues, lego, the bird fit; bench/precision.md)."""
         if self.position_bits is not None:
             return float(self.position_bits)
         return float(min(16.0, max(11.0, 14.0 - math.log2(self.lam))))
