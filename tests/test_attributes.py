@@ -1,5 +1,6 @@
 import math
 import warnings
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -222,6 +223,20 @@ def test_sizes_follow_lambda_without_a_jump_at_whole_position_bits():
     above = encode_attributes(scene, params.with_lambda(2.0**1.5 * 0.995)).num_bytes
     below = encode_attributes(scene, params.with_lambda(2.0**1.5 * 1.005)).num_bytes
     assert below <= above < 1.01 * below
+
+
+def test_position_offset_moves_the_rates_grid_by_whole_bits():
+    """CodecParams.position_offset (the encoder's choice per scene, gspc/encoder/removal.py) adds to the
+    precision lambda gives, or to a set one; never below one bit per axis."""
+    params = QUALITY["low"].attributes.with_lambda(8.0)
+    assert replace(params, position_offset=-1.0).position_precision == params.position_precision - 1.0
+    assert replace(params, position_bits=12.0, position_offset=-1.5).position_precision == 10.5
+    assert replace(params, position_offset=-40.0).position_precision == 1.0
+    scene = _scene(n=3000, degree=1)
+    fine = encode_attributes(scene, params)
+    coarse = encode_attributes(scene, replace(params, position_offset=-1.0))
+    assert max(coarse.section.position.step) == pytest.approx(2 * max(fine.section.position.step), rel=1e-3)
+    assert len(coarse.chunks["POSN"]) < len(fine.chunks["POSN"])
 
 
 def test_search_lambda_backs_off_where_removal_takes_every_gaussian(monkeypatch):

@@ -1,6 +1,7 @@
 """The encoder's choice of removal (gspc/encoder/removal.py): the equal-bytes rule, when no search runs, and
 that the coding kept is the one its parameters say, in no more bytes than the preset's."""
 
+import math
 import time
 from dataclasses import replace
 
@@ -70,6 +71,36 @@ def test_a_worse_removal_keeps_the_presets_coding_and_ends_the_search(monkeypatc
     # The scorer punishes every removed Gaussian: the preset's coding stays, after one step.
     scene, cams, params, sig, first = _small()
     monkeypatch.setattr(removal, "_scorer", lambda *a: lambda enc: 20.0 + 1e-2 * enc.decoded.num_gaussians)
-    choice = choose_removal(scene, first, params, None, sig, cams, (0, 0, 0), RemovalParams(steps=(2, 4, 8)))
+    rp = RemovalParams(steps=(2, 4, 8), position_offsets=())
+    choice = choose_removal(scene, first, params, None, sig, cams, (0, 0, 0), rp)
     assert choice.encoded is first and choice.params is params
     assert len(choice.trials) == 1
+
+
+def _coarser_scores_better(enc) -> float:
+    """A scorer that rewards a coarser position grid (as the trained captures' views do) and nothing else."""
+    return 40.0 + 10.0 * math.log2(max(enc.section.position.step))
+
+
+def test_coarser_positions_are_kept_where_they_score_better_in_no_more_bytes(monkeypatch):
+    scene, cams, params, sig, first = _small()
+    monkeypatch.setattr(removal, "_scorer", lambda *a: _coarser_scores_better)
+    rp = RemovalParams(steps=(), position_offsets=(-1.0, -2.0))  # positions alone
+    choice = choose_removal(scene, first, params, None, sig, cams, (0, 0, 0), rp)
+    assert choice.params.position_offset == -2.0 and choice.params.precision.prune == params.precision.prune
+    assert [t.position_offset for t in choice.trials] == [-1.0, -2.0]
+    assert choice.encoded.num_bytes <= first.num_bytes
+    assert max(choice.encoded.section.position.step) > max(first.section.position.step)
+    again = encode_attributes(scene, choice.params, significance=sig)  # the coding its parameters make
+    assert again.chunks == choice.encoded.chunks
+    assert choice.summary().startswith("the preset's, positions -2 bit"), choice.summary()
+
+
+def test_the_rates_grid_stays_where_coarser_positions_score_worse(monkeypatch):
+    scene, cams, params, sig, first = _small()
+    monkeypatch.setattr(removal, "_scorer", lambda *a: lambda enc: -_coarser_scores_better(enc))
+    rp = RemovalParams(steps=(), position_offsets=(-1.0, -2.0))
+    choice = choose_removal(scene, first, params, None, sig, cams, (0, 0, 0), rp)
+    assert choice.encoded is first and choice.params is params
+    assert [t.position_offset for t in choice.trials] == [-1.0]  # the first offset that loses ends it
+    assert "positions -1 bit at lambda" in choice.summary()

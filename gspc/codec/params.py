@@ -22,6 +22,9 @@ from gspc.errors import InputError
 class CodecParams:
     lam: float = 1.0
     position_bits: float | None = None  # None: follow lam (see position_precision)
+    # Bits per axis added to that (negative: coarser); an encoder choice per scene at equal bytes
+    # (gspc/encoder/removal.py): the captures want coarser positions than the statues.
+    position_offset: float = 0.0
     keep_invisible: bool = False  # keep Gaussians no view sees
     keep_transparent: bool = False  # keep Gaussians with activated opacity below 1/255
     # Base steps at lam = 1, each in the domain where its error is least visible.
@@ -71,8 +74,8 @@ class CodecParams:
         --target-size window inside a jump had no lambda. At equal PSNR the rounded schedule's bytes were
         within 1.4% of these either way (lam 3-6, three statues, lego, the bird fit; bench/precision.md)."""
         if self.position_bits is not None:
-            return float(self.position_bits)
-        return float(min(16.0, max(11.0, 14.0 - math.log2(self.lam))))
+            return max(1.0, float(self.position_bits) + self.position_offset)
+        return max(1.0, float(min(16.0, max(11.0, 14.0 - math.log2(self.lam)))) + self.position_offset)
 
     def unrefined(self) -> CodecParams:
         """These parameters for a file without side information (see ``unrefined_knee``); the uniform codec

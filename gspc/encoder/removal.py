@@ -1,5 +1,6 @@
-"""How much the encoder removes: the preset's removal, or a stronger one where views near the encoder's
-cameras show that the same bytes code them better with it.
+"""How much the encoder removes, and how finely it places positions: the preset's removal and position
+grid, or a stronger removal or a coarser grid where views near the encoder's cameras show that the same bytes
+code them better with it.
 
 Removal (gspc/codec/precision.py, ``prune``) drops Gaussians painting under ``prune x lambda`` of the median
 Gaussian's blending weight. What that threshold is worth differs by scene: trained captures hold many
@@ -13,7 +14,11 @@ quality moves; not along a slope read off nearby codings (the statues' curves be
 chose a removal 1.3 dB under the curve for the statue angel), nor at the cameras themselves (removal takes
 what they show least, so they flatter it).
 
-Only an encoder choice: the file holds what was kept and its classes, as always.
+Then, with the removal kept, positions a bit coarser per axis (``position_offsets``), in the same bytes and
+scored the same way: the trained captures code the same bytes closer with them (their Gaussians are large
+against the preset's voxels), the statues do not (bench/precision.md, "Position precision chosen per scene").
+
+Only an encoder choice: the file holds what was kept, its classes and its grid, as always.
 """
 
 from __future__ import annotations
@@ -58,6 +63,9 @@ class RemovalParams:
     work: int = 16 * 250_000
     # A stronger removal is taken only this far closer (dB), so that a tie does not move the file.
     min_gain_db: float = 0.1
+    # Then these offsets of the position grid's bits per axis (CodecParams.position_offset), in order while
+    # each gains as a removal step must; each search starts at first_lambda_ratio of the kept lambda.
+    position_offsets: tuple[float, ...] = (-1.0,)
 
 
 @dataclass(frozen=True)
@@ -66,6 +74,7 @@ class Trial:
     lam: float
     bytes: int
     psnr: float  # mean over the scoring views, dB against the original's renders
+    position_offset: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -83,13 +92,20 @@ class RemovalChoice:
         if self.base is None:
             return "the preset's"
         b = self.base
-        chosen = self.params.precision.prune
-        tried = ", ".join(
-            f"x{t.prune / b.prune:g} at lambda {t.lam:.3g}: {t.bytes / b.bytes:.3f} of the bytes, "
-            f"{t.psnr - b.psnr:+.2f} dB"
-            for t in self.trials
-        )
-        head = "the preset's" if chosen == b.prune else f"x{chosen / b.prune:g} the preset's"
+
+        def removal(prune: float) -> str:
+            return "" if prune == b.prune else f"x{prune / b.prune:g}"
+
+        def trial(t: Trial) -> str:
+            tried = removal(t.prune) if not t.position_offset else f"positions {t.position_offset:+g} bit"
+            gain = f"{t.bytes / b.bytes:.3f} of the bytes, {t.psnr - b.psnr:+.2f} dB"
+            return f"{tried} at lambda {t.lam:.3g}: {gain}"
+
+        tried = ", ".join(trial(t) for t in self.trials)
+        chosen = self.params
+        head = f"{removal(chosen.precision.prune)} the preset's".strip()
+        if chosen.position_offset:
+            head += f", positions {chosen.position_offset:+g} bit"
         return f"{head} (at {self.views} views: {tried or 'none tried'}; {self.seconds:.1f} s)"
 
 
@@ -119,8 +135,10 @@ def choose_removal(
     progress: Progress | None = None,
 ) -> RemovalChoice:
     """The removal for ``scene`` (``first``: its coding with ``params``): the preset's, or the strongest of
-    ``rp.steps`` tried before one fails to beat the best so far in ``first``'s bytes (module docstring).
-    No search where the parameters remove nothing, and none starts past ``deadline``."""
+    ``rp.steps`` tried before one fails to beat the best so far in ``first``'s bytes; then the position grid,
+    the preset's or coarser by ``rp.position_offsets`` alike (module docstring). No search where the
+    parameters remove nothing (the high preset: its files keep the rate's grid too), and none starts past
+    ``deadline``."""
     precision = params.precision
     if (
         precision is None
@@ -131,16 +149,16 @@ def choose_removal(
     t0 = time.perf_counter()
     views = scoring_views(cameras, scene.num_gaussians, rp)
     score = _scorer(scene, views, background)
-    _tick(progress, 0, len(rp.steps))
+    steps = rp.steps
+    stages = len(steps) + len(rp.position_offsets)
+    _tick(progress, 0, stages)
     base = Trial(precision.prune, first.lam, first.num_bytes, score(first))
     best, kept = base, (first, params)
     trials: list[Trial] = []
-    guess = first.lam * rp.first_lambda_ratio
-    for i, step in enumerate(rp.steps):
-        if deadline is not None and time.perf_counter() >= deadline:
-            break
-        prune = precision.prune * step
-        p = replace(params, lam=guess, precision=replace(precision, prune=prune, prune_cap=rp.cap))
+
+    def attempt(p: CodecParams, offset: float = 0.0) -> bool:
+        """Code ``p`` in ``first``'s bytes and keep it where it beats the best; whether it did."""
+        nonlocal best, kept
         enc = search_lambda(
             scene,
             first.num_bytes,
@@ -151,16 +169,29 @@ def choose_removal(
             significance=significance,
             deadline=deadline,
         )
-        _tick(progress, i + 1, len(rp.steps))
-        t = Trial(prune, enc.lam, enc.num_bytes, score(enc))
-        trials.append(t)
-        # Each step's lambda falls by about the same ratio (the bird and lego: 0.85, 0.80, 0.78).
-        guess = enc.lam * enc.lam / (trials[-2].lam if len(trials) > 1 else first.lam)
-        if not better(best, t, first.num_bytes, rp.min_gain_db):
+        trials.append(Trial(p.precision.prune, enc.lam, enc.num_bytes, score(enc), offset))
+        _tick(progress, len(trials), stages)
+        if not better(best, trials[-1], first.num_bytes, rp.min_gain_db):
+            return False
+        best, kept = trials[-1], (enc, p.with_lambda(enc.lam))
+        return True
+
+    guess = first.lam * rp.first_lambda_ratio
+    for step in steps:
+        if deadline is not None and time.perf_counter() >= deadline:
+            break
+        stronger = replace(precision, prune=precision.prune * step, prune_cap=rp.cap)
+        if not attempt(replace(params, lam=guess, precision=stronger)):
             break  # a step that does not gain ends it: the statues lose at the first
-        best, kept = t, (enc, p.with_lambda(enc.lam))
-    if len(trials) < len(rp.steps):  # ended early: the stage is done all the same
-        _tick(progress, len(rp.steps), len(rp.steps))
+        # Each step's lambda falls by about the same ratio (the bird and lego: 0.85, 0.80, 0.78).
+        guess = trials[-1].lam * trials[-1].lam / (trials[-2].lam if len(trials) > 1 else first.lam)
+    for offset in rp.position_offsets:
+        if deadline is not None and time.perf_counter() >= deadline:
+            break
+        p = kept[1]
+        if not attempt(replace(p, lam=p.lam * rp.first_lambda_ratio, position_offset=offset), offset):
+            break
+    _tick(progress, stages, stages)  # ended early or not, the stage is done
     return RemovalChoice(kept[0], kept[1], base, tuple(trials), len(views), time.perf_counter() - t0)
 
 
