@@ -135,8 +135,8 @@ VARIANTS: dict[str, Variant] = {
     ),
     "v4-low-chosen": Variant(
         "v4-low-chosen",
-        "v4-low with the removal that views between the encoder's cameras choose at each lambda "
-        "(gspc/encoder/removal.py, as `gspc encode` does by default)",
+        "v4-low with the removal and the position grid that views between the encoder's cameras choose at "
+        "each lambda (gspc/encoder/removal.py, as `gspc encode` does by default)",
         _classed("low"),
         True,
         (("low", quality_preset("low").attributes.lam),),
