@@ -264,8 +264,7 @@ def test_info_names_a_version_4_files_classes(tmp_path):
 
     src, out = tmp_path / "s.ply", tmp_path / "s.gspc"
     write_ply(random_scene(300, sh_degree=1, seed=2), src)
-    # Past the knee whatever lambda the removal search settles on (its steps code at lower ones).
-    encode(src, out, opts=EncodeOptions(side_info=False, synth_views=4, max_side=48, lam=16.0))
+    encode(src, out, opts=EncodeOptions(side_info=False, synth_views=4, max_side=48))
     shown = CliRunner().invoke(app, ["info", str(out)], terminal_width=200).output
     section = AttributeSection.from_dict(container.read(out).header["attributes"])
     assert section.version == 4

@@ -93,8 +93,8 @@ def cubic_step(extent: np.ndarray, precision: float) -> np.ndarray:
     """Per axis, the side of a cubic voxel: the geometric mean of the axes' extents over ``2^precision - 1``
     (over the axes the points spread along; 1 for a flat axis). Steps in proportion to each axis's extent
     made a tall statue's voxels 2.9 times longer than wide for the same count: cubic ones, the same count,
-    err half as much in squared distance, and the statues coded 2-4% fewer bytes at equal PSNR (lego
-    within 0.3%; bench/precision.md)."""
+    err half as much in squared distance, and the statues coded 1-4% fewer bytes at equal PSNR (lego
+    and the bird within 0.3%; bench/precision.md)."""
     spread = extent > 0
     if not spread.any():
         return np.ones(3)
