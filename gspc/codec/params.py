@@ -73,9 +73,9 @@ class CodecParams:
         lambda without a jump: rounded to whole bits, sizes jumped a few % at lam 2^(k + 1/2), and a
         --target-size window inside a jump had no lambda. At equal PSNR the rounded schedule's bytes were
         within 1.4% of these either way (lam 3-6, three statues, lego, the bird fit; bench/precision.md)."""
-        if self.position_bits is not None:
-            return max(1.0, float(self.position_bits) + self.position_offset)
-        return max(1.0, float(min(16.0, max(11.0, 14.0 - math.log2(self.lam)))) + self.position_offset)
+        rate = min(16.0, max(11.0, 14.0 - math.log2(self.lam)))
+        bits = rate if self.position_bits is None else self.position_bits
+        return max(1.0, float(bits) + self.position_offset)
 
     def unrefined(self) -> CodecParams:
         """These parameters for a file without side information (see ``unrefined_knee``); the uniform codec

@@ -149,8 +149,7 @@ def choose_removal(
     t0 = time.perf_counter()
     views = scoring_views(cameras, scene.num_gaussians, rp)
     score = _scorer(scene, views, background)
-    steps = rp.steps
-    stages = len(steps) + len(rp.position_offsets)
+    stages = len(rp.steps) + len(rp.position_offsets)
     _tick(progress, 0, stages)
     base = Trial(precision.prune, first.lam, first.num_bytes, score(first))
     best, kept = base, (first, params)
@@ -177,7 +176,7 @@ def choose_removal(
         return True
 
     guess = first.lam * rp.first_lambda_ratio
-    for step in steps:
+    for step in rp.steps:
         if deadline is not None and time.perf_counter() >= deadline:
             break
         stronger = replace(precision, prune=precision.prune * step, prune_cap=rp.cap)
