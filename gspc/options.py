@@ -158,8 +158,9 @@ class EncodeOptions:
     )
     removal_search: bool = knob(
         True,
-        "try stronger removals than the preset's, each in the same bytes, and keep one that views between "
-        "the encoder's cameras show closer to the original (gspc/encoder/removal.py; off: the preset's)",
+        "try stronger removals and another position grid than the preset's, each in the same bytes, and keep "
+        "one that views between the encoder's cameras show closer to the original (gspc/encoder/removal.py; "
+        "off: the preset's)",
     )
     tune_iterations: int | None = knob(
         None,

@@ -35,11 +35,11 @@ from gspc.encoder.prepare import (
     codec_params,
     encoder_cameras,
     iteration_counts,
+    removal_params,
     sample_side_views,
     side_candidates,
     tuning_params,
 )
-from gspc.encoder.removal import RemovalParams
 from gspc.encoder.side import SideCandidate, view_residuals
 from gspc.encoder.tuning import tune_coding
 from gspc.errors import CodecError, InputError
@@ -142,7 +142,7 @@ def encode_scene(
     rep.info["renderer"] = renderer_info(device, progress, encoder=True)
     cameras = encoder_cameras(scene, cameras, opts)
     restorer = load_restorer(opts.restorer, device=device)  # fails early on a name the package lacks
-    removal = RemovalParams() if opts.removal_search else None
+    removal = removal_params(opts)
     with _stage(rep, progress, "attributes"):
         coded_attributes = code_attributes(
             scene,

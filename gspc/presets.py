@@ -29,6 +29,13 @@ class Preset:
     # statue angel +1.29 / +1.50 dB (1x / 2x) at the low preset, eight +1.39 / +1.59 in twice the time; the
     # bird reached its byte limit in four (bench/tuning.md).
     tune_iterations: int = 4
+    # The encoder's search then tries the position grid this many bits per axis finer (+) or coarser (-),
+    # each in the same bytes, kept where views between its cameras show it closer (gspc/encoder/removal.py).
+    # At the low preset the trained captures take a bit coarser and the statues keep the rate's grid; at the
+    # high preset's rate the statues take a bit finer (four of five, at 0.96-0.99 of the bytes at equal PSNR
+    # at 1x) and the captures keep it (bench/precision.md, "Position precision chosen per scene" and "The
+    # high preset's positions chosen per scene too").
+    position_offsets: tuple[float, ...] = (-1.0,)
 
 
 # Attribute rate points: lam 1 (14 position bits) and lam 8 (11 position bits; <= 10 B/G on the SH-3 lego
@@ -90,6 +97,7 @@ QUALITY: dict[str, Preset] = {
         residual_distance=4.0,
         residual_scale=1,
         refine_iterations=100,
+        position_offsets=(1.0,),
     ),
 }
 

@@ -39,11 +39,12 @@ def _counting(monkeypatch) -> list[int]:
     return codings
 
 
-def test_no_search_where_nothing_is_removed_or_past_the_deadline(monkeypatch):
+def test_no_search_with_nothing_to_try_or_past_the_deadline(monkeypatch):
     scene, cams, params, sig, first = _small()
     codings = _counting(monkeypatch)
     high = quality_preset("high").attributes  # removes nothing
-    assert choose_removal(scene, first, high, None, sig, cams, (0, 0, 0)).base is None
+    grid_kept = RemovalParams(position_offsets=())
+    assert choose_removal(scene, first, high, None, sig, cams, (0, 0, 0), grid_kept).base is None
     uniform = replace(params, precision=None)
     assert choose_removal(scene, first, uniform, None, sig, cams, (0, 0, 0)).base is None
     late = choose_removal(scene, first, params, None, sig, cams, (0, 0, 0), deadline=time.perf_counter() - 1)
@@ -104,3 +105,30 @@ def test_the_rates_grid_stays_where_coarser_positions_score_worse(monkeypatch):
     assert choice.encoded is first and choice.params is params
     assert [t.position_offset for t in choice.trials] == [-1.0]  # the first offset that loses ends it
     assert "positions -1 bit at lambda" in choice.summary()
+
+
+def test_a_preset_that_removes_nothing_searches_only_the_grid(monkeypatch):
+    # The high preset's search: no removal step, the grid a bit finer in no more bytes, kept where the views
+    # score it better (here: a scorer that rewards finer voxels).
+    scene, cams, _, sig, _ = _small()
+    high = replace(quality_preset("high").attributes, lam=2.0)
+    first = encode_attributes(scene, high, significance=sig)
+    monkeypatch.setattr(removal, "_scorer", lambda *a: lambda enc: -_coarser_scores_better(enc))
+    rp = RemovalParams(position_offsets=quality_preset("high").position_offsets)
+    choice = choose_removal(scene, first, high, None, sig, cams, (0, 0, 0), rp)
+    assert [t.position_offset for t in choice.trials] == [1.0]
+    assert choice.params.position_offset == 1.0 and choice.params.precision.prune == 0.0
+    assert choice.encoded.num_bytes <= first.num_bytes
+    assert max(choice.encoded.section.position.step) < max(first.section.position.step)
+    assert choice.encoded.decoded.num_gaussians == first.decoded.num_gaussians  # nothing removed
+    again = encode_attributes(scene, choice.params, significance=sig)
+    assert again.chunks == choice.encoded.chunks
+
+
+def test_each_preset_names_its_grid_search():
+    from gspc.encoder.prepare import removal_params
+    from gspc.options import EncodeOptions
+
+    assert removal_params(EncodeOptions(quality="low")).position_offsets == (-1.0,)
+    assert removal_params(EncodeOptions(quality="high")).position_offsets == (1.0,)
+    assert removal_params(EncodeOptions(quality="high", removal_search=False)) is None

@@ -65,7 +65,7 @@ from scenes import Shells, with_shells
 from gspc.cameras import Camera
 from gspc.codec.attributes import EncodedAttributes, encode_attributes
 from gspc.codec.params import CodecParams
-from gspc.encoder.removal import choose_removal
+from gspc.encoder.removal import RemovalParams, choose_removal
 from gspc.encoder.significance import (
     SIGNIFICANCE_VIEWS,
     SIGNIFICANCE_ZOOMS,
@@ -148,6 +148,15 @@ VARIANTS: dict[str, Variant] = {
         _classed("high"),
         True,
         (("high", quality_preset("high").attributes.lam),),
+    ),
+    "v4-high-chosen": Variant(
+        "v4-high-chosen",
+        "v4-high with the position grid that views between the encoder's cameras choose at each lambda "
+        "(gspc/encoder/removal.py, as `gspc encode --quality high` does by default)",
+        _classed("high"),
+        True,
+        (("high", quality_preset("high").attributes.lam),),
+        chooses_removal=True,
     ),
 }
 VARIANTS["v4-low-tuned"] = replace(
@@ -258,7 +267,8 @@ def coding(b: Bench, variant: Variant, lam: float) -> tuple[EncodedAttributes, C
     enc = encode_attributes(b.scene, params, visible=b.visible, **extra)
     cams, bg = b.encoder_cams, b.views.background
     if variant.chooses_removal:
-        choice = choose_removal(b.scene, enc, params, b.visible, b.measure, cams, bg)
+        rp = RemovalParams(position_offsets=quality_preset(variant.presets[0][0]).position_offsets)
+        choice = choose_removal(b.scene, enc, params, b.visible, b.measure, cams, bg, rp)
         enc, params = choice.encoded, choice.params
     if variant.tunes:
         tuning = TuningParams(iterations=quality_preset("low").tune_iterations)

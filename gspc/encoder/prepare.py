@@ -45,6 +45,14 @@ def codec_params(opts: EncodeOptions) -> CodecParams:
     return params
 
 
+def removal_params(opts: EncodeOptions) -> RemovalParams | None:
+    """The preset's search of removal and position grid (gspc/encoder/removal.py), or None where the options
+    turn it off."""
+    if not opts.removal_search:
+        return None
+    return RemovalParams(position_offsets=quality_preset(opts.quality).position_offsets)
+
+
 def tuning_params(opts: EncodeOptions) -> TuningParams | None:
     """The tuning of the coded values the options ask for (gspc/encoder/tuning.py; None: none)."""
     iterations = quality_preset(opts.quality).tune_iterations

@@ -14,9 +14,11 @@ quality moves; not along a slope read off nearby codings (the statues' curves be
 chose a removal 1.3 dB under the curve for the statue angel), nor at the cameras themselves (removal takes
 what they show least, so they flatter it).
 
-Then, with the removal kept, positions a bit coarser per axis (``position_offsets``), in the same bytes and
-scored the same way: the trained captures code the same bytes closer with them (their Gaussians are large
-against the preset's voxels), the statues do not (bench/precision.md, "Position precision chosen per scene").
+Then, with the removal kept, the position grid a bit coarser or finer per axis (``position_offsets``, the
+preset's: gspc/presets.py), in the same bytes and scored the same way: at the low preset's rate the trained
+captures code the same bytes closer a bit coarser (their Gaussians are large against its voxels), at the high
+preset's the statues a bit finer; the others keep the rate's grid (bench/precision.md, "Position precision
+chosen per scene"). A preset that removes nothing (the high one) searches only the grid.
 
 Only an encoder choice: the file holds what was kept, its classes and its grid, as always.
 """
@@ -64,7 +66,8 @@ class RemovalParams:
     # A stronger removal is taken only this far closer (dB), so that a tie does not move the file.
     min_gain_db: float = 0.1
     # Then these offsets of the position grid's bits per axis (CodecParams.position_offset), in order while
-    # each gains as a removal step must; each search starts at first_lambda_ratio of the kept lambda.
+    # each gains as a removal step must; each search starts at first_lambda_ratio of the kept lambda (its
+    # inverse for a finer grid).
     position_offsets: tuple[float, ...] = (-1.0,)
 
 
@@ -135,21 +138,22 @@ def choose_removal(
     progress: Progress | None = None,
 ) -> RemovalChoice:
     """The removal for ``scene`` (``first``: its coding with ``params``): the preset's, or the strongest of
-    ``rp.steps`` tried before one fails to beat the best so far in ``first``'s bytes; then the position grid,
-    the preset's or coarser by ``rp.position_offsets`` alike (module docstring). No search where the
-    parameters remove nothing (the high preset: its files keep the rate's grid too), and none starts past
+    ``rp.steps`` tried before one fails to beat the best so far in ``first``'s bytes (none where the
+    parameters remove nothing); then the position grid, the rate's or moved by ``rp.position_offsets`` alike
+    (module docstring). No search without classes or with nothing to try, and none starts past
     ``deadline``."""
     precision = params.precision
+    steps = rp.steps if precision is not None and precision.prune > 0 else ()
     if (
         precision is None
-        or precision.prune <= 0
+        or not (steps or rp.position_offsets)
         or (deadline is not None and time.perf_counter() >= deadline)
     ):
         return RemovalChoice(first, params)
     t0 = time.perf_counter()
     views = scoring_views(cameras, scene.num_gaussians, rp)
     score = _scorer(scene, views, background)
-    stages = len(rp.steps) + len(rp.position_offsets)
+    stages = len(steps) + len(rp.position_offsets)
     _tick(progress, 0, stages)
     base = Trial(precision.prune, first.lam, first.num_bytes, score(first))
     best, kept = base, (first, params)
@@ -176,7 +180,7 @@ def choose_removal(
         return True
 
     guess = first.lam * rp.first_lambda_ratio
-    for step in rp.steps:
+    for step in steps:
         if deadline is not None and time.perf_counter() >= deadline:
             break
         stronger = replace(precision, prune=precision.prune * step, prune_cap=rp.cap)
@@ -188,7 +192,9 @@ def choose_removal(
         if deadline is not None and time.perf_counter() >= deadline:
             break
         p = kept[1]
-        if not attempt(replace(p, lam=p.lam * rp.first_lambda_ratio, position_offset=offset), offset):
+        # Coarser positions free bytes for the rest (a lower lambda), finer ones take them (a higher one).
+        ratio = rp.first_lambda_ratio if offset < 0 else 1.0 / rp.first_lambda_ratio
+        if not attempt(replace(p, lam=p.lam * ratio, position_offset=offset), offset):
             break
     _tick(progress, stages, stages)  # ended early or not, the stage is done
     return RemovalChoice(kept[0], kept[1], base, tuple(trials), len(views), time.perf_counter() - t0)
