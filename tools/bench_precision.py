@@ -149,23 +149,25 @@ VARIANTS: dict[str, Variant] = {
         True,
         (("high", quality_preset("high").attributes.lam),),
     ),
-    "v4-high-chosen": Variant(
+}
+# Variants that differ from another in one encoder step: (the other, name, description, the change).
+for _base, _name, _about, _change in (
+    (
+        "v4-high",
         "v4-high-chosen",
         "v4-high with the position grid that views between the encoder's cameras choose at each lambda "
         "(gspc/encoder/removal.py, as `gspc encode --quality high` does by default)",
-        _classed("high"),
-        True,
-        (("high", quality_preset("high").attributes.lam),),
-        chooses_removal=True,
+        {"chooses_removal": True},
     ),
-}
-VARIANTS["v4-low-tuned"] = replace(
-    VARIANTS["v4-low-chosen"],
-    name="v4-low-tuned",
-    about="v4-low-chosen with its coded values tuned at the encoder's cameras (gspc/encoder/tuning.py, the "
-    "preset's iterations, as `gspc encode` does for files without side information)",
-    tunes=True,
-)
+    (
+        "v4-low-chosen",
+        "v4-low-tuned",
+        "v4-low-chosen with its coded values tuned at the encoder's cameras (gspc/encoder/tuning.py, the "
+        "preset's iterations, as `gspc encode` does for files without side information)",
+        {"tunes": True},
+    ),
+):
+    VARIANTS[_name] = replace(VARIANTS[_base], name=_name, about=_about, **_change)
 
 
 # ---------------------------------------------------------------------------------------------
