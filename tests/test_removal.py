@@ -10,8 +10,10 @@ from scenes import random_scene
 import gspc.codec.attributes as attributes
 from gspc.codec.attributes import encode_attributes
 from gspc.encoder import removal
+from gspc.encoder.prepare import removal_params
 from gspc.encoder.removal import RemovalParams, Trial, better, choose_removal
 from gspc.encoder.significance import encoder_significance
+from gspc.options import EncodeOptions
 from gspc.presets import quality_preset
 from gspc.views import synthesize_views
 
@@ -126,9 +128,6 @@ def test_a_preset_that_removes_nothing_searches_only_the_grid(monkeypatch):
 
 
 def test_each_preset_names_its_grid_search():
-    from gspc.encoder.prepare import removal_params
-    from gspc.options import EncodeOptions
-
     assert removal_params(EncodeOptions(quality="low")).position_offsets == (-1.0,)
     assert removal_params(EncodeOptions(quality="high")).position_offsets == (1.0,)
     assert removal_params(EncodeOptions(quality="high", removal_search=False)) is None

@@ -38,8 +38,13 @@ import typer
 
 from gspc.atomic import atomic_write, atomic_write_bytes
 from gspc.codec import residuals
-from gspc.encoder.prepare import code_attributes, codec_params, encoder_cameras, sample_side_views
-from gspc.encoder.removal import RemovalParams
+from gspc.encoder.prepare import (
+    code_attributes,
+    codec_params,
+    encoder_cameras,
+    removal_params,
+    sample_side_views,
+)
 from gspc.encoder.side import view_residuals
 from gspc.errors import GspcError, InputError
 from gspc.io import read_scene
@@ -191,7 +196,7 @@ def make_scene_rate(
         # The encoder's own stages (gspc/encoder/prepare.py, gspc/encoder/side.py), so the restorer learns
         # from what the encoder sends.
         opts = encode_options(spec, rate)
-        removal = RemovalParams() if opts.removal_search else None
+        removal = removal_params(opts)
         attrs = code_attributes(scene, all_cams, codec_params(opts), None, opts.background, None, removal)
         enc = attrs.encoded
         bg = opts.background

@@ -67,8 +67,9 @@ class RemovalParams:
     min_gain_db: float = 0.1
     # Then these offsets of the position grid's bits per axis (CodecParams.position_offset), in order while
     # each gains as a removal step must; each search starts at first_lambda_ratio of the kept lambda (its
-    # inverse for a finer grid).
-    position_offsets: tuple[float, ...] = (-1.0,)
+    # inverse for a finer grid). The preset names them (gspc/presets.py, gspc/encoder/prepare.py
+    # removal_params); none by default.
+    position_offsets: tuple[float, ...] = ()
 
 
 @dataclass(frozen=True)
