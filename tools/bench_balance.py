@@ -12,7 +12,8 @@ So per group, its significance gradients are scaled by ``f`` before the class pl
 are set against the curve the unscaled coding draws over ``--lams``: bytes at equal PSNR over the curve's
 (log-linear between its two nearest points, bench_setups.bytes_at). Under 1 at f > 1: the group was
 under-served; under 1 at f < 1: over-served; about 1 or over at both: at the balance. Removal is left to the
-weight, which no scaling touches (the low preset's removal search still runs, as ``gspc encode`` does).
+weight, which no scaling touches (a variant that searches removal and grid, such as v4-low-chosen, still
+searches them, as ``gspc encode`` does).
 
 Scenes and their scoring are tools/bench_precision.py's (``Bench``): the bird fit at its held-out cameras,
 the statues and massa inside tools/scenes.py's shells at views between the encoder's, 1x and 2x, 8-bit and
