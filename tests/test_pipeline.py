@@ -293,6 +293,15 @@ def test_the_encoder_reports_the_removal_it_chose_and_can_be_told_to_keep_the_pr
     assert same == said.startswith("the preset's"), said
 
 
+def test_the_high_preset_weighs_a_finer_position_grid_and_no_removal(tmp_path):
+    # gspc/presets.py: the high preset removes nothing, so its search is the grid alone, a bit finer.
+    src = tmp_path / "in.ply"
+    write_ply(scene(seed=5), src)
+    rep = encode(src, tmp_path / "h.gspc", opts=EncodeOptions(quality="high", synth_views=4, max_side=40))
+    said = rep.info["removal"]
+    assert "positions +1 bit at lambda" in said and " x2 " not in said, said
+
+
 def test_the_encoder_tunes_its_coded_values_unless_told_not_to(encoded, tmp_path):
     # gspc/encoder/tuning.py: on by default for a file without side information (the report says what it
     # did), off with --tune-iterations 0; both files decode the same Gaussians. A file whose side information

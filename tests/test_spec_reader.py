@@ -5,6 +5,7 @@ reference's coder, symbol by symbol; whole files from gspc's encoder must decode
 """
 
 import re
+from dataclasses import replace
 from pathlib import Path
 
 import constriction
@@ -136,6 +137,15 @@ def test_spec_reader_decodes_encoder_output(n, degree, preset, lam):
     attrs, views = sr.read_scene(data)
     assert_same(attrs, enc.decoded)
     assert views == []
+
+
+def test_spec_reader_decodes_the_finest_grid_the_high_presets_search_writes():
+    """The high preset's search tries the grid a bit finer (gspc/presets.py): at its finest rates that is the
+    format's most bits per axis, 17, with the voxels grown to fit (spec 10.1)."""
+    params = replace(QUALITY["high"].attributes.with_lambda(0.1), position_offset=1.0)
+    data, enc = attribute_file(random_scene(n=200, sh_degree=3, seed=9), params)
+    assert enc.section.position.bits == 17
+    assert_same(sr.read_scene(data)[0], enc.decoded)
 
 
 def test_spec_reader_decodes_a_contracted_position_grid():
