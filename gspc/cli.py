@@ -61,7 +61,9 @@ def _one_line_errors(fn):
         except (OSError, MemoryError) as e:
             msg = f"{type(e).__name__}: {e}"
         except KeyboardInterrupt:
-            msg = "interrupted"
+            # The shell's convention for a run stopped by Ctrl-C (128 + SIGINT): scripts tell it from failure.
+            err.print("[red]error:[/red] interrupted", highlight=False)
+            raise typer.Exit(130) from None
         except Exception as e:  # an internal bug: still one line, with a way to see more
             if os.environ.get("GSPC_DEBUG"):
                 raise
@@ -152,14 +154,18 @@ def _console_for(output: str) -> Console:
 
 
 def _summary(title: str, rep, output: str) -> None:
+    """The run's report: bytes per part (per Gaussian given and, where the encoder left some out, per
+    Gaussian coded), seconds per stage, then what it decided, one fact a line."""
     console = _console_for(output)
     t = Table(title=title, show_header=True)
+    given, coded = max(rep.num_gaussians_in, 1), max(rep.num_gaussians_out, 1)
     t.add_column("part")
     t.add_column("bytes", justify="right")
-    t.add_column("B/Gaussian", justify="right")
-    n = max(rep.num_gaussians_out, 1)
+    t.add_column("B/Gaussian given" if given != coded else "B/Gaussian", justify="right")
+    if given != coded:
+        t.add_column("B/Gaussian coded", justify="right")
     for k, v in rep.bytes.items():
-        t.add_row(k, f"{v:,}", f"{v / n:.2f}")
+        t.add_row(k, f"{v:,}", f"{v / given:.2f}", *([f"{v / coded:.2f}"] if given != coded else []))
     console.print(t)
     s = Table(show_header=True)
     s.add_column("stage")
@@ -168,8 +174,8 @@ def _summary(title: str, rep, output: str) -> None:
         s.add_row(k, f"{v:.2f}")
     s.add_row("total", f"{sum(rep.seconds.values()):.2f}")
     console.print(s)
-    facts = {"Gaussians in": rep.num_gaussians_in, "Gaussians out": rep.num_gaussians_out, **rep.info}
-    console.print("  ".join(f"{k}: {v}" for k, v in facts.items()), markup=False)
+    for k, v in rep.info.items():
+        console.print(f"{k}: {v}", markup=False, highlight=False, soft_wrap=True)
 
 
 def _option(cls: type, name: str, *flags: str):
@@ -305,23 +311,22 @@ def info(
     if not path.exists():
         raise GspcError(f"{path}: no such file")
     if _is_gspc(path):
-        from gspc.format.attribute_section import attribute_chunks, check_attribute_chunks
-        from gspc.format.container import describe, read
-        from gspc.format.header import FileHeader, SceneSummary
-        from gspc.format.side_chunk import read_side_views
+        from gspc.format.container import read_bytes
+        from gspc.format.file import read_file
 
-        d = describe(path)
-        c = read(path)
-        header = c.header
-        fields = FileHeader.from_dict(header)  # checked as a decode checks it
-        check_attribute_chunks(attribute_chunks(c.chunks), fields.attributes)
-        views = read_side_views(fields.side_info.legacy_views, c.chunks, d["file_size"]).views
-        summary = SceneSummary.from_dict(header)
-        n, degree = max(summary.num_gaussians, 1), summary.sh_degree
+        f = read_file(read_bytes(path))  # parsed and checked once, as a decode reads it
+        summary, fields = f.header.scene, f.header
+        n = max(fields.attributes.n, 1)
+        degree = fields.attributes.sh_degree
+        source = (
+            f", {summary.source_gaussians:,} given to the encoder"
+            if summary and summary.source_gaussians
+            else ""
+        )
         out.print(
-            f"{path}: gspc format {d['version'][0]}.{d['version'][1]}, {d['file_size']:,} bytes, "
-            f"{n:,} Gaussians, SH degree {'?' if degree is None else degree}, "
-            f"{len(views)} side-information views",
+            f"{path}: gspc format {f.version[0]}.{f.version[1]}, {f.file_size:,} bytes, "
+            f"{fields.attributes.n:,} Gaussians{source}, SH degree {degree}, "
+            f"{len(f.side.views)} side-information views ({len(f.side.images)} with a residual)",
             markup=False,
         )
         out.print(_position_grid_line(fields.attributes.position))
@@ -330,16 +335,13 @@ def info(
         t = Table(show_header=True)
         for col in ("part", "chunks", "bytes", "B/Gaussian", "share"):
             t.add_column(col, justify="left" if col == "part" else "right")
-        t.add_row(
-            "header",
-            "",
-            f"{d['header_size']:,}",
-            f"{d['header_size'] / n:.2f}",
-            f"{d['header_size'] / d['file_size']:.1%}",
-        )
-        for typ, size in d["bytes_per_type"].items():
-            cnt = sum(1 for c in d["chunks"] if c["type"] == typ)
-            t.add_row(typ, str(cnt), f"{size:,}", f"{size / n:.2f}", f"{size / d['file_size']:.1%}")
+        for part, size in f.budget.items():
+            if part == "file":
+                continue
+            cnt = sum(1 for c in f.chunks if c.type == part)
+            t.add_row(
+                part, str(cnt) if cnt else "", f"{size:,}", f"{size / n:.2f}", f"{size / f.file_size:.1%}"
+            )
         out.print(t)
         return
     from gspc.io import read_scene

@@ -18,6 +18,7 @@ from gspc.progress import Progress
 from gspc.render.gsplat_backend import gsplat_status
 
 DEVICES = ("cpu", "cuda")
+CPU_RENDERER = "gspc's renderer, compiled for the CPU (numba)"  # what a run on the CPU reports
 
 
 def check_device(name: str) -> torch.device:
@@ -36,7 +37,7 @@ def renderer_info(device: torch.device, progress: Progress | None = None, encode
     renderer on the GPU and why gsplat is not used. ``encoder``: the encoder renders the residuals' images
     with the torch renderer, which follows the rules (spec 10.12), whatever renders the rest."""
     if device.type != "cuda":
-        return f"torch on {device.type}"
+        return CPU_RENDERER
     status = gsplat_status(device, progress)
     if not status.usable:
         return f"torch on {device.type} (gsplat not used: {status.reason})"

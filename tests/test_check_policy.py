@@ -97,7 +97,7 @@ def test_the_rivals_are_read_off_two_codings_and_agree_with_each_ones_own_search
     # the PSNR its own search to the policy's tolerance reaches (the check's comparison before). So small a
     # scene's PSNR is jagged in its bytes (0.15 dB between codings 0.1% apart here); the bird's and the 1M
     # scene's checks compare in bench/speed.md.
-    import gspc.codec.attributes as attributes
+    import gspc.encoder.rate as rate
     from gspc.encoder import policy
     from gspc.metrics import mean_psnr
     from gspc.reconstruct import render_images
@@ -109,13 +109,13 @@ def test_the_rivals_are_read_off_two_codings_and_agree_with_each_ones_own_search
         return mean_psnr(render_images(s, inp.check_cameras, inp.background), reference)
 
     codings = []
-    encode = attributes.encode_attributes
+    encode = rate.encode_attributes
 
     def counted(*a, **k):
         codings.append(1)
         return encode(*a, **k)
 
-    monkeypatch.setattr(attributes, "encode_attributes", counted)
+    monkeypatch.setattr(rate, "encode_attributes", counted)
     before = score(inp.attributes.decoded)
     read = policy._rivals(inp, score, None, before)
     bracket = len(codings)
@@ -132,13 +132,13 @@ def test_a_rival_searched_past_the_deadline_starts_no_second_coding(monkeypatch)
     # time budget's deadline its search stops where it starts.
     import time
 
-    import gspc.codec.attributes as attributes
+    import gspc.encoder.rate as rate
     from gspc.encoder import policy
 
     inp = _rival_inputs([0.05])
     codings = []
-    encode = attributes.encode_attributes
-    monkeypatch.setattr(attributes, "encode_attributes", lambda *a, **k: codings.append(1) or encode(*a, **k))
+    encode = rate.encode_attributes
+    monkeypatch.setattr(rate, "encode_attributes", lambda *a, **k: codings.append(1) or encode(*a, **k))
     target = policy._rival_target(inp, inp.candidates[0])
     policy._rival_coding(inp, target, deadline=time.perf_counter() - 1.0)
     late = len(codings)

@@ -102,12 +102,23 @@ def test_corrupt_file_and_missing_restorer_give_one_line_errors(tmp_path, scene_
     assert_one_line_error(run("decode", corrupt, "-o", tmp_path / "o.ply"), "")
     assert not (tmp_path / "o.ply").exists()
 
-    c = container.read(gspc_file)
-    c.header["side_info"]["restorer"] = "no-such-model"
-    renamed = tmp_path / "renamed.gspc"
-    container.write(renamed, c.header, c.chunks)
-    assert_one_line_error(run("decode", renamed, "-o", tmp_path / "o.ply"), "no-such-model")
-    assert not (tmp_path / "o.ply").exists()
+    # A restorer the decoder lacks: refused where it would restore (spec 10.8), not where nothing is restored.
+    sided = tmp_path / "sided.gspc"
+    coarse = ("--lambda", 40, "--views", 5, "--max-side", 40, "--check-iterations", 0)
+    assert run("encode", scene_file, "-o", sided, *coarse).exit_code == 0
+    for source, restores in ((sided, True), (gspc_file, False)):
+        c = container.read(source)
+        assert (c.find("SIDE", 0) is not None) == restores
+        c.header["side_info"]["restorer"] = "no-such-model"
+        renamed = tmp_path / "renamed.gspc"
+        container.write(renamed, c.header, c.chunks)
+        res = run("decode", renamed, "-o", tmp_path / "o.ply")
+        if restores:
+            assert_one_line_error(res, "no-such-model")
+            assert not (tmp_path / "o.ply").exists()
+        else:
+            assert res.exit_code == 0 and (tmp_path / "o.ply").exists()
+            (tmp_path / "o.ply").unlink()
     assert_one_line_error(run("encode", scene_file, "-o", tmp_path / "x.gspc", "--restorer", "nope"), "nope")
 
 

@@ -20,16 +20,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from bench_gpu import NOT_RENDERED
 from cli_runs import assert_one_line_error, run
 from scenes import random_scene
 
 import gspc.device as device_module
+import gspc.encoder.decisions as decisions
 import gspc.pipeline as pipeline
 import gspc.render.api as api
 import gspc.render.gsplat_backend as gb
 from gspc.cameras import Camera
 from gspc.codec.attributes import decode_attributes, encode_attributes
-from gspc.device import check_device, float32_math, renderer_info, synchronize
+from gspc.device import CPU_RENDERER, check_device, float32_math, renderer_info, synchronize
 from gspc.errors import DeviceError
 from gspc.format import container
 from gspc.format.attribute_section import attribute_chunks
@@ -87,7 +89,7 @@ def test_encode_on_cuda_without_gpu_is_refused_before_any_work(tmp_path, monkeyp
     def no_work(*args, **kwargs):
         raise AssertionError("the encoder started work before checking its device")
 
-    monkeypatch.setattr(pipeline, "encoder_cameras", no_work)
+    monkeypatch.setattr(decisions, "encoder_cameras", no_work)
     with pytest.raises(DeviceError, match="no CUDA GPU"):
         encode_scene(scene(), opts=EncodeOptions(device="cuda"))
 
@@ -110,6 +112,7 @@ def test_the_device_reaches_the_restorer_and_the_check(monkeypatch):
     marker = torch.device("cpu", 0)
     assert marker != torch.device("cpu")
     monkeypatch.setattr(pipeline, "check_device", lambda name: marker)
+    monkeypatch.setattr(decisions, "load_restorer", lambda *a, **k: spy_restorer(*a, **k))
     restorer_devices, check_devices = [], []
 
     class Checked(Exception):
@@ -124,15 +127,15 @@ def test_the_device_reaches_the_restorer_and_the_check(monkeypatch):
         raise Checked
 
     monkeypatch.setattr(pipeline, "load_restorer", spy_restorer)
-    monkeypatch.setattr(pipeline, "check_side_info", spy_check)
+    monkeypatch.setattr(decisions, "check_side_info", spy_check)
     with pytest.raises(Checked):
         encode_scene(scene(), opts=small_encode(check_iterations=2, restorer="none"))
     assert check_devices == [marker] and restorer_devices == [marker]
     data, rep = encode_scene(scene(), opts=small_encode(check_iterations=0, restorer="none"))
-    assert rep.info["renderer"] == "torch on cpu"
+    assert rep.info["renderer"] == CPU_RENDERER
     _, rep = decode_bytes(data, DecodeOptions(refine=False))
-    assert restorer_devices == [marker] * 3
-    assert rep.info["renderer"] == "torch on cpu"
+    assert restorer_devices == [marker] * 2  # a decode that does not refine loads no restorer
+    assert "renderer" not in rep.info and "restorer" not in rep.info  # nor names what it did not run
 
 
 # --- gsplat stand-ins (every machine) ----------------------------------------------------------------------
@@ -381,9 +384,11 @@ def test_pyproject_pins_what_the_code_needs():
 
 def test_stage_timers_wait_for_the_gpu(monkeypatch):
     calls = []
-    monkeypatch.setattr(pipeline, "synchronize", lambda device=None: calls.append(device))
+    from gspc import stages
+
+    monkeypatch.setattr(stages, "synchronize", lambda device=None: calls.append(device))
     rep = pipeline.Report()
-    with rep.timed("render"):
+    with rep.stages(None, None).stage("render"):
         pass
     assert len(calls) == 2 and "render" in rep.seconds
 
@@ -457,7 +462,7 @@ def test_gpu_bench_runs_its_steps_on_the_cpu(tmp_path):
     rows = [json.loads(line) for line in (logs / "rows.jsonl").read_text().splitlines()]
     assert [r["step"] for r in rows] == ["encode", "decode", "decode"]
     assert rows[0]["bytes"] == (keep / "scale_400.gspc").stat().st_size > 0
-    assert all(math.isfinite(r["psnr"]) and r["renderer"] == "torch on cpu" for r in rows[1:])
+    assert all(math.isfinite(r["psnr"]) and r["renderer"] in (CPU_RENDERER, NOT_RENDERED) for r in rows[1:])
     assert "| 400 | encode | cpu |" in out.read_text()
     # The deadline stops a command still running, and its row says so (here at once: a deadline of 0).
     import bench_gpu

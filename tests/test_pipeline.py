@@ -267,14 +267,28 @@ def test_bytes_spent_on_attributes_are_the_rivals(tmp_path):
     assert decoded.num_gaussians == rep.num_gaussians_out > 0
 
 
-def test_target_size_reports_the_lambda_it_reached(tmp_path):
+@pytest.mark.parametrize("side_info", [False, True])
+def test_target_size_bounds_the_whole_file(tmp_path, side_info):
+    # --target-size is the file's size at most, side information included (counted inside the target).
     src = tmp_path / "in.ply"
     write_ply(scene(seed=3), src)
-    opts = EncodeOptions(target_size=4000, side_info=False, synth_views=4)
-    rep = encode(src, tmp_path / "c.gspc", opts=opts)
-    lam, reached = rep.info["lambda"].split(" ", 1)
-    attribute_bytes = int(reached.split("attributes ")[1].split(" B")[0].replace(",", ""))
-    assert float(lam) > 0 and 0.9 * 4000 <= attribute_bytes <= 4000, rep.info["lambda"]
+    out = tmp_path / "c.gspc"
+    small = dict(synth_views=5, max_side=40, check_iterations=0)
+    opts = EncodeOptions(target_size=6000, side_info=side_info, **small)
+    rep = encode(src, out, opts=opts)
+    size = out.stat().st_size
+    assert 0.85 * 6000 <= size <= 6000, size
+    assert rep.bytes["file"] == size and "6,000 B target" in rep.info["lambda"], rep.info["lambda"]
+    assert ("SIDE" in rep.bytes) == rep.info["side info"].startswith("sent"), rep.info["side info"]
+
+
+def test_a_target_size_no_coding_reaches_is_refused_in_one_line(tmp_path):
+    src = tmp_path / "in.ply"
+    write_ply(random_scene(3000, sh_degree=0, seed=2), src)
+    out = tmp_path / "c.gspc"
+    with pytest.raises(InputError, match="--target-size 1,024 B cannot be reached"):
+        encode(src, out, opts=EncodeOptions(target_size=1024, side_info=False, synth_views=4, max_side=32))
+    assert not out.exists()
 
 
 def test_the_encoder_reports_the_removal_it_chose_and_can_be_told_to_keep_the_presets(tmp_path):
@@ -285,12 +299,12 @@ def test_the_encoder_reports_the_removal_it_chose_and_can_be_told_to_keep_the_pr
     base = dict(synth_views=4, max_side=40, side_info=False)
     searched = encode(src, tmp_path / "a.gspc", opts=EncodeOptions(**base))
     said = searched.info["removal"]
-    assert "at 4 views: x2 at lambda" in said, said
+    assert "at 4 views between the encoder's cameras" in said and "(x2 at lambda" in said, said
     kept = encode(src, tmp_path / "b.gspc", opts=EncodeOptions(**base, removal_search=False))
     assert "removal" not in kept.info
     # The preset's removal kept: the very file the unsearched encode writes; a stronger one: another file.
     same = (tmp_path / "a.gspc").read_bytes() == (tmp_path / "b.gspc").read_bytes()
-    assert same == said.startswith("the preset's"), said
+    assert same == said.startswith("the preset's removal and grid: no trial gained"), said
 
 
 def test_the_high_preset_weighs_a_finer_position_grid_and_no_removal(tmp_path):

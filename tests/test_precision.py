@@ -274,7 +274,7 @@ def test_info_names_a_version_4_files_classes(tmp_path):
 def test_unrefined_parameters_code_finer_geometry_only_at_low_rates():
     """A file without side information codes scales and rotations on CodecParams.unrefined()'s schedule: the
     same steps up to lambda 6, finer beyond; the uniform codec keeps its own."""
-    from gspc.codec.attributes import coded_with
+    from gspc.encoder.rate import coded_with
     from gspc.presets import QUALITY
 
     assert CodecParams(lam=10.0).unrefined() == CodecParams(lam=10.0)

@@ -7,7 +7,7 @@ from dataclasses import replace
 
 from scenes import random_scene
 
-import gspc.codec.attributes as attributes
+import gspc.encoder.rate as rate
 from gspc.codec.attributes import encode_attributes
 from gspc.encoder import removal
 from gspc.encoder.prepare import removal_params
@@ -36,8 +36,8 @@ def _small():
 
 def _counting(monkeypatch) -> list[int]:
     codings: list[int] = []
-    encode = attributes.encode_attributes
-    monkeypatch.setattr(attributes, "encode_attributes", lambda *a, **k: codings.append(1) or encode(*a, **k))
+    encode = rate.encode_attributes
+    monkeypatch.setattr(rate, "encode_attributes", lambda *a, **k: codings.append(1) or encode(*a, **k))
     return codings
 
 
@@ -96,7 +96,7 @@ def test_coarser_positions_are_kept_where_they_score_better_in_no_more_bytes(mon
     assert max(choice.encoded.section.position.step) > max(first.section.position.step)
     again = encode_attributes(scene, choice.params, significance=sig)  # the coding its parameters make
     assert again.chunks == choice.encoded.chunks
-    assert choice.summary().startswith("the preset's, positions -2 bit"), choice.summary()
+    assert choice.summary().startswith("positions -2 bit: +"), choice.summary()
 
 
 def test_the_rates_grid_stays_where_coarser_positions_score_worse(monkeypatch):

@@ -37,11 +37,12 @@ import time
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parent.parent
+# A decode that does not refine renders nothing, and its summary names no renderer.
+NOT_RENDERED = "none (nothing rendered)"
 # The child writes its own peaks at exit: resident memory (VmHWM, which wait4 would mix with the parent's)
 # and the GPU memory torch allocated.
 CHILD = """import atexit, json, os, re, sys
 from gspc.cli import app
-
 
 def peaks():
     with open("/proc/self/status") as f:
@@ -105,14 +106,14 @@ def measure(args: list[str], env: dict, clock: Clock, log_path: Path) -> dict:
     log = log_path.read_text("utf-8", "replace")
     if not stopped and proc.returncode:
         raise SystemExit(f"gspc {' '.join(args)} failed:\n{log[-2000:]}")
-    renderer = re.search(r"renderer: (.*?)(?:  |$)", log, re.M)
+    renderer = re.search(r"^renderer: (.*)$", log, re.M)
     lines = [line for line in log.splitlines() if line.strip()]
     return {
         "wall": wall,
         "cpu": ru.ru_utime + ru.ru_stime,
         "rss_mb": peaks.get("rss_kb", 0) / 1024.0,
         "gpu_mb": peaks.get("gpu_mb"),
-        "renderer": renderer[1].strip() if renderer else "?",
+        "renderer": renderer[1].strip() if renderer else NOT_RENDERED,
         "stopped": lines[-1][:160] if stopped and lines else ("" if not stopped else "(no output)"),
         "log": log,
     }

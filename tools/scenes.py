@@ -35,6 +35,23 @@ def random_scene(
     )
 
 
+def varied_scene(n: int = 500, degree: int = 3, seed: int = 0, **over) -> GaussianScene:
+    """Gaussians spread widely in every attribute (sizes over e^-4 +- 1, opacities over every level, half of
+    them with SH rest), for the codec's tests; ``over`` replaces any of make_scene's arrays."""
+    rng = np.random.default_rng(seed)
+    k = (degree + 1) ** 2 - 1
+    attrs = dict(
+        means=rng.normal(size=(n, 3)),
+        quats=rng.normal(size=(n, 4)),
+        log_scales=rng.normal(-4, 1, size=(n, 3)),
+        opacities=rng.normal(1, 2, size=n),
+        sh_dc=rng.normal(size=(n, 3)),
+        sh_rest=rng.normal(0, 0.05, size=(n, k, 3)) * (rng.uniform(size=(n, 1, 1)) < 0.5),
+    )
+    attrs.update(over)
+    return make_scene(**attrs, sh_degree=degree)
+
+
 def unbounded(seed: int = 0, n: int = 4000) -> np.ndarray:
     """An object (a unit ball) with 10% of its count in a shell at 30 radii and 5 floaters at 3000."""
     rng = np.random.default_rng(seed)

@@ -18,7 +18,6 @@ The byte layouts are specified in spec/gspc-format.md, section 10.
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -66,15 +65,19 @@ class EncodedAttributes:
     lam: float  # the rate knob it was coded at
 
     @cached_property
+    def _decoded(self) -> DecodedSection:
+        return decode_section(self.chunks, self.section)
+
+    @property
     def decoded(self) -> GaussianScene:
         """G~, from decode_attributes on the chunks; decoded when first read (a lambda search reads only the
         sizes of the codings it passes over)."""
-        return decode_attributes(self.chunks, self.section)
+        return self._decoded.scene
 
     @property
     def precision(self) -> PrecisionMap | None:
         """Each Gaussian's class and SH degree at version 4 (what the decoder reads), else None."""
-        return decoded_precision(self.chunks, self.section)
+        return self._decoded.precision
 
     @property
     def num_bytes(self) -> int:
@@ -92,6 +95,48 @@ def _np(t: torch.Tensor, rows: np.ndarray) -> np.ndarray:
     """``t[rows]`` as float64 numpy (rows picked first: the SH rest of a million Gaussians is 180 MB in
     float32, twice that in float64)."""
     return t.detach().cpu().numpy()[rows].astype(np.float64)
+
+
+@dataclass(frozen=True)
+class GroupChunk:
+    """One attribute group's chunk (spec 10.2 to 10.5): both directions walk :data:`GROUP_CHUNKS`."""
+
+    chunk: str  # the chunk type
+    attribute: str  # the GaussianScene field it codes
+    quantiser: str  # the AttributeQuantisers field that quantises it
+    columns: int  # of its matrix
+    checked: str | None = None  # the ClassSteps step whose range the encoder checks (with its name below)
+    name: str = ""
+
+
+GROUP_CHUNKS = (
+    GroupChunk(OPAC, "opacities", "opacity", 1),
+    GroupChunk(SCAL, "log_scales", "scale", 3, "scale_step", "log scale"),
+    GroupChunk(ROTN, "quats", "rotation", 4),
+    GroupChunk(SHDC, "sh_dc", "dc", 3, "dc_step", "SH DC"),
+)
+GROUP_TYPES = tuple(g.chunk for g in GROUP_CHUNKS)
+
+
+def _quantised(
+    g: GroupChunk,
+    scene: GaussianScene,
+    rows: np.ndarray,
+    quant: AttributeQuantisers,
+    steps: ClassSteps,
+    lam: float,
+) -> np.ndarray:
+    """The symbols of group ``g`` for ``rows`` of the scene, (len(rows), g.columns); ValueRangeError where a
+    value is beyond what the class's step codes."""
+    values = _np(getattr(scene, g.attribute), rows)
+    if g.checked is not None:
+        _check_range(g.name, values, getattr(steps, g.checked), lam)
+    return getattr(quant, g.quantiser).quantise(values).reshape(len(rows), g.columns)
+
+
+def _dequantised(g: GroupChunk, quant: AttributeQuantisers, q: np.ndarray) -> np.ndarray:
+    """Group ``g``'s decoded values from its (m, g.columns) matrix (opacity: a vector)."""
+    return getattr(quant, g.quantiser).dequantise(q[:, 0] if g.columns == 1 else q)
 
 
 def _sh_steps(params: CodecParams, degree: int) -> list[float]:
@@ -202,17 +247,10 @@ def _encode_uniform(
     base = class_steps(params, scene.sh_degree)
     section = AttributeSection.of_classes(int(kept.size), int(scene.sh_degree), grid, (base,), False)
     quant = AttributeQuantisers.from_section(section, params.sh_deadzone)
-    opac_q = quant.opacity.quantise(_np(scene.opacities, kept))
-    scales, dc = _np(scene.log_scales, kept), _np(scene.sh_dc, kept)
-    _check_range("log scale", scales, base.scale_step, lam)
-    _check_range("SH DC", dc, base.dc_step, lam)
-    chunks = {
-        OPAC: encode_matrix(opac_q[:, None]),
-        SCAL: encode_matrix(quant.scale.quantise(scales)),
-        ROTN: encode_matrix(quant.rotation.quantise(_np(scene.quats, kept))),
-        SHDC: encode_matrix(quant.dc.quantise(dc)),
-    }
+    symbols = {g.chunk: _quantised(g, scene, kept, quant, base, lam) for g in GROUP_CHUNKS}
+    chunks = {t: encode_matrix(q) for t, q in symbols.items()}
     if scene.sh_degree > 0:
+        opac_q = symbols[OPAC][:, 0]
         # Faint Gaussians' view-dependent colour hardly shows: drop it (flag 0), an encoder-only choice.
         faint = opac_q.astype(np.float64) < min(0.5, params.sh_faint_alpha * lam) * base.opacity_levels
         # Rows of the float32 SH rest are picked and widened block by block (int32 symbols: a million
@@ -262,19 +300,14 @@ def _encode_classed(
     degrees = plan.degree[kept] if degree > 0 else np.zeros(n, np.int64)
     pmap = PrecisionMap(classes, degrees)
     section = AttributeSection.of_classes(n, int(degree), grid, tuple(class_list), True)
-    parts: dict[str, list[bytes]] = {OPAC: [], SCAL: [], ROTN: [], SHDC: [], SHRS: []}
+    parts: dict[str, list[bytes]] = {t: [] for t in (*GROUP_TYPES, SHRS)}
     rest = scene.sh_rest.detach().cpu().numpy()
     for k, steps_k in enumerate(class_list):
         order = pmap.rows(k)
         rows = kept[order]
         quant = AttributeQuantisers.from_steps(steps_k, params.sh_deadzone)
-        scales, dc = _np(scene.log_scales, rows), _np(scene.sh_dc, rows)
-        _check_range("log scale", scales, steps_k.scale_step, lam)
-        _check_range("SH DC", dc, steps_k.dc_step, lam)
-        parts[OPAC].append(encode_matrix(quant.opacity.quantise(_np(scene.opacities, rows))[:, None]))
-        parts[SCAL].append(encode_matrix(quant.scale.quantise(scales)))
-        parts[ROTN].append(encode_matrix(quant.rotation.quantise(_np(scene.quats, rows))))
-        parts[SHDC].append(encode_matrix(quant.dc.quantise(dc)))
+        for g in GROUP_CHUNKS:
+            parts[g.chunk].append(encode_matrix(_quantised(g, scene, rows, quant, steps_k, lam)))
         if degree > 0:  # every coefficient of the class's Gaussians with any SH rest, once; each band a slice
             deg = degrees[order]
             coded = rows[deg >= 1]
@@ -317,26 +350,44 @@ def _matrix(chunks: dict[str, bytes], name: str, n: int, c: int) -> np.ndarray:
 def decode_attributes(chunks: dict[str, bytes], section: AttributeSection) -> GaussianScene:
     """Decode chunks to a float32 scene in curve order; identical on every machine. The header ``section``
     was checked where it was read (gspc/format/attribute_section.py); the payloads are checked here."""
+    return decode_section(chunks, section).scene
+
+
+@dataclass(frozen=True)
+class DecodedSection:
+    scene: GaussianScene  # in curve order
+    precision: PrecisionMap | None  # each Gaussian's class and SH degree at version 4, else None
+
+
+def decode_section(chunks: dict[str, bytes], section: AttributeSection) -> DecodedSection:
+    """:func:`decode_attributes`, with the precision map the PREC chunk holds (read once)."""
     n, degree, grid = section.n, section.sh_degree, section.position
     check_attribute_chunks(chunks, section)
     voxels = pos.decode_positions(chunks[POSN], grid, n)
     means = pos.positions(voxels, grid)
-    if section.precision:
-        quats, scales, opac, dc, rest = _decode_classed(chunks, section)
-    else:
-        quats, scales, opac, dc, rest = _decode_uniform(chunks, section)
+    pmap = decode_precision(chunks[PREC], section) if section.precision else None
+    values = _decode_classed(chunks, section, pmap) if pmap is not None else _decode_uniform(chunks, section)
     t = torch.from_numpy
-    return GaussianScene(t(means), t(quats), t(scales), t(opac), t(dc), t(rest), degree)
+    scene = GaussianScene(
+        t(means),
+        t(values["quats"]),
+        t(values["log_scales"]),
+        t(values["opacities"]),
+        t(values["sh_dc"]),
+        t(values["sh_rest"]),
+        degree,
+    )
+    return DecodedSection(scene, pmap)
 
 
-def _decode_uniform(chunks: dict[str, bytes], section: AttributeSection) -> tuple[np.ndarray, ...]:
-    """Versions 1 to 3: (quats, log scales, opacity logits, DC, SH rest) at the section's one class."""
+def _decode_uniform(chunks: dict[str, bytes], section: AttributeSection) -> dict[str, np.ndarray]:
+    """Versions 1 to 3: every attribute group at the section's one class, by scene attribute."""
     n, degree = section.n, section.sh_degree
     quant = AttributeQuantisers.from_section(section)
-    opac = quant.opacity.dequantise(_matrix(chunks, OPAC, n, 1)[:, 0])
-    scales = quant.scale.dequantise(_matrix(chunks, SCAL, n, 3))
-    quats = quant.rotation.dequantise(_matrix(chunks, ROTN, n, 4))
-    dc = quant.dc.dequantise(_matrix(chunks, SHDC, n, 3))
+    out = {
+        g.attribute: _dequantised(g, quant, decode_matrix(chunks[g.chunk], (n, g.columns)))
+        for g in GROUP_CHUNKS
+    }
     k = num_sh_rest(degree)
     rest = np.zeros((n, k, 3), np.float32)
     if degree > 0:
@@ -352,28 +403,28 @@ def _decode_uniform(chunks: dict[str, bytes], section: AttributeSection) -> tupl
         flags = flags[:, 0].astype(bool)
         q = decode_matrix(rest_payload, (int(flags.sum()), 3 * k))
         rest[flags] = quant.sh_rest.dequantise(q)
-    return quats, scales, opac, dc, rest
+    out["sh_rest"] = rest
+    return out
 
 
-def _decode_classed(chunks: dict[str, bytes], section: AttributeSection) -> tuple[np.ndarray, ...]:
+def _decode_classed(
+    chunks: dict[str, bytes], section: AttributeSection, pmap: PrecisionMap
+) -> dict[str, np.ndarray]:
     """Version 4 (spec 10.13): every class's rows from their own matrices, SH rest band by band up to each
-    Gaussian's degree."""
+    Gaussian's degree; by scene attribute."""
     n, degree = section.n, section.sh_degree
-    pmap = decode_precision(chunks[PREC], section)
     classes = section.all_classes
-    opac = np.empty(n, np.float32)
-    scales, dc = np.empty((n, 3), np.float32), np.empty((n, 3), np.float32)
-    quats = np.empty((n, 4), np.float32)
+    out = {g.attribute: np.empty((n, g.columns) if g.columns > 1 else n, np.float32) for g in GROUP_CHUNKS}
     rest = np.zeros((n, num_sh_rest(degree), 3), np.float32)
-    bins = {t: unpack_bins(chunks[t], t, len(classes)) for t in (OPAC, SCAL, ROTN, SHDC)}
+    bins = {g.chunk: unpack_bins(chunks[g.chunk], g.chunk, len(classes)) for g in GROUP_CHUNKS}
     rest_bins = unpack_bins(chunks[SHRS], SHRS, len(classes) * degree) if degree > 0 else []
     for k, steps_k in enumerate(classes):
         rows = pmap.rows(k)
         quant = AttributeQuantisers.from_steps(steps_k)
-        opac[rows] = quant.opacity.dequantise(decode_matrix(bins[OPAC][k], (len(rows), 1))[:, 0])
-        scales[rows] = quant.scale.dequantise(decode_matrix(bins[SCAL][k], (len(rows), 3)))
-        quats[rows] = quant.rotation.dequantise(decode_matrix(bins[ROTN][k], (len(rows), 4)))
-        dc[rows] = quant.dc.dequantise(decode_matrix(bins[SHDC][k], (len(rows), 3)))
+        for g in GROUP_CHUNKS:
+            out[g.attribute][rows] = _dequantised(
+                g, quant, decode_matrix(bins[g.chunk][k], (len(rows), g.columns))
+            )
         for b in range(1, degree + 1):
             band_rows = rows[pmap.degrees[rows] >= b]
             q = decode_matrix(rest_bins[k * degree + b - 1], (len(band_rows), 3 * (2 * b + 1)))
@@ -381,105 +432,10 @@ def _decode_classed(chunks: dict[str, bytes], section: AttributeSection) -> tupl
             rest[band_rows, b * b - 1 : (b + 1) ** 2 - 1] = (
                 q.reshape(-1, 2 * b + 1, 3).astype(np.float64) * band
             )
-    return quats, scales, opac, dc, rest
+    out["sh_rest"] = rest
+    return out
 
 
 def decoded_precision(chunks: dict[str, bytes], section: AttributeSection) -> PrecisionMap | None:
     """The per-Gaussian classes and SH degrees of a version-4 file (None below version 4)."""
     return decode_precision(chunks[PREC], section) if section.precision else None
-
-
-# Attribute bytes fall by about a quarter per doubling of lambda (bird fit, lambda 1-8: 15.1, 11.5, 8.6, 6.4
-# B/G), a slope of -0.4 in log-log: the search's first guess, before two sizes give a measured slope.
-LOG_BYTES_PER_LOG_LAMBDA = -0.4
-
-
-def coded_with(enc: EncodedAttributes, params: CodecParams) -> bool:
-    """Whether ``enc`` has the steps ``params`` give at its lambda (a search may start from it)."""
-    return class_steps(params.with_lambda(enc.lam), enc.section.sh_degree) == enc.section.base_class()
-
-
-def search_lambda(
-    scene: GaussianScene,
-    target_bytes: int,
-    params: CodecParams,
-    visible: np.ndarray | None = None,
-    rel_tol: float = 0.03,
-    max_iter: int = 12,
-    first: EncodedAttributes | None = None,
-    significance: Significance | None = None,
-    deadline: float | None = None,
-) -> EncodedAttributes:
-    """The encoding with the smallest lambda whose size is at most ``target_bytes``.
-
-    Searches log lambda by secant steps on log size within a bracket that bisection narrows when a step
-    would not (each try is a whole encode: a million Gaussians take half a minute, so steps are few).
-    Stops when a fit lands within ``rel_tol`` under the target, or when the lambdas under and over it are
-    too close to part the window (the sizes jump over it there); if even the coarsest lambda tried is too
-    big, returns that one (the caller reports the miss). ``first``: an encoding the caller already has, made
-    with ``params`` and ``visible`` at any lambda (the search starts from its lambda). ``deadline``: a
-    ``time.perf_counter()`` after which no further encode starts (the best so far is returned).
-    """
-    lo, hi = math.log(1e-3), math.log(1e3)  # log lambda: sizes above the target at lo, below at hi
-    best: EncodedAttributes | None = None
-    fallback: EncodedAttributes | None = None
-    tried: list[tuple[float, float]] = []  # (log lambda, log size)
-    # Aim at the middle of the accepted window [1 - rel_tol, 1] x target.
-    x = math.log(first.lam if first is not None else params.lam)
-    goal = math.log(target_bytes * (1.0 - 0.5 * rel_tol))
-    for k in range(max_iter):
-        if k > 0 and deadline is not None and time.perf_counter() >= deadline:
-            break
-        if k == 0 and first is not None:
-            enc = first
-        else:
-            try:
-                enc = encode_attributes(scene, params.with_lambda(math.exp(x)), visible, significance)
-            except ValueRangeError:
-                # Too fine for the scene's largest values: a larger lambda, as if the size were too big.
-                if x >= hi or k == max_iter - 1:
-                    raise
-                lo = max(lo, x)
-                x = 0.5 * (lo + hi)
-                continue
-            except NothingCodedError:
-                # So coarse that removal takes every Gaussian: a smaller lambda, as if too small.
-                if x <= lo or (k == max_iter - 1 and best is None and fallback is None):
-                    raise
-                hi = min(hi, x)
-                x = 0.5 * (lo + hi)
-                continue
-        size = enc.num_bytes
-        tried.append((x, math.log(size)))
-        if size <= target_bytes:
-            if best is None or size > best.num_bytes:
-                best = enc
-            if size >= (1.0 - rel_tol) * target_bytes:
-                break
-            hi = min(hi, x)
-        else:
-            if fallback is None or size < fallback.num_bytes:
-                fallback = enc
-            lo = max(lo, x)
-        if best is not None and (hi - lo) * -LOG_BYTES_PER_LOG_LAMBDA < 0.5 * rel_tol:
-            # Lambdas this close code sizes half the window apart, unless the sizes jump (a threshold of
-            # the precision plan crossed by many Gaussians at once): a window inside the jump has no lambda.
-            break
-        x = _next_log_lambda(lo, hi, tried, goal)
-    return best if best is not None else fallback
-
-
-def _next_log_lambda(lo: float, hi: float, tried: list[tuple[float, float]], goal: float) -> float:
-    """The next log lambda: a secant step towards log size ``goal`` through the last two tries (the assumed
-    slope after one), kept inside the bracket (lo, hi); bisection where it would leave it, or, once sizes
-    on both sides of the target are known, hug one end (so a curved stretch cannot stall the search)."""
-    x, y = tried[-1]
-    slope = LOG_BYTES_PER_LOG_LAMBDA
-    if len(tried) > 1 and tried[-2][0] != x:
-        slope = min((y - tried[-2][1]) / (x - tried[-2][0]), -1e-3)
-    guess = x + (goal - y) / slope
-    bracketed = lo > math.log(1e-3) and hi < math.log(1e3)
-    margin = 0.1 * (hi - lo) if bracketed else 0.0
-    if not lo + margin < guess < hi - margin:
-        return 0.5 * (lo + hi)
-    return guess

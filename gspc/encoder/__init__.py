@@ -1,4 +1,4 @@
-"""The encoder beyond the attribute codec: its stages before the policy (stages.py: cameras, attribute
-coding, the side-information views), the side-information candidates (side.py) and the rate-distortion
-policy that weighs them (policy.py: which side information to send, at which resolution, and the check that
-it pays for its bytes)."""
+"""The encoder: every choice it makes about a scene, in one call (decisions.py), over its steps: cameras,
+measure and attribute coding (prepare.py, significance.py), rate control (rate.py), the removal and position
+grid chosen per scene (removal.py), the side-information candidates (side.py) and the policy that weighs them
+against the same bytes on attributes (policy.py), and the tuning of the coded values (tuning.py)."""

@@ -11,9 +11,10 @@ import numpy as np
 
 from gspc.cameras import Camera
 from gspc.codec import residuals
-from gspc.codec.attributes import EncodedAttributes, encode_attributes, search_lambda
+from gspc.codec.attributes import EncodedAttributes, encode_attributes
 from gspc.codec.params import CodecParams
 from gspc.codec.precision import Significance
+from gspc.encoder.rate import search_lambda
 from gspc.encoder.removal import RemovalChoice, RemovalParams, choose_removal
 from gspc.encoder.side import SideCandidate, side_candidate
 from gspc.encoder.significance import encoder_significance
@@ -61,6 +62,14 @@ def tuning_params(opts: EncodeOptions) -> TuningParams | None:
     return TuningParams(iterations=iterations) if iterations > 0 else None
 
 
+@dataclass(frozen=True)
+class Measure:
+    """What the encoder measured of each input Gaussian at its cameras: the coding's choices follow it."""
+
+    visible: np.ndarray  # seen by some camera
+    significance: Significance | None  # what it does to the views, where the parameters spend precision
+
+
 @dataclass
 class CodedAttributes:
     encoded: EncodedAttributes  # chunks, meta and G~ as the decoder decodes it
@@ -68,6 +77,24 @@ class CodedAttributes:
     visible: np.ndarray  # per input Gaussian: seen by some camera
     significance: Significance | None = None  # what each Gaussian does to the views, where measured
     removal: RemovalChoice | None = None  # how the removal was chosen (None: the parameters' own)
+
+
+def measure_scene(
+    scene: GaussianScene,
+    cameras: list[Camera],
+    params: CodecParams,
+    background: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    progress: Progress | None = None,
+) -> Measure:
+    """Which Gaussians some camera sees and, where the parameters spend precision per Gaussian, what each
+    does to the views (gspc/encoder/significance.py); on the CPU, where the codec runs."""
+    visible = visible_mask(
+        scene.means.detach().cpu().numpy(), scene.log_scales.detach().cpu().numpy(), cameras
+    )
+    sig = None
+    if params.precision is not None:
+        sig = encoder_significance(scene.to("cpu"), cameras, background, progress)
+    return Measure(visible, sig)
 
 
 def code_attributes(
@@ -79,19 +106,14 @@ def code_attributes(
     progress: Progress | None = None,
     removal: RemovalParams | None = None,
     deadline: float | None = None,
+    measure: Measure | None = None,
 ) -> CodedAttributes:
-    """Prune what no camera sees and code the rest (at ``target_size`` bytes when given), on the CPU: the
-    visibility mask decides what is coded, so it is numpy like the codec. Where the parameters spend
-    precision per Gaussian, its significance is measured first (gspc/encoder/significance.py), and with
-    ``removal`` views between the encoder's cameras choose how much to remove in the bytes that coding takes
-    (gspc/encoder/removal.py)."""
-    visible = visible_mask(
-        scene.means.detach().cpu().numpy(), scene.log_scales.detach().cpu().numpy(), cameras
-    )
-    sig = None
-    on_cpu = scene.to("cpu")
-    if params.precision is not None:
-        sig = encoder_significance(on_cpu, cameras, background, progress)
+    """Prune what no camera sees and code the rest (at most ``target_size`` bytes when given), on the CPU:
+    the visibility mask decides what is coded, so it is numpy like the codec. ``measure``: the scene's, where
+    already taken (:func:`measure_scene` otherwise). With ``removal``, views between the encoder's cameras
+    choose how much to remove in the bytes that coding takes (gspc/encoder/removal.py)."""
+    m = measure if measure is not None else measure_scene(scene, cameras, params, background, progress)
+    visible, sig = m.visible, m.significance
     if target_size is not None:
         enc = search_lambda(scene, target_size, params, visible=visible, significance=sig)
     else:
@@ -99,7 +121,7 @@ def code_attributes(
     choice = None
     if removal is not None and sig is not None:
         choice = choose_removal(
-            on_cpu, enc, params, visible, sig, cameras, background, removal, deadline, progress
+            scene.to("cpu"), enc, params, visible, sig, cameras, background, removal, deadline, progress
         )
         enc, params = choice.encoded, choice.params
     return CodedAttributes(enc, params, visible, sig, choice)

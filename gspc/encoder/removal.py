@@ -33,9 +33,10 @@ import numpy as np
 import torch
 
 from gspc.cameras import Camera
-from gspc.codec.attributes import EncodedAttributes, search_lambda
+from gspc.codec.attributes import EncodedAttributes
 from gspc.codec.params import CodecParams
 from gspc.codec.precision import Significance
+from gspc.encoder.rate import search_lambda
 from gspc.encoder.significance import evenly_spaced_indices
 from gspc.metrics import mse
 from gspc.progress import Progress
@@ -91,26 +92,49 @@ class RemovalChoice:
     trials: tuple[Trial, ...] = ()
     views: int = 0
     seconds: float = 0.0
+    min_gain_db: float = 0.0  # a trial had to gain this much to be kept
+
+    @property
+    def kept(self) -> Trial:
+        """The trial whose coding was kept (``base``: the preset's)."""
+        lam, offset = self.encoded.lam, self.params.position_offset
+        prune = self.params.precision.prune if self.params.precision is not None else 0.0
+        match = (t for t in self.trials if (t.lam, t.prune, t.position_offset) == (lam, prune, offset))
+        return next(match, self.base)
+
+    def chosen(self) -> str:
+        """The removal and grid kept, in words."""
+        t, b = self.kept, self.base
+        if b is None or t is b:
+            return "the preset's removal and grid"
+        parts = [f"x{t.prune / b.prune:g} the preset's removal"] if t.prune != b.prune else []
+        if t.position_offset:
+            parts.append(f"positions {t.position_offset:+g} bit")
+        return ", ".join(parts)
 
     def summary(self) -> str:
-        if self.base is None:
-            return "the preset's"
+        """What was kept and why, in one line."""
         b = self.base
-
-        def removal(prune: float) -> str:
-            return "" if prune == b.prune else f"x{prune / b.prune:g}"
+        if b is None:
+            return "the preset's (no search)"
 
         def trial(t: Trial) -> str:
-            tried = removal(t.prune) if not t.position_offset else f"positions {t.position_offset:+g} bit"
-            gain = f"{t.bytes / b.bytes:.3f} of the bytes, {t.psnr - b.psnr:+.2f} dB"
-            return f"{tried} at lambda {t.lam:.3g}: {gain}"
+            tried = (
+                f"positions {t.position_offset:+g} bit" if t.position_offset else f"x{t.prune / b.prune:g}"
+            )
+            return f"{tried} at lambda {t.lam:.3g} {t.psnr - b.psnr:+.2f} dB"
 
-        tried = ", ".join(trial(t) for t in self.trials)
-        chosen = self.params
-        head = f"{removal(chosen.precision.prune)} the preset's".strip()
-        if chosen.position_offset:
-            head += f", positions {chosen.position_offset:+g} bit"
-        return f"{head} (at {self.views} views: {tried or 'none tried'}; {self.seconds:.1f} s)"
+        t = self.kept
+        verdict = (
+            f"no trial gained {self.min_gain_db:g} dB over it"
+            if t is b
+            else f"{t.psnr - b.psnr:+.2f} dB over the preset's"
+        )
+        tried = ", ".join(trial(t) for t in self.trials) or "none tried"
+        return (
+            f"{self.chosen()}: {verdict} at {self.views} views between the encoder's cameras, each trial in "
+            f"the preset's bytes ({tried}; {self.seconds:.1f} s)"
+        )
 
 
 def better(best: Trial, t: Trial, limit: int, min_gain_db: float) -> bool:
@@ -198,7 +222,8 @@ def choose_removal(
         if not attempt(replace(p, lam=p.lam * ratio, position_offset=offset), offset):
             break
     _tick(progress, stages, stages)  # ended early or not, the stage is done
-    return RemovalChoice(kept[0], kept[1], base, tuple(trials), len(views), time.perf_counter() - t0)
+    seconds = time.perf_counter() - t0
+    return RemovalChoice(kept[0], kept[1], base, tuple(trials), len(views), seconds, rp.min_gain_db)
 
 
 def _scorer(

@@ -94,6 +94,8 @@ class Container:
     skipped: list[Chunk] = field(
         default_factory=list
     )  # unknown optional chunks, verified but not interpreted
+    file_size: int = 0  # bytes of the whole file
+    header_length: int = 0  # bytes of the msgpack header (spec section 2)
 
     def find(self, type: str, index: int = 0) -> Chunk | None:
         """The chunk with this type and index, or None."""
@@ -451,7 +453,7 @@ def unpack(data: bytes | bytearray | memoryview, known_types: Collection[str] = 
     for e in p.entries:
         chunk = Chunk(e.type, bytes(view[e.offset : e.offset + e.length]), e.required, e.index)
         (kept if e.type in known_types else skipped).append(chunk)
-    return Container(p.version, p.meta, kept, skipped)
+    return Container(p.version, p.meta, kept, skipped, len(data), p.header_length)
 
 
 def read_bytes(path: str | os.PathLike) -> bytes:
@@ -465,6 +467,12 @@ def read_bytes(path: str | os.PathLike) -> bytes:
 def read(path: str | os.PathLike, known_types: Collection[str] = KNOWN_TYPES) -> Container:
     """unpack() the file at `path`."""
     return unpack(read_bytes(path), known_types)
+
+
+def stored_size(chunk: Chunk) -> int:
+    """Bytes a chunk takes in the file: its payload and the padding after it (every payload starts at a
+    multiple of 8, spec section 2)."""
+    return _align(len(chunk.payload))
 
 
 def describe(data_or_path: bytes | bytearray | memoryview | str | os.PathLike) -> dict:

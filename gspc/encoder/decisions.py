@@ -1,0 +1,435 @@
+"""Everything the encoder decides about one scene, in one call, as one typed record.
+
+:func:`decide` walks the encoder's steps in order, each in its own module:
+
+1. cameras (given, or synthesised around the scene) and what each Gaussian does to them (prepare.py,
+   significance.py);
+2. the attributes at the rate or in ``--target-size`` bytes, with the removal and position grid chosen per
+   scene (prepare.py, rate.py, removal.py);
+3. the side information: residuals of sampled views, and the check that the decoder's refinement against
+   them beats the same bytes spent on attributes (side.py, policy.py);
+4. a file without side information, which the decoder takes as it is: its attributes coded for that, then
+   its coded values tuned (tuning.py);
+5. with ``--target-size``, the whole file within it: side information counts inside the target.
+
+:class:`EncoderDecisions` holds what was chosen and why; its :meth:`~EncoderDecisions.summary` is what a
+user reads, and :func:`file_bytes` packs the file it describes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from gspc import __version__
+from gspc.cameras import Camera
+from gspc.codec.attributes import EncodedAttributes, prune_mask
+from gspc.encoder.policy import CheckInputs, Outcome, SideInfoDecision, check_cameras, check_side_info
+from gspc.encoder.prepare import (
+    CodedAttributes,
+    Measure,
+    code_attributes,
+    codec_params,
+    encoder_cameras,
+    iteration_counts,
+    measure_scene,
+    removal_params,
+    sample_side_views,
+    side_candidates,
+    tuning_params,
+)
+from gspc.encoder.rate import coded_with, search_lambda
+from gspc.encoder.removal import RemovalChoice
+from gspc.encoder.side import SideCandidate, view_residuals
+from gspc.encoder.tuning import TuningReport, tune_coding
+from gspc.errors import CodecError, InputError
+from gspc.format.file import pack_file
+from gspc.format.header import FileHeader, SceneSummary, SideInfoHeader
+from gspc.format.view_records import check_view_pixels
+from gspc.options import EncodeOptions
+from gspc.reconstruct import render_images
+from gspc.restore.restorer import load_restorer
+from gspc.scene import GaussianScene
+from gspc.stages import Stages
+
+# A SIDE chunk's table entry and padding, about (spec section 5): what side information adds to a file
+# beyond its payload, so that attributes and side information share a --target-size.
+CHUNK_ENTRY_BYTES = 48
+# The file's bytes around the attributes' own (preamble, the header beyond the attribute section, the
+# chunk table, padding and trailer: spec sections 2 and 5), about: a --target-size's first share for them.
+FRAMING_BYTES = 448
+# A --target-size fit that lands over the target is tried again this many times with the attributes'
+# share cut by the excess (the container's framing is only known once the file is packed).
+TARGET_RETRIES = 2
+
+
+@dataclass(frozen=True)
+class GaussianCounts:
+    """How many Gaussians the encoder was given, and where those it did not code went."""
+
+    given: int
+    not_coded: int  # no camera sees them, or they are under 1/255 opaque
+    removed: int  # they paint too little of the views for their bytes (the precision plan's removal)
+    coded: int
+
+    def summary(self) -> str:
+        if self.coded == self.given:
+            return f"{self.given:,} given, all coded"
+        parts = []
+        if self.not_coded:
+            parts.append(f"{self.not_coded:,} not coded (no camera sees them, or under 1/255 opaque)")
+        if self.removed:
+            parts.append(f"{self.removed:,} removed (they paint too little of the views for their bytes)")
+        return f"{self.given:,} given, {self.coded:,} coded: " + ", ".join(parts)
+
+
+@dataclass(frozen=True)
+class EncoderDecisions:
+    """What the encoder sends and why: the .gspc file's parts and every choice that shaped them."""
+
+    attributes: EncodedAttributes
+    side: SideCandidate | None  # the side information sent (None: none)
+    refine_iterations: int  # the decoder's default refinement, written to the header
+    counts: GaussianCounts
+    lam_asked: float  # the rate knob of the preset or --lambda: it sets the bytes
+    # Why the attributes are coded at another lambda in those bytes (empty: at the one asked).
+    lambda_reasons: tuple[str, ...]
+    side_info: str  # one line: what happened to the side information, and why
+    removal: RemovalChoice | None = None  # the removal and grid search, where it ran
+    check: SideInfoDecision | None = None  # the side-information check, where it ran
+    tuning: TuningReport | None = None  # the tuning of the coded values, where it ran
+    target_size: int | None = None
+
+    def summary(self) -> dict[str, str]:
+        """One line per decision, in the order they were taken, for the command line's summary."""
+        out = {"Gaussians": self.counts.summary(), "lambda": self._lambda_line()}
+        if self.removal is not None:
+            out["removal"] = self.removal.summary()
+        out["side info"] = self.side_info
+        if self.check is not None:
+            out.update(self.check.summary())
+        if self.tuning is not None:
+            out["tuning"] = self.tuning.summary()
+        out["decoder refines"] = (
+            f"{self.refine_iterations} iterations by default"
+            if self.side is not None
+            else "nothing (no side info)"
+        )
+        return out
+
+    def _lambda_line(self) -> str:
+        lam = self.attributes.lam
+        if self.target_size is not None:
+            return f"{lam:.4g} (searched for the {self.target_size:,} B target)"
+        if not self.lambda_reasons:
+            return f"{lam:.4g}"
+        why = " and ".join(self.lambda_reasons)
+        return f"{self.lam_asked:.4g} asked (it sets the bytes), coded at {lam:.4g}: {why}, in those bytes"
+
+
+def decide(
+    scene: GaussianScene,
+    cameras: list[Camera] | None,
+    opts: EncodeOptions,
+    stages: Stages,
+    device,
+) -> EncoderDecisions:
+    """The encoder's decisions for ``scene`` (``cameras`` None: synthesised) under ``opts``; renders,
+    the check and the restorer run on ``device``, the attribute codec on the CPU."""
+    cams = encoder_cameras(scene, cameras, opts)
+    restorer = load_restorer(opts.restorer, device=device)  # fails early on a name the package lacks
+    params = codec_params(opts)
+    with stages.stage("attributes"):
+        measure = measure_scene(scene, cams, params, opts.background, stages.progress)
+    budget = None if opts.target_size is None else opts.target_size - FRAMING_BYTES
+    for _ in range(TARGET_RETRIES + 1):
+        decisions = _decide_at(scene, cams, opts, stages, device, restorer, measure, budget)
+        if opts.target_size is None:
+            return decisions
+        size = len(file_bytes(decisions, scene, opts))
+        if size <= opts.target_size:
+            return decisions
+        budget = decisions.attributes.num_bytes - (size - opts.target_size) - 8
+    raise InputError(
+        f"--target-size {opts.target_size:,} B cannot be reached: the file stays at {size:,} B (its framing "
+        "and side information leave too few bytes for the attributes); a larger target"
+    )
+
+
+def _decide_at(
+    scene: GaussianScene,
+    cams: list[Camera],
+    opts: EncodeOptions,
+    stages: Stages,
+    device,
+    restorer,
+    measure: Measure,
+    attribute_budget: int | None,
+) -> EncoderDecisions:
+    """:func:`decide` with the attributes (and, with a target, the side information they make room for)
+    in at most ``attribute_budget`` bytes (None: at the rate)."""
+    with stages.stage("attributes"):
+        coded = code_attributes(
+            scene,
+            cams,
+            codec_params(opts),
+            attribute_budget,
+            opts.background,
+            stages.progress,
+            removal_params(opts),
+            stages.deadline,
+            measure,
+        )
+    if attribute_budget is not None:
+        _refuse_missed_target(coded.encoded, attribute_budget, opts.target_size)
+    side = _side_information(scene, cams, coded, restorer, opts, device, stages, attribute_budget)
+    attributes = side.attributes
+    tuning = None
+    if side.side is None:  # a file the decoder does not refine: its coded values are tuned
+        attributes, tuning = _tuned(scene, attributes, coded, cams, opts, stages, attribute_budget)
+    return EncoderDecisions(
+        attributes=attributes,
+        side=side.side,
+        refine_iterations=side.refine_iterations,
+        counts=_counts(scene, coded, attributes),
+        lam_asked=codec_params(opts).lam,
+        lambda_reasons=_lambda_reasons(coded, side, attributes),
+        side_info=side.reason,
+        removal=coded.removal if coded.removal is not None and coded.removal.base is not None else None,
+        check=side.check,
+        tuning=tuning,
+        target_size=opts.target_size,
+    )
+
+
+def _lambda_reasons(coded: CodedAttributes, side: _Side, enc: EncodedAttributes) -> tuple[str, ...]:
+    """What moved the coding's lambda away from the one asked, in the bytes that lambda codes."""
+    reasons = []
+    if coded.removal is not None and coded.removal.kept is not coded.removal.base:
+        reasons.append(coded.removal.chosen())
+    if side.check is not None and side.check.outcome is Outcome.SPENT_ON_ATTRIBUTES:
+        reasons.append("the side information's bytes spent on attributes")
+    elif side.side is None and not coded_with(enc, coded.params):
+        reasons.append("the finer scales and rotations of a file decoded without refinement")
+    return tuple(reasons)
+
+
+def _refuse_missed_target(enc: EncodedAttributes, budget: int, target: int | None) -> None:
+    """InputError where even the coarsest coding the search tried is over the attributes' budget."""
+    if enc.num_bytes > budget:
+        raise InputError(
+            f"--target-size {target:,} B cannot be reached: the coarsest coding tried (lambda {enc.lam:.3g}) "
+            f"takes {enc.num_bytes:,} B for its {enc.decoded.num_gaussians:,} Gaussians' attributes alone; "
+            "a larger target"
+        )
+
+
+def _counts(scene: GaussianScene, coded: CodedAttributes, enc: EncodedAttributes) -> GaussianCounts:
+    candidates = int(prune_mask(scene, coded.params, coded.visible).sum())
+    n = enc.decoded.num_gaussians
+    return GaussianCounts(scene.num_gaussians, scene.num_gaussians - candidates, candidates - n, n)
+
+
+@dataclass
+class _Side:
+    """The side-information step's outcome: the attributes to send with it (or in its place)."""
+
+    attributes: EncodedAttributes
+    side: SideCandidate | None
+    refine_iterations: int
+    reason: str
+    check: SideInfoDecision | None = None
+
+
+def _side_information(
+    scene: GaussianScene,
+    cams: list[Camera],
+    coded: CodedAttributes,
+    restorer,
+    opts: EncodeOptions,
+    device,
+    stages: Stages,
+    attribute_budget: int | None,
+) -> _Side:
+    """Render the sampled views, code their residuals and, where the check runs, keep the side information
+    only if it pays for its bytes (gspc/encoder/policy.py). With a byte budget, the attributes are coded
+    again in what the side information leaves (its residuals made again for that coding) first."""
+    enc = coded.encoded
+    runs = iteration_counts(opts, enc.decoded.num_gaussians)
+    view_indices, view_cams = sample_side_views(cams, opts)
+    if not view_indices:
+        reason = "none (--no-side-info)" if not opts.side_info else "none (no view sampled)"
+        return _Side(_unrefined(scene, coded, stages), None, runs.refine, reason)
+    original, rendered, candidates = _candidates(scene, enc, view_cams, opts, runs.check, stages, device)
+    if attribute_budget is not None and candidates[0].payload is not None:
+        room = attribute_budget - len(candidates[0].payload) - CHUNK_ENTRY_BYTES
+        with stages.stage("attributes"):
+            enc = search_lambda(
+                scene,
+                room,
+                coded.params.with_lambda(enc.lam),
+                visible=coded.visible,
+                significance=coded.significance,
+                first=enc,
+            )
+        if enc.num_bytes > room:  # no room for both: the attributes alone
+            return _Side(coded.encoded, None, runs.refine, "none (no room for it in the target)")
+        coded = CodedAttributes(enc, coded.params.with_lambda(enc.lam), coded.visible, coded.significance)
+        original, rendered, candidates = _candidates(
+            scene, enc, view_cams, opts, runs.check, stages, device, original
+        )
+    # No residual anywhere: no chunk at all (cameras alone would be dead weight).
+    side = candidates[0] if candidates[0].payload is not None else None
+    if side is None:
+        reason = "none (no view's residual was worth sending)"
+        return _Side(_unrefined(scene, coded, stages), None, runs.refine, reason)
+    if runs.check == 0:
+        return _Side(enc, side, runs.refine, _sent(side, "unchecked (--check-iterations 0)"))
+    inputs = CheckInputs(
+        scene=scene,
+        attributes=enc,
+        params=coded.params.unrefined(),
+        visible=coded.visible,
+        significance=coded.significance,
+        view_cameras=view_cams,
+        check_cameras=check_cameras(cams, view_indices, opts.check_views),
+        original=original,
+        coded=rendered,
+        candidates=candidates,
+        restorer=restorer,
+        iterations=runs.refine,
+        background=opts.background,
+        margin_db=opts.check_margin_db,
+        device=device,
+        deadline=stages.deadline,
+    )
+    with stages.stage("check"):
+        result = check_side_info(inputs, stages.progress)
+    d = result.decision
+    if result.side is not None:
+        # The decoder runs what the check ran (a time budget may cut it).
+        return _Side(result.attributes, result.side, d.iterations, _sent(result.side, "the check"), d)
+    attributes = result.attributes
+    if d.outcome is Outcome.DROPPED:
+        attributes = _unrefined(scene, coded, stages)
+    return _Side(attributes, None, runs.refine, _not_sent(d), d)
+
+
+def _candidates(
+    scene: GaussianScene,
+    enc: EncodedAttributes,
+    view_cams: list[Camera],
+    opts: EncodeOptions,
+    check_iterations: int,
+    stages: Stages,
+    device,
+    original: list | None = None,
+) -> tuple[list, list, list[SideCandidate]]:
+    """Renders of G (``original``, where already made) and G~ at the side-information views, and the
+    residuals' candidate codings (gspc/encoder/prepare.py side_candidates)."""
+    with stages.stage("render", announce=False):
+        bg = opts.background
+        # The residuals go into the file: rendered by the file's renderer rules (spec 10.12), which the
+        # torch renderer follows on every device and gsplat 1.5 does not (gspc/render/gsplat_backend.py).
+        if original is None:
+            original = render_images(
+                scene.to(device), view_cams, bg, stages.progress, "render original", "torch"
+            )
+        coded = render_images(enc.decoded.to(device), view_cams, bg, stages.progress, "render coded", "torch")
+    with stages.stage("side info"):
+        candidates = side_candidates(opts, view_cams, view_residuals(original, coded), check_iterations)
+    return original, coded, candidates
+
+
+def _sent(side: SideCandidate, by: str) -> str:
+    return (
+        f"sent ({by}): {side.views_with_residual} of {len(side.records)} views carry a residual, "
+        f"{len(side.payload):,} B at 1/{side.scale} resolution"
+    )
+
+
+def _not_sent(d: SideInfoDecision) -> str:
+    if d.outcome is Outcome.SPENT_ON_ATTRIBUTES:
+        return (
+            f"none: its bytes spent on attributes instead, {d.rival_db:.2f} dB at {d.check_views} views "
+            f"carrying none against {d.refined_db:.2f} dB refined with it"
+        )
+    return (
+        f"none: refinement did not improve the {d.check_views} views carrying none ({d.coded_db:.2f} dB "
+        f"coded, {d.refined_db:.2f} dB refined)"
+    )
+
+
+def _tuned(
+    scene: GaussianScene,
+    enc: EncodedAttributes,
+    coded: CodedAttributes,
+    cameras: list[Camera],
+    opts: EncodeOptions,
+    stages: Stages,
+    byte_limit: int | None,
+) -> tuple[EncodedAttributes, TuningReport | None]:
+    """``enc`` (the preset's coding, the one for no side information, or the check's rival: all with
+    ``coded``'s visibility and measure) with its values tuned as the options ask (gspc/encoder/tuning.py),
+    within ``byte_limit`` where given.
+
+    Only files without side information are tuned: where the decoder refines against side information it
+    moves the same values inside the same cells, for less than the tuning costs (bench/tuning.md)."""
+    tuning = tuning_params(opts)
+    if tuning is None:
+        return enc, None
+    unrefined = coded.params.unrefined()
+    params = unrefined if coded_with(enc, unrefined) else coded.params
+    with stages.stage("tune", announce=False):
+        tuned = tune_coding(
+            scene,
+            enc,
+            params,
+            cameras,
+            opts.background,
+            coded.visible,
+            coded.significance,
+            tuning,
+            byte_limit=byte_limit,
+            deadline=stages.deadline,
+            progress=stages.progress,
+        )
+    return tuned.encoded, tuned.report
+
+
+def _unrefined(scene: GaussianScene, coded: CodedAttributes, stages: Stages) -> EncodedAttributes:
+    """The attributes of a file without side information, which the decoder does not refine: coded with
+    the parameters for that (CodecParams.unrefined) in the bytes the refined coding takes. Past the
+    deadline no search starts, and one it cuts short keeps the refined coding unless it found better."""
+    enc = coded.encoded
+    params = coded.params.unrefined().with_lambda(enc.lam)
+    if coded_with(enc, params) or stages.past_deadline():
+        return enc  # the same steps (a fine rate, or the uniform codec), or no time left
+    with stages.stage("attributes for no side information"):
+        found = search_lambda(
+            scene,
+            enc.num_bytes,
+            params,
+            visible=coded.visible,
+            significance=coded.significance,
+            rel_tol=0.005,
+            deadline=stages.deadline,
+        )
+    return found if found.num_bytes <= enc.num_bytes else enc
+
+
+def file_bytes(decisions: EncoderDecisions, scene: GaussianScene, opts: EncodeOptions) -> bytes:
+    """The .gspc file the decisions describe. The decoder refuses views beyond its pixel budget for the
+    file's size (gspc/limits.py): the encoder refuses to write a file it would refuse."""
+    enc, side = decisions.attributes, decisions.side
+    header = FileHeader(
+        encoder=f"gspc {__version__}",
+        scene=SceneSummary(enc.decoded.num_gaussians, enc.decoded.sh_degree, scene.num_gaussians),
+        attributes=enc.section,
+        side_info=SideInfoHeader(opts.background, opts.restorer, decisions.refine_iterations),
+    )
+    data = pack_file(header, enc.chunks, side.payload if side is not None else None)
+    try:
+        check_view_pixels(side.records if side is not None else [], len(data))
+    except CodecError as e:
+        raise InputError(f"{e}; lower --max-side or --views-fraction") from None
+    return data
