@@ -1,10 +1,11 @@
 """Adam for refinement: the kernel of ``torch.optim.Adam(fused=True)``, called without torch.optim.
 
 torch.optim's Optimizer imports torch._dynamo (the compiler) the first time one is made, and nothing else
-on gspc's paths does: 2.0-2.4 s of every process that refines (the decoder, and the encoder's check) on the
-2-vCPU VM of bench/speed.md's first section, for a compiler gspc never uses. This class keeps Adam's state
-as that optimizer does (first and second moments, a float32 step count per tensor) and runs the same fused
-kernel with the same arguments, so its steps are bit-identical to it (tests/test_adam.py).
+on gspc's paths does: seconds of every process that refines (the decoder, and the encoder's check), for a
+compiler gspc never uses (bench/speed.md, "Encoder's model fitting and refinement's Adam"). This class
+keeps Adam's state as that optimizer does (first and second moments, a float32 step count per tensor) and
+runs the same fused kernel with the same arguments, so its steps are bit-identical to it
+(tests/test_adam.py).
 """
 
 from __future__ import annotations

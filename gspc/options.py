@@ -180,8 +180,8 @@ class EncodeOptions:
         f"default (default: the preset's, {_per_preset('refine_iterations')}; 0: no check)",
     )
     check_views: int = knob(8, "views carrying no side information at which the check scores")
-    # Side information must beat its rivals by this much at the check views: a tie within the noise of
-    # 8 sampled views lost 0.25 dB at 13 others on the lego fit (bench/pipeline_equal_bytes.md).
+    # Side information must beat its rivals by this much at the check views: a tie within the noise of a few
+    # sampled views can lose at the others (bench/pipeline.md, "Moved from code comments").
     check_margin_db: float = knob(0.15, "dB by which side information must beat its rivals at the check")
     time_budget: float | None = knob(
         None,

@@ -1,5 +1,5 @@
 """Refusing an output path that names one of the command's inputs: a write there would destroy the input
-(issue 15: ``encode x.ply -o x.ply`` replaced the source scene) before or instead of failing."""
+(issue 15: ``encode x.ply -o x.ply`` would replace the source scene) whether or not the command fails."""
 
 from __future__ import annotations
 

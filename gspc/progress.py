@@ -50,8 +50,8 @@ class _Stage:
     last_line: float
     announced: bool = False
     # (time, done) at the stage's first reported step: later steps are timed from there, since the first
-    # may carry one-off costs (refinement's first iteration loads the compiled renderer: 1.7 s against
-    # 0.11 s for the next ones on the lego fit, gspc/refine.py)
+    # may carry one-off costs (refinement's first iteration loads the compiled renderer: gspc/refine.py,
+    # PROBE_ITERATIONS)
     first_step: tuple[float, int] | None = None
 
 

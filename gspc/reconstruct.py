@@ -61,7 +61,8 @@ def restored_targets(
         if k in images and restorer is not None:
             r = torch.from_numpy(residuals.decode_residual(images[k], v.residual)).to(img)
             img = restorer.restore(img, r)
-        # A view without a residual keeps its render: the restorer alone measured no gain (bench/restorer.md).
+        # A view without a residual keeps its render: the restorer alone gains little there
+        # (bench/restorer.md, "Restoration of held-out views", the rows without R~).
         out.append(img.clamp(0, 1))
         if progress:
             progress("restore", k + 1, len(degraded))
@@ -80,37 +81,26 @@ def refine_progress(
 
 # A refinement shorter than this takes steps in proportion (learning rates x iterations / FULL_RATE_FROM):
 # Adam's first steps move every attribute by about its full rate whatever the gradient, and a short
-# schedule has no time to undo that. Measured on the 100k scale scene at close-up views
-# (tools/bench_scale_pipeline.py's cameras, 16 per copy), 50 iterations against the unrefined 44.22 dB:
-# rates x1 43.69, x0.3 44.16, x0.1 44.48; 200 iterations at x1: 45.01. A schedule that a time budget cuts
-# below FULL_RATE_FROM takes the steps of its new length from then on (gspc/refine.py, Schedule).
+# schedule has no time to undo that (bench/scale_pipeline.md, "Moved from code comments"). A schedule that a
+# time budget cuts below FULL_RATE_FROM takes the steps of its new length from then on (gspc/refine.py,
+# Schedule).
 FULL_RATE_FROM = 300
-# The decoder's learning rates: INRIA 3DGS's (gspc/refine.py, BASE_LR), but view-dependent colour 8x faster.
-# INRIA's sh_rest rate (a twentieth of sh_dc's) is made for training from scratch; refining a coded scene,
-# it is what holds the run back. Lego fit, low preset, 300 iterations, held-out views against the original's
-# renders (coded 39.57 dB; 1000 iterations at INRIA's rates 43.05): INRIA's rates 42.13; every rate x8
-# 43.08, and 43.07-43.09 with opacity's or the means' left at x1; every rate x8 but colour's (sh_dc,
-# sh_rest) 41.96; sh_rest x8 alone 43.23 (x16: 43.24). The statue massa (SH degree 0, no sh_rest): every
-# rate x8 49.58, colour x8 50.25, INRIA's 50.35 (852 iterations: 49.96). The 100k bird fit: every rate x2
-# with sh_rest x16 lost 1.2 dB to sh_rest x8 alone at 153 iterations. bench/refine.md measures the result.
+# The decoder's learning rates: INRIA 3DGS's (gspc/refine.py, BASE_LR), but view-dependent colour's (sh_rest)
+# times 8. INRIA's sh_rest rate (a twentieth of sh_dc's) is made for training from scratch; refining a coded
+# scene, it is what holds the run back, and raising the other rates too gains nothing (bench/refine.md,
+# "Moved from code comments"; "Summary" measures the result).
 DECODER_GROUP_RATES = (("sh_rest", 8.0),)
 # Views seeing a Gaussian (view_coverage: counted by the pixels they give it) from which the rates are full;
 # fewer take them in proportion to the square of their share. With few views per Gaussian the cells leave
 # refinement free to fit the targets at those views in ways that hurt every other view, and Adam steps about
-# its full rate whatever the gradient. Side-information views per Gaussian: statue massa 17.9, lego fit 26.3,
-# bird fit 35.5 (all at full rates, bench/refine.md); the scale scenes' close-up views
-# (tools/bench_scale_pipeline.py, 8 per copy) 2.4 at 100k and 4.9 at 1M Gaussians (neighbours seen from
-# farther). Held-out views against the original's renders, restored targets: 100k, 298 iterations (coded 43.84
-# dB): rates x1 43.45, x0.3 43.67, x0.1 43.88; 1M, 50 iterations (coded 42.33): rates x50/300 41.89, x0.042
-# 42.75, x0.017 42.65. In proportion to the share itself, a longer run's steps grow with its length
-# (FULL_RATE_FROM) and cost what its extra visits gain. With the version-4 attribute codec
-# (bench/scale_pipeline.md, "More iterations at 1M"): the 1M scene (coverage 4.8, coded 40.87 dB) reached
-# 41.21, 41.41, 41.51 and 41.55 dB at 50, 100, 150 and 200 iterations with rates x0.05, but 41.33, 41.39 and
-# 41.38 at 100 to 200 with the share's x0.1 to x0.2, and 41.54 at 192 with its square (x0.06); the 100k scene
-# (coded 49.08), 300 iterations: the share 48.78, its square 49.10.
+# its full rate whatever the gradient. The real scenes' side-information views see each Gaussian more often
+# than this and keep the full rates; the scale scenes' close-up views do not. In proportion to the share
+# itself, a longer run's steps would grow with its length (FULL_RATE_FROM) and cost what its extra visits gain
+# (bench/scale_pipeline.md, "Reading (by hand)", "More iterations at 1M" and "After: rates by the share's
+# square").
 COVERAGE_FULL = 16.0
-# A mean over every 15th Gaussian of a million differs from the whole's in the second decimal, for 1/15 of
-# the time (16 s over 34 views at 1M on this project's loaded machine).
+# A mean over an evenly strided sample differs from the whole's in the second decimal, in a fraction of the
+# time (bench/scale_pipeline.md, "Moved from code comments").
 COVERAGE_SAMPLE = 1 << 16
 
 

@@ -38,8 +38,8 @@ BASE_LR = {
 SSIM_WEIGHT = 0.2
 # With a deadline, PROBE_ITERATIONS iterations are timed and the schedule is shortened to what fits (the
 # cosine decay then ends at the deadline instead of being cut off at full learning rate). They are the ones
-# after the first: a process's first iteration also loads compiled code (refining the example lego scene,
-# the first took 1.7 s, the next ones 0.11 s).
+# after the first: a process's first iteration also loads compiled code and takes many times as long
+# (bench/refine.md, "Moved from code comments").
 PROBE_ITERATIONS = 3
 
 
@@ -64,7 +64,8 @@ class Schedule:
         return dict(self.group_rates).get(name, 1.0)
 
     def learning_rate_factor(self, it: int, total: int) -> float:
-        """The multiplier of BASE_LR at iteration ``it`` (from 0) of a run now ``total`` long."""
+        """The multiplier of BASE_LR at iteration ``it`` (from 0) of a run ``total`` long (its length after
+        any cut by a deadline)."""
         decay = 0.5 * (1 + math.cos(math.pi * it / total))
         short = min(1.0, total / self.full_rate_from) if self.full_rate_from > 0 else 1.0
         return self.rate * short * decay
@@ -168,8 +169,8 @@ class Refinement:
     where it is, and running on continues the same trajectory (the encoder's check scores a run part-way and
     goes on only where the score leaves its decision open; gspc/encoder/policy.py).
 
-    The input is left unchanged unless ``in_place`` (which saves a copy of the scene: 236 MB for a million
-    Gaussians at SH degree 3), where it is the result. See :func:`refine` for the arguments."""
+    The input is left unchanged unless ``in_place`` (which saves a copy of the scene: 59 float32 values per
+    Gaussian at SH degree 3), where it is the result. See :func:`refine` for the arguments."""
 
     def __init__(
         self,
@@ -197,9 +198,10 @@ class Refinement:
         self._groups = parameter_groups(self._scene, attributes, scene_extent(cameras, self._scene))
         self._opt = None
         if self._groups:
-            # fused: one pass over each tensor per step; measured 7.6x faster than torch.optim.Adam's default
-            # at 1M Gaussians on one CPU thread (0.15 vs 1.16 s a step), where the step had been a sixth of an
-            # iteration. The same kernel without torch.optim, whose import costs seconds (gspc/adam.py).
+            # fused: one pass over each tensor per step, several times faster than torch.optim.Adam's default
+            # at a million Gaussians, where the step is a large share of an iteration (bench/speed.md, "Moved
+            # from code comments"). The same kernel without torch.optim, whose import costs seconds
+            # (gspc/adam.py).
             self._opt = FusedAdam(self._groups, eps=1e-15)
         self._base = [g["lr"] * schedule.group_rate(g["name"]) for g in self._groups]
         # A CPU generator whatever the scene's device: the views are drawn in the same order on every device.

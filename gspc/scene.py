@@ -114,8 +114,8 @@ class GaussianScene:
 
 
 def _all_finite(t: torch.Tensor, rows: int = 65536) -> bool:
-    """torch.isfinite(t).all() in blocks of rows: whole, its temporaries took 330 MB for the SH rest of a
-    million Gaussians (bench/scale.md)."""
+    """torch.isfinite(t).all() in blocks of rows: whole, its temporaries would outweigh the SH rest of a
+    large scene (bench/scale.md, "Reading")."""
     return all(bool(torch.isfinite(t[i : i + rows]).all()) for i in range(0, len(t), rows))
 
 

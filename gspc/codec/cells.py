@@ -23,7 +23,9 @@ from gspc.codec.quantisers import AttributeQuantisers, Box
 from gspc.format.attribute_section import AttributeSection
 from gspc.scene import GaussianScene
 
-CELL_BLOCK = 1 << 16  # rows per block: the float64 boxes of a million Gaussians at once took 1.4 GB
+# Rows per block: the float64 boxes of a large scene at once would outweigh the scene itself (bench/scale.md,
+# "Moved from code comments").
+CELL_BLOCK = 1 << 16
 
 
 def quantisation_cells(
@@ -73,8 +75,8 @@ def _cell(quant: AttributeQuantisers, name: str, x: torch.Tensor) -> Box:
 
 
 def _open_dropped_bands(lo: torch.Tensor, hi: torch.Tensor, degrees: np.ndarray, a: int, b: int) -> None:
-    """Bands above a Gaussian's SH degree were dropped by the encoder, whatever they held: no bound; bands
-    up to it were coded, even where every symbol is 0 (a whole step, as the dead zone allows)."""
+    """The encoder drops the bands above a Gaussian's SH degree, whatever they held: no bound; the bands up
+    to it are coded, even where every symbol is 0 (a whole step, as the dead zone allows)."""
     deg = torch.from_numpy(degrees[a:b]).to(lo.device)
     for band in range(1, int(math.isqrt(lo.shape[1] + 1))):
         coefs = slice(band * band - 1, (band + 1) ** 2 - 1)

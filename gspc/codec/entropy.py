@@ -481,8 +481,9 @@ def decode_matrix(payload: bytes, shape: tuple[int, int] | None = None) -> np.nd
 # Raw bits
 
 
-BITS_BLOCK = 1 << 16  # values per block of pack_bits / unpack_bits: a bit per uint64 of a million 51-bit
-# values took 400 MB at once
+# Values per block of pack_bits / unpack_bits: a uint64 per bit of a large scene's positions at once costs
+# far more memory than the payload (bench/scale.md, "Reading").
+BITS_BLOCK = 1 << 16
 
 
 def pack_bits(values: np.ndarray, lengths: np.ndarray) -> bytes:

@@ -1,9 +1,10 @@
 """entropy.py's model fit compiled for the CPU (numba): every context's cheapest model in one pass.
 
 Why: the encoder fits 15 contexts x up to four predictors for every column of every matrix it codes, some
-1,700 fits per coding of a 100k-Gaussian capture, each over a few hundred symbols. In NumPy most of a fit was
-fixed cost per context (a 131 x 22 grid of rates, then a window's weights and two cross-entropies): 1.4-2.0 s
-of a 3.0-4.3 s coding of the bird (bench/speed.md), and the removal search codes a scene several times over.
+1,700 fits per coding of a 100k-Gaussian capture, each over a few hundred symbols. In NumPy most of a fit is
+fixed cost per context (a 131 x 22 grid of rates, then a window's weights and two cross-entropies), which
+takes a large share of a coding (bench/speed.md, "The attribute codec's model fit compiled"), and the
+removal search codes a scene several times over.
 
 The arithmetic is the NumPy fit's, operation for operation, so the specs and the float costs are the same bit
 for bit (tests/test_entropy.py keeps that fit as its reference): products and differences of float64 in the

@@ -13,12 +13,12 @@ version 2, spec 10.1): around a region of interest (centre c, radius R) space is
 each octave of distance (R 2^e .. R 2^(e+1)) maps to one unit of radius, so a voxel's size grows with its
 distance and its angular size, seen from the region, stays about constant. The grid keeps the preset's
 voxel size inside the region and adds the bits it needs to span the rest: along the Morton curve the
-foreground's deltas are what they were, so the background costs only its own bits. The inverse uses only
-+, -, *, /, sqrt, floor and powers of two, which IEEE 754 rounds the same on every machine.
+foreground's deltas are those of the plain grid, so the background costs only its own bits. The inverse uses
+only +, -, *, /, sqrt, floor and powers of two, which IEEE 754 rounds the same on every machine.
 
 The background of a real capture is large Gaussians, and the contracted grid still places them far more
-finely than their size needs (the bird fit of bench/fit.md: median size / voxel 143 beyond the region
-against 2.5 inside it, at the low preset). So the Gaussians beyond it whose size allows may form a far set
+finely than their size needs (bench/far_set.md, "Reading"). So the Gaussians beyond it whose size allows
+may form a far set
 (attribute codec version 3, spec 10.1): coded after the others as a curve of their own on the same grid
 coarsened by ``far_shift`` bits per axis, each far voxel standing for the fine voxel ``v << far_shift``. The
 encoder puts there each Gaussian that keeps, at the coarse voxel, at least twice the relative precision (size
@@ -51,9 +51,8 @@ from gspc.format.attribute_section import (
 
 # Region of interest: R = ROI_MARGIN times the median distance of the Gaussians from their median. The
 # mapping is the identity up to 2 R (the first octave keeps its scale), so only Gaussians beyond 6 median
-# distances are contracted. Bounded objects lie inside (the statues here reach 3.1-4.2 median distances,
-# lego 2.9, donut 1.3) and keep the plain grid (version 1, unchanged bytes); a background shell or far
-# floaters do not, even when they hold up to half the Gaussians.
+# distances are contracted. Bounded objects lie inside (bench/unbounded.md) and keep the plain grid (version
+# 1); a background shell or far floaters do not, even when they hold up to half the Gaussians.
 ROI_QUANTILE = 0.5
 ROI_MARGIN = 3.0
 IDENTITY_RADIUS = 2.0  # in units of R: where contraction starts
@@ -61,9 +60,8 @@ IDENTITY_RADIUS = 2.0  # in units of R: where contraction starts
 # synthesised cameras frame (gspc/views.py).
 CORE_DISTANCES = IDENTITY_RADIUS * ROI_MARGIN
 FAR_MAX_SHIFT = 8  # the far set's coarsening is chosen among 1..8 bits per axis (spec 10.1 allows 1..bits-1)
-# Bits of relative precision a far Gaussian keeps above the median inside the region. On the bird fit at the
-# low preset (lambda 8), margins 0, 1, 2: -8.5%, -6.8%, -5.1% bytes, -0.51, -0.15, -0.05 dB against the
-# original's renders; 1 gained most at equal bytes (+0.44, +0.60, +0.51 dB; bench/far_set.md).
+# Bits of relative precision a far Gaussian keeps above the median inside the region: of margins 0, 1 and 2,
+# 1 gains the bird fit most at equal bytes (bench/far_set.md, "Reading").
 FAR_MARGIN_BITS = 1
 
 
@@ -92,9 +90,8 @@ def voxel_grid(means: np.ndarray, precision: float) -> tuple[int, list[float], l
 def cubic_step(extent: np.ndarray, precision: float) -> np.ndarray:
     """Per axis, the side of a cubic voxel: the geometric mean of the axes' extents over ``2^precision - 1``
     (over the axes the points spread along; 1 for a flat axis). Steps in proportion to each axis's extent
-    made a tall statue's voxels 2.9 times longer than wide for the same count: cubic ones, the same count,
-    err half as much in squared distance, and the statues coded 1-4% fewer bytes at equal PSNR (lego
-    and the bird within 0.3%; bench/precision.md)."""
+    would make a tall statue's voxels much longer than wide: cubic ones, the same count, err less in squared
+    distance, and the statues code fewer bytes at equal PSNR (bench/precision.md, "Cubic voxels")."""
     spread = extent > 0
     if not spread.any():
         return np.ones(3)

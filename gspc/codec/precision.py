@@ -11,14 +11,14 @@ Gaussian over the encoder's views, and the rate's :class:`PrecisionParams`:
   proportional to ``1 / sqrt`` of that error per component: so classes are powers of two of the rate's
   steps, the exponent following half the log2 of the Gaussian's sensitivity per coded component relative to
   the scene's median, within the params' range. The SH rest's gradient sums over its coefficients (up to 45)
-  and counts per coefficient: squared as a whole, it counted a Gaussian's view-dependent colour up to 45
-  times over, and the Gaussians with SH bands took the finest classes for bytes that bought nothing (the SH-3
-  lego fit: 5-8% fewer bytes at equal PSNR without that, the bird capture 5% at 39 dB and even over its
-  curve). The other groups' few components (1 to 4) count as one: per component as well, the statues lost
-  1-2% (bench/precision.md). Scenes of SH degree 0 are planned as before; ``PrecisionParams.per_component``
-  off (the high preset: the bird lost 5.7% at its rates) weighs every group as a whole. Beyond a finest
-  class (``PrecisionParams.tail``) the exponent follows the sensitivity at half the pace: the measure
-  over-predicts the extreme ones, and a hard floor there left a sky of large Gaussians coarse.
+  and counts per coefficient: squared as a whole, it would count a Gaussian's view-dependent colour up to 45
+  times over, and the Gaussians with SH bands would take the finest classes for bytes that buy nothing. The
+  other groups' few components (1 to 4) count as one: counted per component as well, the statues cost more
+  bytes (bench/precision.md, "Sensitivity per coded component"). Scenes of SH degree 0, and
+  ``PrecisionParams.per_component`` off (the high preset, whose rates the bird codes in fewer bytes that
+  way), weigh every group as a whole. Beyond a finest class (``PrecisionParams.tail``) the exponent follows
+  the sensitivity at half the pace: the measure over-predicts the extreme ones, and a hard floor there left a
+  sky of large Gaussians coarse (bench/precision.md, "The shells' loss taken apart").
 - **SH degree**: a band is kept where dropping it would change the views (its first-order change of the
   renders, ``sh_band_change``) by more than its coded step does;
 - **removal**: a Gaussian that paints a small fraction of what the median Gaussian paints over the views
@@ -82,9 +82,10 @@ class PrecisionParams:
 
     exponents: tuple[int, int] = (-1, 2)  # (finest, coarsest)
     bias: float = 0.0
-    # The measure over-predicts the most sensitive Gaussians' error: restoring a sky of large Gaussians
-    # removed 16-100x less of the views' squared error than their gradients predicted, against the object
-    # inside it (bench/precision.md). Finer than ``tail`` the exponent takes one step per two of the rule's.
+    # The measure over-predicts the most sensitive Gaussians' error: the coding of a sky of large Gaussians
+    # costs the views far less squared error than its gradients predict, against the object inside it
+    # (bench/precision.md, "The shells' loss taken apart"). Finer than ``tail`` the exponent takes one step
+    # per two of the rule's.
     tail: int | None = None
     sh_keep: float = 0.0
     prune: float = 0.0
@@ -93,11 +94,12 @@ class PrecisionParams:
     prune_cap: float = 1.0
     groups: tuple[str, ...] = field(default=CLASSED_GROUPS)
     # A class of fewer Gaussians joins its neighbour towards the rate's own steps: each class codes its own
-    # matrices, whose models cost bytes whatever their rows (lego: 79 Gaussians in a class of 2^-4, 1.1 KB).
+    # matrices, whose models cost bytes whatever their rows (bench/precision.md, "Sensitivity per coded
+    # component").
     min_class: int = 0
-    # The SH rest counted per coefficient and each Gaussian per coded component (the module's docstring).
-    # Off, it weighs as it did before: the bird capture at the high preset's rates codes 5.7% fewer bytes at
-    # equal PSNR that way (lego 3.5% more; bench/precision.md).
+    # The SH rest counted per coefficient and each Gaussian per coded component (the module's docstring);
+    # off, every group counts as a whole, which the bird capture prefers at the high preset's rates and lego
+    # does not (bench/precision.md, "Sensitivity per coded component").
     per_component: bool = True
 
 
@@ -154,7 +156,8 @@ def unpack_bins(payload: bytes, name: str, count: int) -> list[bytes]:
     if not (isinstance(parts, list) and len(parts) == count and all(isinstance(p, bytes) for p in parts)):
         raise CodecError(f"chunk {name} is not an array of {count} msgpack bins")
     # The chunk's matrices share one table bound (spec 10.10), checked before any table is built: each
-    # matrix's own bound has a floor, and 16 classes would multiply it (a 10 KB file took 30 s).
+    # matrix's own bound has a floor, and 16 classes would multiply it (bench/robustness.md, "Moved from code
+    # comments").
     entries, limit = sum(matrix_table_entries(p) for p in parts), max_model_entries(len(payload))
     if entries > limit:
         raise CodecError(
@@ -222,16 +225,17 @@ def plan_precision(
     if per_component:
         sens /= _coded_components(sig, bands, params, alpha < faint_alpha)
     # The measure renders a sample of the encoder's views: a Gaussian none of them shows may still show in
-    # the others (a shell of sky-sized Gaussians lost 820 of 3,500 to removal and most of the rest to the
-    # coarsest class that way). Unmeasured, it keeps the rate's own steps and every SH band.
+    # the others, and a shell of sky-sized Gaussians went to removal and the coarsest class that way
+    # (bench/precision.md, "Moved from code comments"). Unmeasured, it keeps the rate's own steps and every SH
+    # band.
     measured = sig.weight > 0
     keep = candidates.copy()
     if params.prune > 0 and (keep & measured).any():
         # Blending weight, not a first-order change of the views: removing one of several Gaussians that
-        # paint the same surface changes little, removing all of them removes the surface (a statue lost
-        # 9 dB that way, bench/precision.md); a weight is what a Gaussian paints, however redundant.
+        # paint the same surface changes little, removing all of them removes the surface (bench/precision.md,
+        # "Choosing the presets' parameters"); a weight is what a Gaussian paints, however redundant.
         # Capped, by default at the median's own weight, so at least half the measured Gaussians stay at any
-        # lambda (at lambda 200 the low preset's 3.5 lambda / 100 removed every Gaussian of a small scene).
+        # lambda: uncapped, a coarse lambda removes every Gaussian of a small scene.
         floor = min(params.prune * lam, params.prune_cap) * float(np.median(sig.weight[keep & measured]))
         keep &= (sig.weight >= floor) | ~measured
     exponent = merge_small_classes(class_exponents(sens, params, keep & measured), keep & measured, params)

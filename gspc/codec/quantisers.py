@@ -182,8 +182,8 @@ class SHRestQuantiser:
         rows = np.arange(len(rest)) if rows is None else np.asarray(rows)
         out = np.empty((len(rows), 3 * len(self.steps)), np.int32)
         steps = np.asarray(self.steps)[None, :, None]
-        # In blocks of rows, picked block by block: the float64 temporaries of a whole SH-3 scene took about
-        # 1 KB per Gaussian of the encoder's peak memory (bench/scale.md).
+        # In blocks of rows, picked block by block: float64 temporaries of a whole SH-3 scene would set the
+        # encoder's peak memory (bench/scale.md, "Reading").
         for a in range(0, len(rows), SH_REST_BLOCK):
             x = rest[rows[a : a + SH_REST_BLOCK]].astype(np.float64) / steps
             mag = np.maximum(np.floor(np.abs(x) + 0.5 - self.deadzone), 0.0)

@@ -1,6 +1,6 @@
 """How much the encoder removes, and how finely it places positions: the preset's removal and position
-grid, or a stronger removal or a coarser grid where views near the encoder's cameras show that the same bytes
-code them better with it.
+grid, or a stronger removal or a coarser or finer grid where views near the encoder's cameras show that the
+same bytes code them better with it.
 
 Removal (gspc/codec/precision.py, ``prune``) drops Gaussians painting under ``prune x lambda`` of the median
 Gaussian's blending weight. What that threshold is worth differs by scene: trained captures hold many
@@ -9,10 +9,10 @@ Gaussians that barely paint, scenes their authors already pruned (the SOG statue
 information against the same bytes on attributes: for each stronger removal in turn it searches the lambda
 that codes the scene in at most the preset's bytes, renders that coding at views halfway between some of its
 cameras and their nearest others, and keeps it while it is closer to the original's renders there than the
-best before by a margin. The comparison is at equal bytes, so the file keeps the preset's rate and only its
-quality moves; not along a slope read off nearby codings (the statues' curves bend either way: such a slope
-chose a removal 1.3 dB under the curve for the statue angel), nor at the cameras themselves (removal takes
-what they show least, so they flatter it).
+best so far by a margin. The comparison is at equal bytes, so the file keeps the preset's rate and only its
+quality moves; not along a slope read off nearby codings (the statues' curves bend either way, and such a
+slope chose a removal well under a statue's curve), nor at the cameras themselves (removal takes what they
+show least, so they flatter it) (bench/precision.md, "Removal chosen per scene").
 
 Then, with the removal kept, the position grid a bit coarser or finer per axis (``position_offsets``, the
 preset's: gspc/presets.py), in the same bytes and scored the same way: at the low preset's rate the trained
@@ -49,7 +49,7 @@ from gspc.views import between_views
 class RemovalParams:
     """The search's knobs (bench/precision.md, "Removal chosen per scene")."""
 
-    # Multipliers of the preset's ``prune`` tried in order while each beats the one before.
+    # Multipliers of the preset's ``prune`` tried in order while each beats the best so far.
     steps: tuple[float, ...] = (2.0, 4.0, 8.0)
     # A stronger removal's floor may pass the median's weight up to this many times (the preset's stops at
     # it, gspc/codec/precision.py): measured here, not assumed.
@@ -145,7 +145,7 @@ def better(best: Trial, t: Trial, limit: int, min_gain_db: float) -> bool:
 def scoring_views(cameras: Sequence[Camera], num_gaussians: int, rp: RemovalParams) -> list[Camera]:
     """Where the search renders: halfway from ``rp.views`` evenly spaced encoder cameras (fewer past
     ``rp.work``) to their nearest others. Not the cameras themselves: removal takes what they show least,
-    so they flatter it (the statue massa: +0.35 dB at them, -0.57 dB between them)."""
+    so they flatter it (bench/precision.md, "Removal chosen per scene")."""
     count = max(rp.min_views, min(rp.views, rp.work // max(1, num_gaussians)))
     return between_views(cameras, evenly_spaced_indices(len(cameras), count))
 
@@ -163,7 +163,7 @@ def choose_removal(
     progress: Progress | None = None,
 ) -> RemovalChoice:
     """The removal for ``scene`` (``first``: its coding with ``params``): the preset's, or the strongest of
-    ``rp.steps`` tried before one fails to beat the best so far in ``first``'s bytes (none where the
+    ``rp.steps`` tried until one fails to beat the best so far in ``first``'s bytes (none where the
     parameters remove nothing); then the position grid, the rate's or moved by ``rp.position_offsets`` alike
     (module docstring). No search without classes or with nothing to try, and none starts past
     ``deadline``."""
@@ -211,7 +211,7 @@ def choose_removal(
         stronger = replace(precision, prune=precision.prune * step, prune_cap=rp.cap)
         if not attempt(replace(params, lam=guess, precision=stronger)):
             break  # a step that does not gain ends it: the statues lose at the first
-        # Each step's lambda falls by about the same ratio (the bird and lego: 0.85, 0.80, 0.78).
+        # Each step's lambda falls by about the same ratio (bench/precision.md, "Removal chosen per scene").
         guess = trials[-1].lam * trials[-1].lam / (trials[-2].lam if len(trials) > 1 else first.lam)
     for offset in rp.position_offsets:
         if deadline is not None and time.perf_counter() >= deadline:
@@ -230,7 +230,7 @@ def _scorer(
     scene: GaussianScene, views: list[Camera], background: Sequence[float]
 ) -> Callable[[EncodedAttributes], float]:
     """Mean PSNR over ``views`` of a coding's renders against the original's, unquantised: at the statues'
-    53 dB the error is under one 8-bit level, which 8-bit renders would round away."""
+    quality the error is under one 8-bit level, which 8-bit renders would round away."""
     refs = render_images(scene, views, background)
 
     def score(enc: EncodedAttributes) -> float:

@@ -17,11 +17,12 @@ of the zoom's views, and the largest kept: a Gaussian finer than a pixel of the 
 rotation only when the picture is shown larger (bench/precision.md).
 
 The encoder (:func:`encoder_significance`) measures every one of its cameras (up to WIDE_VIEWS, fewer for
-scenes past WIDE_WORK) at their own size and a sample of them at the larger zooms: a sample at 1x saw a sky
-Gaussian behind the object where another camera sees it beside it, and removal took it (a shells scene lost
-4 dB in three views that way). A Gaussian the cameras measured show much less of than all of them do (where
-not every camera is measured) is measured again, alone, at every camera: a sky of large Gaussians lost 10 dB
-to removal and coarse classes chosen from such glimpses (bench/precision.md).
+scenes past WIDE_WORK) at their own size and a sample of them at the larger zooms: a sample at 1x can see a
+sky Gaussian behind the object where another camera sees it beside it, and removal then takes it
+(bench/precision.md, "Every camera measured at its own size"). A Gaussian the cameras measured show much
+less of than all of them do (where not every camera is measured) is measured again, alone, at every camera:
+removal and coarse classes chosen from such glimpses cost a sky of large Gaussians most of its quality
+(bench/precision.md, "Choosing the presets' parameters").
 
 None is ever written to a file: the precision classes chosen from them are what a decoder reads, so a
 decoder never recomputes these. tools/bench_significance.py measures which of them predicts where the
@@ -57,20 +58,19 @@ __all__ = [
 
 # The encoder's sample: 20 views rank Gaussians as well as all 161 of the bird capture
 # (bench/significance.md); they are rendered forward and backward at twice the cameras' size too: precision
-# measured at 1x alone left the statues 0.4-0.6 dB worse at 2x for the same bytes (bench/precision.md).
+# measured at 1x alone leaves the statues worse at 2x for the same bytes (bench/precision.md, "After version
+# 4's first run").
 SIGNIFICANCE_VIEWS = 20
 SIGNIFICANCE_ZOOMS = (1.0, 2.0)
 # At 1x every camera is measured, up to this many (evenly spaced): 20 rank Gaussians as well as all, but
-# removal took what only unsampled cameras see whole (against the sample alone, low preset, scored between
-# the cameras: shells of large Gaussians +8.1 and +3.7 dB, massa and trumpet +0.5 dB at 0.97-0.98 of the
-# bytes, the bird +0.19 dB for 0.3% more bytes, lego along its curve; bench/precision.md). 64 holds the 60
-# views the encoder synthesises: at most 44 more renders at 1x.
+# removal takes what only unsampled cameras see whole; measured at every camera, each scene codes the same
+# PSNR in as many bytes or fewer and the shells come far closer (bench/precision.md, "Every camera measured
+# at its own size"). 64 holds the 60 views the encoder synthesises.
 WIDE_VIEWS = 64
 # ... and at most this many Gaussian-views in that pass (64 views of 250k Gaussians), never fewer views than
-# the sample: one view's measure took 0.34 s at 1x for the bird's 100k Gaussians and 3.3 s for 1M on a
-# 2-vCPU VM (bench/precision.md), so 44 more views would have added about 150 s to a 1M-Gaussian encode.
-# The compiled sums (significance_cpu.py) have since made a 1M view about 2.6x cheaper (bench/speed.md);
-# the bound was kept.
+# the sample: a view's measure costs in proportion to the Gaussians it holds, and every camera of a
+# million-Gaussian scene would add minutes to its encode (bench/precision.md, "Every camera measured at its
+# own size"; bench/speed.md, "The significance measure's per-view sums compiled").
 WIDE_WORK = 64 * 250_000
 # Where not every camera is measured at 1x, a Gaussian the measured ones show less than 1 / UNDER_SAMPLED of
 # what every camera shows on average (by gspc/visibility.py's footprints) is measured again at every camera.
@@ -118,7 +118,7 @@ def measure_view(scene: GaussianScene, camera: Camera, background: Sequence[floa
 
     n = scene.num_gaussians
     # The sums read only the drawn Gaussians' rows: the rest are zero, and a close-up view of a large scene
-    # draws few of them (bench/speed.md).
+    # draws few of them (bench/speed.md, "Only the drawn Gaussians' rows").
     drawn = p.index[p.drawn].numpy()
     zero = torch.zeros(n, dtype=torch.float64)
     gradient = {

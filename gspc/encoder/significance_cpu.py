@@ -1,11 +1,11 @@
 """significance.py's per-view sums compiled for the CPU (numba): one pass over each gradient.
 
-Why: in PyTorch a view's sums were whole-tensor passes (absolute values, sums, the SH rest's products with
-its coefficients widened to float64 and summed per band over strided slices): at 1M Gaussians of SH degree 3
-they took about 1.4 of a measured view's 2.3 s, more than its render forward and backward (bench/speed.md).
-Here each Gaussian's sums stay in registers. Products are taken in the inputs' dtype and summed in float64,
-as the PyTorch code did for the bands (the bands' sums are the same; the groups' absolute sums, float32
-before, differ by round-off).
+Why: in PyTorch a view's sums are whole-tensor passes (absolute values, sums, the SH rest's products with
+its coefficients widened to float64 and summed per band over strided slices), and at a million Gaussians of
+SH degree 3 they cost more than the view's render forward and backward (bench/speed.md, "The significance
+measure's per-view sums compiled"). Here each Gaussian's sums stay in registers. Products are taken in the
+inputs' dtype and summed in float64 (the bands' sums equal PyTorch's float64 ones; the groups' absolute
+sums differ from float32 ones by round-off).
 """
 
 from __future__ import annotations

@@ -13,8 +13,8 @@ decoded scene renders closer at the encoder's cameras:
   renders the decoded scene at a share of the cameras, and moves the values by Adam along the gradient at
   the decoded ones (straight through the rounding), in units of each Gaussian's own cell, so that a step
   means the same to every class;
-- the shares rotate, so the iterations together see every camera; with a quarter of them per iteration the
-  statue massa came within 0.1 dB per iteration of all of them, in 40% of the time (bench/tuning.md);
+- the shares rotate, so the iterations together see every camera; a quarter of them per iteration gains
+  about what all of them do, in much less time (bench/tuning.md, "A quarter of the views per iteration");
 - the tuning stops at the first coding over the byte limit; the last coding within it is kept where it
   renders closer than the untuned one at the first share of cameras, else the untuned one.
 
@@ -49,8 +49,9 @@ from gspc.scene import GaussianScene
 TUNED_ATTRIBUTES = ("log_scales", "quats", "opacities", "sh_dc", "sh_rest")
 # Gaussian-views one iteration may render (forward and backward): the bird capture's 16 views of 100,000
 # Gaussians. Larger scenes render fewer views per iteration; under MIN_VIEWS the tuning is skipped (past
-# 400,000 Gaussians): each iteration also codes and decodes the whole scene (a 1M-Gaussian coding takes 9-11 s
-# on the 2-vCPU VM, bench/precision.md), and a view or two per iteration is not what was measured.
+# 400,000 Gaussians): each iteration also codes and decodes the whole scene, seconds at a million Gaussians
+# (bench/precision.md, "Removal chosen per scene"), and a view or two per iteration is not what
+# bench/tuning.md measures.
 TUNE_WORK = 16 * 100_000
 MIN_VIEWS = 4
 
@@ -60,14 +61,13 @@ class TuningParams:
     """How the encoder tunes its coded values (nothing of it is in the file)."""
 
     iterations: int = 4  # the presets' (gspc/presets.py)
-    # Adam's learning rate in cells. Four iterations at the low preset, scoring views 1x / 2x: massa +1.61 /
-    # +1.65 dB at 0.02, +1.63 / +1.68 at 0.03, +0.96 / +1.07 at 0.045; the bird +2.12 / +2.03, +3.15 / +2.98
-    # and +2.35 / +2.25 (the byte limit after three) (bench/tuning.md).
+    # Adam's learning rate in cells: 0.02 and 0.03 tie on the statue massa, the bird gains most at 0.03, and
+    # a larger step reaches the byte limit early (bench/tuning.md, "The step").
     step: float = 0.03
     reach: float = 1.0  # cells a value may move from the original
     share: int = 4  # each iteration renders every share-th of the cameras
     # The tuned coding may grow by this share of the untuned one's bytes (tuned values sit off the contexts'
-    # predictions: the bird's low coding +1.9% in four iterations, bench/tuning.md); a byte target
+    # predictions: bench/tuning.md, "Gain and cost by scene"); a byte target
     # (--target-size) bounds it instead.
     growth: float = 0.02
 
@@ -162,9 +162,8 @@ def tune_coding(
         if progress:
             progress("tune", done, tuning.iterations)
         if current.num_bytes > limit:
-            # The bytes grow as the values leave their nearest grid points, and go on growing (the bird's
-            # high coding +0.84% after four iterations, +1.46% after eight; bench/tuning.md): a later coding
-            # would not fit either.
+            # The bytes grow as the values leave their nearest grid points, and go on growing with more
+            # iterations (bench/tuning.md, "Gain and cost by scene"): a later coding would not fit either.
             break
         best = current
     if before is None:

@@ -41,7 +41,7 @@ MAX_BITS = 17  # plain grid (version 1): 3 * 17 = 51 bits per code
 CONTRACTED_MAX_BITS = 21
 
 # Bounds of the position fields (spec 10.1), so that the decoder's binary64 steps stay finite and every
-# decoded coordinate is a finite binary32 (finite values such as 1e20..1e300 overflowed in the expansion).
+# decoded coordinate is a finite binary32 (finite values such as 1e20..1e300 overflow in the expansion).
 # World coordinates (a box grid's corners, a contracted grid's centre and radius): 2^64 is far beyond any
 # scene, and a box grid's decoded coordinates then stay below 2^82.
 MAX_COORDINATE = 2.0**64

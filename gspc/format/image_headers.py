@@ -1,6 +1,6 @@
 """Image sizes read from the headers of residual images (JPEG XL, WebP, AVIF) without decoding them: a
-residual whose codestream declared a huge size was once decoded before its size was checked (issue 15), so
-a file's images are measured here first (gspc/format/side_chunk.py), and so are SOG's WebP maps
+residual's codestream may declare a huge size, which decoding would allocate unchecked (issue 15), so a
+file's images are measured here first (gspc/format/side_chunk.py), and so are SOG's WebP maps
 (gspc/io/sog.py). Written from the codecs' specifications; no image library is needed.
 """
 

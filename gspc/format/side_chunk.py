@@ -1,10 +1,10 @@
 """The side information of a file: the SIDE chunk's byte layout (spec 10.9) and the one reader of both
 layouts, :func:`read_side_views`.
 
-Format 1.0 stored each view as a msgpack map in the header (key strings, a name, a full camera and the
-residual's parameters) and each residual as its own RESI chunk with a chunk-table entry: about 240 bytes
-per view before any image data, 8.5 KB of a 206 KB lego file. What varies between views is the pose, the
-image length and the gain; the rest is stated once in the SIDE chunk. Both layouts read to the same
+Format 1.0 stores each view as a msgpack map in the header (key strings, a name, a full camera and the
+residual's parameters) and each residual as its own RESI chunk with a chunk-table entry: hundreds of bytes
+per view before any image data (bench/pipeline.md, "Moved from code comments"). What varies between views
+is the pose, the image length and the gain; the SIDE chunk states the rest once. Both layouts read to the same
 :class:`SideViews`: typed view records (gspc/format/view_records.py) and the residual images by view number.
 """
 

@@ -54,7 +54,7 @@ _SCALAR_BYTES = {
 
 def _check_counts(path: Path, head: bytes, size: int) -> None:
     """InputError when the header's element counts need more bytes than the file has, checked before the
-    parser allocates arrays of those counts (an ASCII header declaring 10^9 vertices asked numpy for 52 GiB):
+    parser allocates arrays of those counts (bench/robustness.md, "Moved from code comments"):
     a binary row takes at least the bytes of its properties (a list at least its count), an ASCII row at
     least two characters per property (a digit and a separator)."""
     end = head.find(b"end_header")
@@ -126,8 +126,8 @@ def scene_from_plydata(ply: PlyData, source: str = "PLY") -> GaussianScene:
     def stack(cols) -> torch.Tensor:
         return torch.from_numpy(np.stack([column(c) for c in cols], axis=1))
 
-    # Filled column by column: stacking the 3K columns first and then reordering them held two more copies
-    # of the SH rest, the largest part of a degree-3 scene (bench/scale.md).
+    # Filled column by column: stacking the 3K columns first and then reordering them would hold two more
+    # copies of the SH rest, the largest part of a degree-3 scene (bench/scale.md, "Reading").
     rest = np.empty((n, k, 3), np.float32)
     for i, name in enumerate(rest_names(k)):  # channel-major: f_rest_{c K + j} is coefficient j of channel c
         rest[:, i % k, i // k] = column(name)

@@ -59,8 +59,8 @@ SH_QUANTISATION_EXTENSION = 0xADBE0001
 COLOUR_SCALE = 0.15
 MAX_FRACTIONAL_BITS = 24
 MAX_SPZ_DEGREE = 4  # the format's limit; gspc itself stops at 3
-# Gaussian counts beyond this are refused before anything is allocated (over 20 times the largest
-# published scenes); the per-file bound below usually bites first.
+# Gaussian counts beyond this are refused before anything is allocated (far beyond the largest published
+# scenes); the per-file bound below usually bites first.
 MAX_POINTS = 1 << 27
 # Neither deflate nor zstd at the settings SPZ writers use expands data more than about 1032:1, so a count
 # needing more decompressed bytes than this times the file size is a lie (a zip bomb or a corrupt header).

@@ -2,7 +2,7 @@
 
 Why a second implementation: the torch walk evaluates every listed Gaussian at all 64 pixels of its tile
 in many full-size passes (one per elementwise op), while most pairs reach few of them (bench/render.md's
-100k-Gaussian 400x300 case: 2.6 million pixel visits for 482,545 pairs, 5.4 of 64 each). Here each
+work columns, visits per pair; "Moved from code comments"). Here each
 (tile, Gaussian) pair walks only the tile rows its alpha >= 1/255 ellipse reaches, a row's TILE pixels as
 one vector operation (exp(-q / 2) by one multiplication per pixel from the row above; the rules' alpha test
 skips the pixels outside the ellipse), and every pixel's state (transmittance, what the Gaussians after it
@@ -47,8 +47,7 @@ from gspc.render.rules import (
 SPAN_MARGIN = 1e-3  # pixels
 FIELDS = 7  # pack(): mean x, mean y, conic a, b, c, opacity, threshold; then the features
 # Features composited: r, g, b, depth and a 1 (its composite is the alpha image). A fixed count keeps each
-# pair's features in registers and the per-pixel sums unrolled (11-15% of the forward, measured on the
-# 100k-Gaussian frame-filling case and the lego fit).
+# pair's features in registers and the per-pixel sums unrolled (bench/render.md, "Moved from code comments").
 FEATURES = 5
 GRADS = 6  # gradient columns before the features: d mean x, d mean y, d a, d b, d c, d opacity
 AHEAD = 4  # pairs: each pair's record is prefetched while the pair AHEAD before it is walked

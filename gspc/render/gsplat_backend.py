@@ -12,7 +12,7 @@ Where gsplat 1.5.x departs from the file's renderer rules (spec 10.12, rules.py)
 - it skips a Gaussian at a pixel where its q = d^T conic d rounds below zero (only within round-off of the
   centre of a Gaussian whose 2D covariance is extremely elongated);
 - it stops at transmittance <= 1e-4 rather than < 1e-4 (a tie: nothing measurable).
-1.4.x also culled tiles at 3 sigma instead of the 1/255 contour; versions outside SUPPORTED are not used.
+1.4.x culls tiles at 3 sigma, not at the 1/255 contour; versions outside SUPPORTED are not used.
 
 gsplat imports without its CUDA code: it loads a prebuilt extension, or compiles one with nvcc at its first
 kernel call (minutes), or, with neither, sets its extension to None and fails at that call. So whether it

@@ -19,7 +19,7 @@ from gspc.render.kernels import pick_kernel
 from gspc.render.rules import ALPHA_MIN, EXTENT_ABS_MARGIN, EXTENT_REL_MARGIN, LOWPASS, NEAR
 from gspc.render.sh import C0, sh_basis
 
-FRUSTUM_SLACK = 1.3  # x/z, y/z are clamped to 1.3x the frustum before building the Jacobian
+FRUSTUM_SLACK = 1.3  # x/z, y/z are clamped to this multiple of the frustum before building the Jacobian
 
 
 # Below this fraction of Gaussians in front of the camera, rows are copied out before projecting;
@@ -63,7 +63,8 @@ def quat_to_rotmat(quats: torch.Tensor) -> list[list[torch.Tensor]]:
 
 
 def frustum_limits(camera: Camera) -> tuple[float, float, float, float]:
-    """Clamp range for x/z and y/z: the frustum widened by 30% of the half field of view on each side.
+    """Clamp range for x/z and y/z: the frustum widened by FRUSTUM_SLACK - 1 of the half field of view on each
+    side.
 
     Equals 3DGS's +-1.3 tan(fov/2) for a centred principal point (gsplat's generalisation).
     """
@@ -108,8 +109,8 @@ def project(
     """
     if pick_kernel(kernel, means) == "compiled":
         # No subset here: the kernels cull the Gaussians behind the camera themselves (zero gradients, no
-        # colour), where copying out the rest and scattering their gradients back into zeros cost a
-        # tenth of a refinement iteration on the bird fit (bench/render.md).
+        # colour): copying out the rest and scattering their gradients back into zeros costs page faults and
+        # system time every refinement iteration (bench/render.md, "Reading").
         out = _ProjectCompiled.apply(
             means, quats, log_scales, opacity_logits, sh_dc, sh_rest, camera, sh_degree
         )
@@ -169,8 +170,8 @@ def _screen_covariance(x, y, z, quats, log_scales, R, camera):
 
 def _sh_colors(sh_dc: torch.Tensor, sh_rest: torch.Tensor, dirs: torch.Tensor, degree: int) -> torch.Tensor:
     """gspc.render.sh.sh_to_color, cheaper: no (N, B, 3) concatenation of the coefficients, and the
-    higher bands' sum (and its gradient) by batched matmul instead of broadcast products (~35% less
-    time for SH degree 3). The float64 reference renderer keeps sh_to_color as the oracle."""
+    higher bands' sum (and its gradient) by batched matmul, not broadcast products (bench/render.md, "Moved
+    from code comments"). The float64 reference renderer keeps sh_to_color as the oracle."""
     basis = sh_basis(dirs, degree)
     rgb = C0 * sh_dc
     if degree > 0:

@@ -1,9 +1,9 @@
 """project.py's projection compiled for the CPU (numba), forward and backward, one pass per Gaussian.
 
 Why: in PyTorch the projection is about a hundred elementwise operations on N-long vectors, forward and
-again backward (each a full pass over memory), and after the compiled compositor (composite_cpu.py) it
-was a third of a render's forward+backward time (bench/render.md). Here each Gaussian is projected, and
-differentiated, in registers.
+again backward (each a full pass over memory), and beside the compiled compositor (composite_cpu.py) it
+takes a large share of a render's forward+backward time (bench/render.md, "Moved from code comments").
+Here each Gaussian is projected, and differentiated, in registers.
 
 Same conventions as project.py (its comments say why each step is as it is): EWA splatting with the
 Jacobian's x/z, y/z clamped to the widened frustum, the low-pass added to the 2D covariance, the

@@ -56,15 +56,13 @@ class WalkSizes:
     scan_loop_from: int  # steps of at least this many elements scan with a loop over the BLOCK slices
 
 
-# CPU: steps sized for its caches. torch's CPU cumprod/cumsum along the middle axis of a (tiles, BLOCK, 64)
-# array cost about 1 ns per element; a Python loop over the BLOCK slices (one in-place op each) costs
-# ~0.4 ns per element plus ~7 us per op, so it wins only on large arrays: from about 2^18 elements, by ~35%
-# at a full step of 2^19 (measured on the machine of bench/render.md).
+# CPU: steps sized for its caches. A Python loop over the BLOCK slices (one in-place op each) is cheaper per
+# element than torch's CPU cumprod/cumsum along the middle axis of a (tiles, BLOCK, 64) array but pays a
+# fixed cost per op, so it wins only on large steps (bench/render.md, "Moved from code comments").
 CPU_WALK = WalkSizes(step_budget=1 << 19, scan_loop_from=1 << 19)
 # GPU: scans are one kernel each (the loop's 32 launches per scan cost more than a scan there), and
-# chunks of 1024 tiles (2^21 elements, 8 MB per float32 array). Measured on an H200 at 1M Gaussians
-# (bench/gpu_walk.md): forward and backward 1.3x faster than CPU_WALK; 2^19 as fast, larger chunks slower
-# (2^23 1.1x, 2^25 0.9x).
+# chunks of 1024 tiles (2^21 elements): faster than CPU_WALK, and larger chunks are slower
+# (bench/gpu_walk.md, "Reading").
 GPU_WALK = WalkSizes(step_budget=1 << 21, scan_loop_from=1 << 62)
 
 
@@ -149,7 +147,7 @@ def walk_counts(
 ) -> WalkCounts:
     """Count what composite()'s compiled forward does for these inputs (CPU tensors, no gradients).
     ``exact=False``: with box tile lists; ``whole_tiles``: edge tiles walk their pixels beyond the image too
-    (both as the renderer before bench/render.md's latest rerun did)."""
+    (the variants bench/render.md's work columns compare)."""
     from gspc.render import composite_cpu as kern
 
     with torch.no_grad():
@@ -308,7 +306,8 @@ class _Composite(torch.autograd.Function):
         out = _walk(coef, feat, cap, bins, None)  # (tiles, C + 1, 64)
         if any(ctx.needs_input_grad[:4]):
             # Kept for the backward walk rather than recomputed: the backward needs them at the same
-            # time as its own walk arrays, so the peak memory hardly moves, and recomputing cost ~15% of it.
+            # time as its own walk arrays, so the peak memory hardly moves, and recomputing them costs time
+            # (bench/render.md, "Moved from code comments").
             ctx.save_for_backward(opacities, features, out)
             ctx.pairs = (params, coef, feat, cap)
             ctx.bins = bins

@@ -14,7 +14,7 @@ from gspc.render.result import RenderResult
 from gspc.render.rules import ALPHA_MAX, ALPHA_MIN, LOWPASS, NEAR, T_MIN
 from gspc.render.sh import sh_basis
 
-SLACK = 0.3  # x/z, y/z clamped to 1.3x the frustum (project.py FRUSTUM_SLACK - 1)
+SLACK = 0.3  # x/z, y/z clamped to the frustum widened by this much (project.py FRUSTUM_SLACK - 1)
 
 
 def render_reference(scene, camera: Camera, background=None, sh_degree: int | None = None) -> RenderResult:
@@ -74,7 +74,7 @@ def _project_one(s, i, W, t, camera):
     sigma_cam = W @ sigma_world @ W.T
     p = W @ s.means[i] + t
     fx, fy, cx, cy = camera.fx, camera.fy, camera.cx, camera.cy
-    # Clamp the direction used by the Jacobian to the frustum widened by 30% of the half FOV.
+    # Clamp the direction used by the Jacobian to the frustum widened by SLACK of the half FOV each side.
     tan_x, tan_y = 0.5 * camera.width / fx, 0.5 * camera.height / fy
     x_over_z = torch.clamp(p[0] / p[2], -(cx / fx + SLACK * tan_x), (camera.width - cx) / fx + SLACK * tan_x)
     y_over_z = torch.clamp(p[1] / p[2], -(cy / fy + SLACK * tan_y), (camera.height - cy) / fy + SLACK * tan_y)

@@ -10,7 +10,7 @@ from gspc.errors import CodecError
 from gspc.restore.nafnet import NAFNet
 
 ARCHITECTURES: dict[str, type[nn.Module]] = {"nafnet": NAFNet}
-# Manifest entries written before the registry name no architecture: they are all NAFNets.
+# A manifest entry that names no architecture is a NAFNet (the registry's first architecture).
 DEFAULT_ARCHITECTURE = "nafnet"
 
 
