@@ -61,7 +61,7 @@ def compile_kernels(progress: Progress | None, encoder: bool = False) -> bool:
     moving = scene.map(lambda t: t.clone().requires_grad_(True))
     render(moving, camera).image.sum().backward()
     if encoder:
-        from gspc.codec.attributes import encode_attributes
+        from gspc.encoder.coding import encode_attributes
         from gspc.encoder.significance import encoder_significance
         from gspc.presets import quality_preset
 

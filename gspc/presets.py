@@ -8,8 +8,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from gspc.codec.params import CodecParams
-from gspc.codec.precision import PrecisionParams
+from gspc.encoder.params import CodecParams
+from gspc.encoder.precision_plan import PrecisionParams
 from gspc.errors import InputError
 
 # The restorer an encoder names by default: on scenes held out of its training it brings the restored views
@@ -38,8 +38,8 @@ class Preset:
     position_offsets: tuple[float, ...] = (-1.0,)
 
 
-# The low preset's per-Gaussian precision (gspc/codec/precision.py), chosen codec alone on the captures, the
-# statues and the shells of sky-sized Gaussians (bench/precision.md):
+# The low preset's per-Gaussian precision (gspc/encoder/precision_plan.py), chosen codec alone on the
+# captures, the statues and the shells of sky-sized Gaussians (bench/precision.md):
 # - classes up to 2^2 of the rate's steps, centred 1.5 octaves coarse: fewer bytes at equal PSNR than the
 #   uniform codec on every scene ("Choosing the presets' parameters"); a coarsest class of 2^3 cost more
 #   ("The high preset's classes past 2^-3");
@@ -60,7 +60,7 @@ LOW_PRECISION = PrecisionParams(exponents=(-7, 2), bias=1.5, sh_keep=4.0, prune=
 HIGH_PRECISION = PrecisionParams(
     exponents=(-7, 2), bias=1.0, sh_keep=2.0, prune=0.0, min_class=256, per_component=False, tail=-3
 )
-# Rate points lam 8 and lam 1 (11 and 14 position bits per axis: gspc/codec/params.py). At the low preset,
+# Rate points lam 8 and lam 1 (11 and 14 position bits per axis: gspc/encoder/params.py). At the low preset,
 # residuals at half resolution and distance 8 buy more than the same bytes spent on attributes; at the high
 # preset most fall under the skip threshold (bench/pipeline.md, "Moved from code comments"). The low
 # preset's 300 refinement iterations follow gspc/reconstruct.py's schedule (bench/refine.md, "Summary"); the

@@ -10,7 +10,8 @@ import torch
 from scenes import random_scene
 
 from gspc.codec import positions as pos
-from gspc.codec.attributes import decode_attributes, encode_attributes
+from gspc.codec.attributes import decode_attributes
+from gspc.encoder.coding import encode_attributes
 from gspc.errors import CodecError, InputError
 from gspc.format import container
 from gspc.format.attribute_section import (

@@ -7,14 +7,11 @@ import pytest
 import torch
 from scenes import varied_scene as _scene
 
-from gspc.codec.attributes import (
-    decode_attributes,
-    encode_attributes,
-    rotation_error_bound,
-)
+from gspc.codec.attributes import decode_attributes, rotation_error_bound
 from gspc.codec.entropy import SYMBOL_LIMIT
-from gspc.codec.params import CodecParams
 from gspc.codec.quantisers import SmallestThreeQuantiser
+from gspc.encoder.coding import encode_attributes
+from gspc.encoder.params import CodecParams
 from gspc.errors import CodecError, InputError
 from gspc.presets import QUALITY
 from gspc.scene import make_scene, scene_equal

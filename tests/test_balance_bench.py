@@ -11,7 +11,7 @@ from bench_precision import Point
 from scenes import Shells, random_scene, with_shells
 
 from gspc.cameras import Camera
-from gspc.codec.precision import Significance
+from gspc.encoder.precision_plan import Significance
 
 
 def _measure(n: int) -> Significance:

@@ -6,9 +6,9 @@ from scenes import front_cameras as _cameras
 from scenes import front_scene as _scene
 from scenes import random_scene
 
-from gspc.codec.attributes import encode_attributes
 from gspc.codec.cells import clamp_into, quantisation_cells
-from gspc.codec.params import CodecParams
+from gspc.encoder.coding import encode_attributes
+from gspc.encoder.params import CodecParams
 from gspc.errors import CodecError
 from gspc.format.attribute_section import AttributeSection
 from gspc.refine import Schedule, refine

@@ -61,7 +61,7 @@ def _rival_inputs(shares: list[float]):
 
     from scenes import random_scene
 
-    from gspc.codec.attributes import encode_attributes
+    from gspc.encoder.coding import encode_attributes
     from gspc.encoder.policy import CheckInputs
     from gspc.encoder.side import SideCandidate
     from gspc.encoder.significance import encoder_significance

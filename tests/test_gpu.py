@@ -30,8 +30,9 @@ import gspc.pipeline as pipeline
 import gspc.render.api as api
 import gspc.render.gsplat_backend as gb
 from gspc.cameras import Camera
-from gspc.codec.attributes import decode_attributes, encode_attributes
+from gspc.codec.attributes import decode_attributes
 from gspc.device import CPU_RENDERER, check_device, float32_math, renderer_info, synchronize
+from gspc.encoder.coding import encode_attributes
 from gspc.errors import DeviceError
 from gspc.format import container
 from gspc.format.attribute_section import attribute_chunks

@@ -31,7 +31,7 @@ def test_positions_roundtrip(bits):
 
 @pytest.mark.parametrize("scene", ["box", "unbounded"])
 def test_fractional_precision_lies_between_whole_bits(scene):
-    """A precision between whole bits (the rate's, gspc/codec/params.py) is a step between theirs on a grid
+    """A precision between whole bits (the rate's, gspc/encoder/params.py) is a step between theirs on a grid
     of the bits above it: every voxel fits, decodes within half a step, and whole precisions give the grids
     they always did."""
     rng = np.random.default_rng(3)
@@ -204,7 +204,7 @@ def test_an_unbounded_scene_round_trips_through_the_file(tmp_path):
 
 
 def test_far_set_header_is_checked():
-    from gspc.codec.attributes import encode_attributes
+    from gspc.encoder.coding import encode_attributes
     from gspc.errors import CodecError
     from gspc.format.attribute_section import FAR_VERSION
     from gspc.presets import QUALITY
@@ -264,7 +264,8 @@ def test_hostile_far_set_fields_and_payloads_are_codec_errors():
     """Every bad far_count, far_shift or POSN array of a version-3 file ends in CodecError, nothing else."""
     import msgpack
 
-    from gspc.codec.attributes import decode_attributes, encode_attributes
+    from gspc.codec.attributes import decode_attributes
+    from gspc.encoder.coding import encode_attributes
     from gspc.errors import CodecError
     from gspc.presets import QUALITY
 

@@ -1,4 +1,4 @@
-"""Attribute codec version 4: per-Gaussian precision classes and SH degrees (gspc/codec/precision.py)."""
+"""Attribute codec version 4: per-Gaussian precision classes and SH degrees (the file's, and the plan)."""
 
 import msgpack
 import numpy as np
@@ -6,17 +6,12 @@ import pytest
 import torch
 from scenes import random_scene
 
-from gspc.codec.attributes import decode_attributes, decoded_precision, encode_attributes
+from gspc.codec.attributes import decode_attributes, decoded_precision
 from gspc.codec.cells import quantisation_cells
-from gspc.codec.params import CodecParams
-from gspc.codec.precision import (
-    PrecisionMap,
-    PrecisionParams,
-    Significance,
-    class_exponents,
-    encode_precision,
-    sh_degrees,
-)
+from gspc.codec.precision import PrecisionMap, encode_precision
+from gspc.encoder.coding import encode_attributes
+from gspc.encoder.params import CodecParams
+from gspc.encoder.precision_plan import PrecisionParams, Significance, class_exponents, sh_degrees
 from gspc.errors import CodecError
 from gspc.format.attribute_section import AttributeSection
 from gspc.format.chunks import OPAC, PREC, SHRS
@@ -120,7 +115,7 @@ def test_classes_follow_sensitivity_per_coded_component():
     gets the class of its twin without SH bands: the SH rest counts per coefficient (its gradient sums over
     them; squared as a whole it counted their colour up to 45 times over), and the class divides by the
     components a halving of the steps costs bits for (10 without SH bands, 55 with three)."""
-    from gspc.codec.precision import RateSteps, plan_precision
+    from gspc.encoder.precision_plan import RateSteps, plan_precision
 
     n, d = 400, 3
     rng = np.random.default_rng(7)
@@ -143,7 +138,7 @@ def test_classes_follow_sensitivity_per_coded_component():
 
 
 def test_small_classes_join_their_neighbour_towards_the_rates_steps():
-    from gspc.codec.precision import merge_small_classes
+    from gspc.encoder.precision_plan import merge_small_classes
 
     e = np.array([-3] * 2 + [-2] * 3 + [-1] * 10 + [0] * 10 + [1] * 4 + [2] * 10 + [-3] * 5)
     among = np.ones(len(e), bool)

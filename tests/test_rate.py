@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 from scenes import varied_scene as _scene
 
-from gspc.codec.attributes import encode_attributes
-from gspc.codec.params import CodecParams
+from gspc.encoder.coding import encode_attributes
+from gspc.encoder.params import CodecParams
 from gspc.encoder.rate import search_lambda
 from gspc.errors import ValueRangeError
 from gspc.presets import QUALITY

@@ -8,8 +8,8 @@ from dataclasses import replace
 from scenes import random_scene
 
 import gspc.encoder.rate as rate
-from gspc.codec.attributes import encode_attributes
 from gspc.encoder import removal
+from gspc.encoder.coding import encode_attributes
 from gspc.encoder.prepare import removal_params
 from gspc.encoder.removal import RemovalParams, Trial, better, choose_removal
 from gspc.encoder.significance import encoder_significance

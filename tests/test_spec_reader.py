@@ -18,10 +18,11 @@ import torch
 import zstandard
 from scenes import random_scene
 
-from gspc.codec.attributes import decode_attributes, encode_attributes
+from gspc.codec.attributes import decode_attributes
 from gspc.codec.entropy import _categorical, decode_matrix, encode_matrix, fixed_point_table
-from gspc.codec.params import CodecParams
-from gspc.codec.precision import PrecisionParams
+from gspc.encoder.coding import encode_attributes
+from gspc.encoder.params import CodecParams
+from gspc.encoder.precision_plan import PrecisionParams
 from gspc.errors import CodecError
 from gspc.format import container
 from gspc.format.attribute_section import AttributeSection

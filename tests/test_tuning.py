@@ -8,8 +8,9 @@ import numpy as np
 import torch
 from scenes import random_scene
 
-from gspc.codec.attributes import decode_attributes, encode_attributes
+from gspc.codec.attributes import decode_attributes
 from gspc.codec.cells import quantisation_cells
+from gspc.encoder.coding import encode_attributes
 from gspc.encoder.significance import encoder_significance
 from gspc.encoder.tuning import TuningParams, tune_coding
 from gspc.metrics import mean_psnr

@@ -3,10 +3,11 @@ its effect on the views calls for")
 
     GSPC_THREADS=1 python tools/bench_balance.py -o bench/balance.md
 
-The encoder gives each Gaussian a precision class from its significance (gspc/codec/precision.py: the class
-exponent falls by one as the sensitivity grows fourfold). Where a group of Gaussians is served as its effect
-on the views calls for, the last byte spent on it buys as much PSNR as the last byte spent anywhere else:
-moving the group's classes either way, and no other, lands on or below the scene's own rate-distortion curve.
+The encoder gives each Gaussian a precision class from its significance (gspc/encoder/precision_plan.py: the
+class exponent falls by one as the sensitivity grows fourfold). Where a group of Gaussians is served as its
+effect on the views calls for, the last byte spent on it buys as much PSNR as the last byte spent anywhere
+else: moving the group's classes either way, and no other, lands on or below the scene's own rate-distortion
+curve.
 So per group, its significance gradients are scaled by ``f`` before the class plan (f = 4: one class finer,
 1/4: one coarser; past the tail at half the pace), the scene is coded at the preset's lambda, and its bytes
 are set against the curve the unscaled coding draws over ``--lams``: bytes at equal PSNR over the curve's
@@ -46,7 +47,7 @@ from scenes import Shells, with_shells
 
 from gspc.cameras import Camera
 from gspc.codec.positions import region_of_interest
-from gspc.codec.precision import Significance
+from gspc.encoder.precision_plan import Significance
 from gspc.io import read_scene
 from gspc.scene import GaussianScene
 

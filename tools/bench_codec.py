@@ -29,7 +29,8 @@ import torch
 import typer
 import zstandard
 
-from gspc.codec.attributes import decode_attributes, encode_attributes
+from gspc.codec.attributes import decode_attributes
+from gspc.encoder.coding import encode_attributes
 from gspc.format.chunks import ATTRIBUTE_TYPES
 from gspc.io import read_scene, write_ply
 from gspc.io.camera_files import load_cameras

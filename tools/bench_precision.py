@@ -63,8 +63,8 @@ from bench_setups import (
 from scenes import Shells, with_shells
 
 from gspc.cameras import Camera
-from gspc.codec.attributes import EncodedAttributes, encode_attributes
-from gspc.codec.params import CodecParams
+from gspc.encoder.coding import EncodedAttributes, encode_attributes
+from gspc.encoder.params import CodecParams
 from gspc.encoder.removal import RemovalParams, choose_removal
 from gspc.encoder.significance import (
     SIGNIFICANCE_VIEWS,

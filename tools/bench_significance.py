@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from gspc.codec.attributes import encode_attributes
+from gspc.encoder.coding import encode_attributes
 from gspc.encoder.significance import significance
 from gspc.io import read_scene
 from gspc.io.camera_files import load_cameras

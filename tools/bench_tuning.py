@@ -28,7 +28,7 @@ from bench_precision import STATUES, VARIANTS, Bench, coding
 from bench_setups import SHARED, bytes_at, fit_setup, synth_setup
 from scenes import Shells, with_shells
 
-from gspc.codec.attributes import encode_attributes
+from gspc.encoder.coding import encode_attributes
 from gspc.encoder.tuning import TuningParams, tune_coding
 from gspc.io import read_scene
 from gspc.presets import quality_preset

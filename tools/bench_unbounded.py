@@ -32,7 +32,7 @@ from bench_setups import fit_setup
 
 from gspc.cameras import Camera
 from gspc.codec import positions
-from gspc.codec.attributes import EncodedAttributes, encode_attributes
+from gspc.encoder.coding import EncodedAttributes, encode_attributes
 from gspc.io import read_scene
 from gspc.metrics import psnr, quantize8
 from gspc.presets import QUALITY

@@ -699,18 +699,18 @@ def unbounded_scene(n: int, far: int, seed: int, far_growth: float, degree: int 
 def encode_scene(scene) -> tuple[dict, dict[str, bytes]]:
     """(meta["attributes"], attribute payloads) from gspc's uniform attribute encoder (versions 1 to 3) at
     lambda 8, the low preset's before per-Gaussian precision: these vectors keep their bytes."""
-    from gspc.codec.attributes import encode_attributes
-    from gspc.codec.params import CodecParams
+    from gspc.encoder.coding import encode_attributes
+    from gspc.encoder.params import CodecParams
 
     enc = encode_attributes(scene, CodecParams(lam=8.0))
     return enc.section.to_dict(), enc.chunks
 
 
 def synthetic_significance(n: int, degree: int, seed: int):
-    """A Significance (gspc/codec/precision.py) of ``n`` Gaussians from seeded random measures spread over
-    six orders of magnitude, as a real scene's are: the encoder plans classes and SH degrees from it. Made
-    without rendering, so the vectors do not move with the renderer or the views."""
-    from gspc.codec.precision import Significance
+    """A Significance (gspc/encoder/precision_plan.py) of ``n`` Gaussians from seeded random measures spread
+    over six orders of magnitude, as a real scene's are: the encoder plans classes and SH degrees from it.
+    Made without rendering, so the vectors do not move with the renderer or the views."""
+    from gspc.encoder.precision_plan import Significance
     from gspc.scene import ATTRIBUTE_NAMES
 
     g = np.random.default_rng(seed)
@@ -725,8 +725,8 @@ def encode_classed(scene, exponents: tuple[int, int], seed: int) -> tuple[dict, 
     least its coded step."""
     from dataclasses import replace
 
-    from gspc.codec.attributes import encode_attributes
-    from gspc.codec.precision import PrecisionParams
+    from gspc.encoder.coding import encode_attributes
+    from gspc.encoder.precision_plan import PrecisionParams
     from gspc.presets import QUALITY
 
     precision = PrecisionParams(exponents=exponents, bias=1.0, sh_keep=1.0)

@@ -12,14 +12,14 @@ Chunks (bytes, stored by the container under these types):
   only flagged Gaussians' SH rest, coefficient-major, steps growing with degree. No SHRS at degree 0.
 Each chunk is an :func:`gspc.codec.entropy.encode_matrix` payload (SHRS: a msgpack pair). Each attribute's
 quantiser (quantise, exact dequantise and cell together) is in :mod:`gspc.codec.quantisers`.
-The byte layouts are specified in spec/gspc-format.md, section 10.
+The byte layouts are specified in spec/gspc-format.md, section 10. Which Gaussians are coded, at which
+steps, in which classes, is the encoder's choice (gspc/encoder/coding.py); this module writes and reads
+what it chose.
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
-from functools import cached_property
 
 import msgpack
 import numpy as np
@@ -27,26 +27,15 @@ import torch
 
 from gspc.codec import positions as pos
 from gspc.codec.entropy import SYMBOL_LIMIT, decode_matrix, encode_matrix
-from gspc.codec.params import CodecParams
 from gspc.codec.precision import (
-    Plan,
     PrecisionMap,
-    RateSteps,
-    Significance,
     decode_precision,
     encode_precision,
     pack_bins,
-    plan_precision,
     unpack_bins,
 )
-from gspc.codec.quantisers import (
-    OPACITY_FLOOR,
-    SQRT_HALF,
-    AttributeQuantisers,
-    SmallestThreeQuantiser,
-    out_of_range,
-)
-from gspc.errors import CodecError, InputError, NothingCodedError, ValueRangeError
+from gspc.codec.quantisers import AttributeQuantisers, SmallestThreeQuantiser, out_of_range
+from gspc.errors import CodecError, ValueRangeError
 from gspc.format.attribute_section import (
     AttributeSection,
     ClassSteps,
@@ -55,35 +44,6 @@ from gspc.format.attribute_section import (
 )
 from gspc.format.chunks import ATTRIBUTE_TYPES, OPAC, POSN, PREC, ROTN, SCAL, SHDC, SHRS
 from gspc.scene import GaussianScene, num_sh_rest
-
-
-@dataclass
-class EncodedAttributes:
-    chunks: dict[str, bytes]
-    section: AttributeSection  # the header section the file carries
-    kept: np.ndarray  # indices into the input scene, in decoded (curve) order
-    lam: float  # the rate knob it was coded at
-
-    @cached_property
-    def _decoded(self) -> DecodedSection:
-        return decode_section(self.chunks, self.section)
-
-    @property
-    def decoded(self) -> GaussianScene:
-        """G~, from decode_attributes on the chunks; decoded when first read (a lambda search reads only the
-        sizes of the codings it passes over)."""
-        return self._decoded.scene
-
-    @property
-    def precision(self) -> PrecisionMap | None:
-        """Each Gaussian's class and SH degree at version 4 (what the decoder reads), else None."""
-        return self._decoded.precision
-
-    @property
-    def num_bytes(self) -> int:
-        """Chunk bytes plus the packed meta: what the container pays for this codec."""
-        meta = msgpack.packb(self.section.to_dict(), use_bin_type=True)
-        return sum(len(c) for c in self.chunks.values()) + len(meta)
 
 
 def rotation_error_bound(levels: int) -> float:
@@ -119,18 +79,13 @@ GROUP_TYPES = tuple(g.chunk for g in GROUP_CHUNKS)
 
 
 def _quantised(
-    g: GroupChunk,
-    scene: GaussianScene,
-    rows: np.ndarray,
-    quant: AttributeQuantisers,
-    steps: ClassSteps,
-    lam: float,
+    g: GroupChunk, scene: GaussianScene, rows: np.ndarray, quant: AttributeQuantisers, steps: ClassSteps
 ) -> np.ndarray:
     """The symbols of group ``g`` for ``rows`` of the scene, (len(rows), g.columns); ValueRangeError where a
     value is beyond what the class's step codes."""
     values = _np(getattr(scene, g.attribute), rows)
     if g.checked is not None:
-        _check_range(g.name, values, getattr(steps, g.checked), lam)
+        check_range(g.name, values, getattr(steps, g.checked))
     return getattr(quant, g.quantiser).quantise(values).reshape(len(rows), g.columns)
 
 
@@ -139,124 +94,69 @@ def _dequantised(g: GroupChunk, quant: AttributeQuantisers, q: np.ndarray) -> np
     return getattr(quant, g.quantiser).dequantise(q[:, 0] if g.columns == 1 else q)
 
 
-def _sh_steps(params: CodecParams, degree: int) -> list[float]:
-    """Step of every SH rest coefficient (index k = 0 .. K-1), growing with its degree."""
-    steps = []
-    for k in range(num_sh_rest(degree)):
-        deg = int(math.isqrt(k + 1))  # k = 0..2 degree 1, 3..7 degree 2, 8..14 degree 3
-        growth = params.sh_degree_growth ** (deg - 1)
-        steps.append(float(params.sh_step * params.lam**params.sh_lam_exponent * growth))
-    return steps
+class OutOfRange(ValueRangeError):
+    """A value beyond what a class's steps code (the encoder says which rate: gspc/encoder/coding.py)."""
 
-
-# ---------------------------------------------------------------------------------------------
-# Codec
-
-
-def prune_mask(scene: GaussianScene, params: CodecParams, visible: np.ndarray | None) -> np.ndarray:
-    """Gaussians worth coding: visible to some view and at least 1/255 opaque, unless flags keep them."""
-    keep = np.ones(scene.num_gaussians, bool)
-    if not params.keep_transparent:
-        keep &= torch.sigmoid(scene.opacities.detach().double()).cpu().numpy() >= OPACITY_FLOOR
-    if visible is not None and not params.keep_invisible:
-        visible = np.asarray(visible, bool).reshape(-1)
-        if visible.shape[0] != scene.num_gaussians:
-            raise CodecError(
-                f"visibility mask has {visible.shape[0]} entries for {scene.num_gaussians} Gaussians"
-            )
-        keep &= visible
-    return keep
-
-
-def class_steps(
-    params: CodecParams, degree: int, exponent: int = 0, groups: tuple[str, ...] = ()
-) -> ClassSteps:
-    """The quantisers at ``params``' rate, the steps of ``groups`` times ``2^exponent``: a precision
-    class."""
-    lam = params.lam
-
-    def m(group: str) -> float:
-        return 2.0**exponent if group in groups else 1.0
-
-    # Even levels make a zero component exact: axis-aligned Gaussians are common and odd levels cost
-    # them half a step of rotation error (lego: +1.2 dB at equal bytes).
-    rotation = params.rotation_step * params.geometry_lam * m("quats")
-    return ClassSteps(
-        opacity_levels=max(1, int(round(1.0 / (params.opacity_step * lam * m("opacities"))))),
-        scale_step=float(params.scale_step * params.geometry_lam * m("log_scales")),
-        rotation_levels=2 * max(1, int(math.ceil(SQRT_HALF / rotation))),
-        dc_step=float(params.dc_step * lam * m("sh_dc")),
-        sh_steps=tuple(s * m("sh_rest") for s in _sh_steps(params, degree)),
-    )
-
-
-def encode_attributes(
-    scene: GaussianScene,
-    params: CodecParams,
-    visible: np.ndarray | None = None,
-    significance: Significance | None = None,
-    planned_on: GaussianScene | None = None,
-) -> EncodedAttributes:
-    """Encode a scene; ``decoded`` is what :func:`decode_attributes` returns for these chunks. With
-    ``params.precision`` and the ``significance`` of the scene's Gaussians, per-Gaussian precision
-    (version 4, gspc/codec/precision.py); otherwise every Gaussian at the rate's steps. ``planned_on``: the
-    scene (of the same Gaussians) whose opacities and sizes decide which Gaussians are coded, their classes
-    and the far set (default: ``scene``): the encoder's tuning codes moved values under the original's plan
-    (gspc/encoder/tuning.py)."""
-    scene.validate()
-    base = scene if planned_on is None else planned_on
-    keep = prune_mask(base, params, visible)
-    plan = None
-    if params.precision is not None and significance is not None:
-        # Values no rate can code are refused whether or not the plan would remove their Gaussian: removal
-        # is an R-D choice, not a check of the input.
-        _check_ranges(scene, class_steps(params, scene.sh_degree), params, np.flatnonzero(keep))
-        plan = _plan(base, params, significance, keep)
-        keep = plan.keep
-    keep_idx = np.flatnonzero(keep)
-    if keep_idx.size == 0:
-        raise NothingCodedError(
-            "every Gaussian was pruned (transparent or unseen); use the keep flags to code them"
+    def __init__(self, name: str, count: int, worst: float, limit: float, finest: bool) -> None:
+        self.name, self.count, self.worst, self.limit, self.finest = name, count, worst, limit, finest
+        at = " for the finest coefficient" if finest else ""
+        super().__init__(
+            f"{count} Gaussian(s) have {name} values up to {worst:.3g}, beyond what the steps code "
+            f"(+-{limit:.3g}{at})"
         )
-    means = _np(scene.means, keep_idx)
-    sizes = np.exp(np.median(_np(base.log_scales, keep_idx).astype(np.float64), axis=1))
-    if plan is not None:
-        # The far set (spec 10.1) codes a Gaussian's position coarsely where its size allows; a Gaussian the
-        # plan gives finer steps needs its position as much finer (a shell of sky-sized Gaussians: +3.7 dB).
-        sizes = sizes * 2.0 ** np.minimum(plan.exponent[keep_idx], 0).astype(np.float64)
-    try:
-        voxels, order, grid = pos.curve_order(means, params.position_precision, sizes)
-    except CodecError as err:  # a grid the format's bounds refuse (spec 10.1)
-        raise InputError(f"the scene's positions cannot be coded: {err}") from None
-    kept = keep_idx[order]
-    if plan is not None:
-        chunks, section = _encode_classed(scene, params, plan, kept, grid)
-        chunks = {POSN: pos.encode_positions(voxels, grid), **chunks}
+
+
+def check_range(name: str, values: np.ndarray, steps, rows: np.ndarray | None = None) -> None:
+    """OutOfRange naming the attribute where a value of ``rows`` (all by default) is too large to code."""
+    count, worst = out_of_range(values, steps, rows)
+    if count:
+        limit = SYMBOL_LIMIT * float(np.min(steps))
+        raise OutOfRange(name, count, worst, limit, np.size(steps) > 1)
+
+
+def encode_section(
+    scene: GaussianScene,
+    kept: np.ndarray,
+    voxels: np.ndarray,
+    grid: PositionGrid,
+    classes: tuple[ClassSteps, ...],
+    pmap: PrecisionMap | None,
+    sh_deadzone: float = 0.0,
+    faint_alpha: float = 0.0,
+) -> tuple[dict[str, bytes], AttributeSection]:
+    """The attribute chunks (in file order) and header section of ``scene``'s rows ``kept``, in curve order,
+    their ``voxels`` on ``grid``. With a precision map (version 4, spec 10.13) each Gaussian has its class
+    among ``classes`` and its SH degree; without one (versions 1 to 3) every Gaussian is at ``classes[0]``
+    and those whose coded alpha is under ``faint_alpha`` carry no SH rest. ``sh_deadzone``: the SH rest's
+    rounding offset towards zero. Both are the encoder's choices: the file holds their outcome."""
+    if pmap is not None:
+        chunks, section = _encode_classed(scene, kept, grid, classes, pmap, sh_deadzone)
     else:
-        chunks, section = _encode_uniform(scene, params, kept, grid)
-        chunks = {POSN: pos.encode_positions(voxels, grid), **chunks}
-    chunks = {t: chunks[t] for t in ATTRIBUTE_TYPES if t in chunks}  # the order the file holds them in
-    return EncodedAttributes(chunks=chunks, section=section, kept=kept, lam=params.lam)
+        chunks, section = _encode_uniform(scene, kept, grid, classes[0], sh_deadzone, faint_alpha)
+    chunks = {POSN: pos.encode_positions(voxels, grid), **chunks}
+    return {t: chunks[t] for t in ATTRIBUTE_TYPES if t in chunks}, section
 
 
 def _encode_uniform(
-    scene: GaussianScene, params: CodecParams, kept: np.ndarray, grid: PositionGrid
+    scene: GaussianScene,
+    kept: np.ndarray,
+    grid: PositionGrid,
+    base: ClassSteps,
+    sh_deadzone: float,
+    faint_alpha: float,
 ) -> tuple[dict[str, bytes], AttributeSection]:
-    """Versions 1 to 3: one class, every Gaussian at the rate's steps."""
-    lam = params.lam
-    base = class_steps(params, scene.sh_degree)
+    """Versions 1 to 3: one class, every Gaussian at its steps."""
     section = AttributeSection.of_classes(int(kept.size), int(scene.sh_degree), grid, (base,), False)
-    quant = AttributeQuantisers.from_section(section, params.sh_deadzone)
-    symbols = {g.chunk: _quantised(g, scene, kept, quant, base, lam) for g in GROUP_CHUNKS}
+    quant = AttributeQuantisers.from_section(section, sh_deadzone)
+    symbols = {g.chunk: _quantised(g, scene, kept, quant, base) for g in GROUP_CHUNKS}
     chunks = {t: encode_matrix(q) for t, q in symbols.items()}
     if scene.sh_degree > 0:
-        opac_q = symbols[OPAC][:, 0]
-        # Faint Gaussians' view-dependent colour hardly shows: drop it (flag 0), an encoder-only choice.
-        faint = opac_q.astype(np.float64) < min(0.5, params.sh_faint_alpha * lam) * base.opacity_levels
-        # Rows of the float32 SH rest are picked and widened block by block (int32 symbols: a million
-        # Gaussians' 45 coefficients take 180 MB).
+        # Faint Gaussians' view-dependent colour hardly shows: the encoder drops it (flag 0).
+        faint = symbols[OPAC][:, 0].astype(np.float64) < faint_alpha * base.opacity_levels
+        # Rows of the float32 SH rest are picked and widened block by block (int32 symbols of every
+        # coefficient of a large scene are hundreds of MB).
         rest, rows = scene.sh_rest.detach().cpu().numpy(), kept[~faint]
-        _check_range("SH rest", rest, np.asarray(base.sh_steps)[None, :, None], lam, rows)
+        check_range("SH rest", rest, np.asarray(base.sh_steps)[None, :, None], rows)
         q = quant.sh_rest.quantise(rest, rows)
         nonzero = (q != 0).any(axis=1)
         flags = np.zeros(kept.size, np.int64)
@@ -268,79 +168,38 @@ def _encode_uniform(
     return chunks, section
 
 
-def _plan(scene: GaussianScene, params: CodecParams, sig: Significance, candidates: np.ndarray) -> Plan:
-    """gspc/codec/precision.py's plan at this rate, for every input Gaussian."""
-    base = class_steps(params, scene.sh_degree)
-    alpha = torch.sigmoid(scene.opacities.detach().double()).cpu().numpy()
-    steps = RateSteps(
-        base.opacity_levels,
-        base.scale_step,
-        2.0 * SQRT_HALF / base.rotation_levels,
-        base.dc_step,
-        tuple(base.sh_steps[b * b - 1] for b in range(1, scene.sh_degree + 1)),
-    )
-    faint = min(0.5, params.sh_faint_alpha * params.lam)
-    return plan_precision(sig, alpha, steps, params.precision, candidates, faint, params.lam)
-
-
 def _encode_classed(
-    scene: GaussianScene, params: CodecParams, plan: Plan, kept: np.ndarray, grid: PositionGrid
+    scene: GaussianScene,
+    kept: np.ndarray,
+    grid: PositionGrid,
+    class_list: tuple[ClassSteps, ...],
+    pmap: PrecisionMap,
+    sh_deadzone: float,
 ) -> tuple[dict[str, bytes], AttributeSection]:
-    """Version 4: each Gaussian's class and SH degree as planned (gspc/codec/precision.py), each class's
-    rows coded as matrices of their own."""
-    lam, prec, degree = params.lam, params.precision, scene.sh_degree
-    exponent = plan.exponent[kept]
-    # Class 0 is the rate's own steps; the others follow in increasing step.
-    exps = [0, *sorted(set(np.unique(exponent).tolist()) - {0})]
-    classes = np.zeros(len(kept), np.int64)
-    for i, e in enumerate(exps):
-        classes[exponent == e] = i
-    class_list = [class_steps(params, degree, e, prec.groups) for e in exps]
+    """Version 4: each class's rows coded as matrices of their own, the SH rest band by band up to each
+    Gaussian's degree."""
+    degree = scene.sh_degree
     n = int(kept.size)
-    degrees = plan.degree[kept] if degree > 0 else np.zeros(n, np.int64)
-    pmap = PrecisionMap(classes, degrees)
+    degrees = pmap.degrees
     section = AttributeSection.of_classes(n, int(degree), grid, tuple(class_list), True)
     parts: dict[str, list[bytes]] = {t: [] for t in (*GROUP_TYPES, SHRS)}
     rest = scene.sh_rest.detach().cpu().numpy()
     for k, steps_k in enumerate(class_list):
         order = pmap.rows(k)
         rows = kept[order]
-        quant = AttributeQuantisers.from_steps(steps_k, params.sh_deadzone)
+        quant = AttributeQuantisers.from_steps(steps_k, sh_deadzone)
         for g in GROUP_CHUNKS:
-            parts[g.chunk].append(encode_matrix(_quantised(g, scene, rows, quant, steps_k, lam)))
+            parts[g.chunk].append(encode_matrix(_quantised(g, scene, rows, quant, steps_k)))
         if degree > 0:  # every coefficient of the class's Gaussians with any SH rest, once; each band a slice
             deg = degrees[order]
             coded = rows[deg >= 1]
-            _check_range("SH rest", rest, np.asarray(steps_k.sh_steps)[None, :, None], lam, coded)
+            check_range("SH rest", rest, np.asarray(steps_k.sh_steps)[None, :, None], coded)
             q, deg = quant.sh_rest.quantise(rest, coded), deg[deg >= 1]
             for b in range(1, degree + 1):
                 parts[SHRS].append(encode_matrix(q[deg >= b, 3 * (b * b - 1) : 3 * ((b + 1) ** 2 - 1)]))
     chunks = {PREC: encode_precision(pmap, degree)}
     chunks.update({t: pack_bins(p) for t, p in parts.items() if t != SHRS or degree > 0})
     return chunks, section
-
-
-def _check_ranges(scene: GaussianScene, steps: ClassSteps, params: CodecParams, rows: np.ndarray) -> None:
-    """ValueRangeError where any of ``rows`` has a log scale, DC or SH rest value beyond ``steps``' range."""
-    _check_range("log scale", _np(scene.log_scales, rows), steps.scale_step, params.lam)
-    _check_range("SH DC", _np(scene.sh_dc, rows), steps.dc_step, params.lam)
-    if scene.sh_degree > 0:  # faint Gaussians' SH rest is dropped whatever it holds
-        alpha = torch.sigmoid(scene.opacities.detach().double()).cpu().numpy()[rows]
-        rows = rows[alpha >= min(0.5, params.sh_faint_alpha * params.lam)]
-        rest, sh = scene.sh_rest.detach().cpu().numpy(), np.asarray(steps.sh_steps)[None, :, None]
-        _check_range("SH rest", rest, sh, params.lam, rows)
-
-
-def _check_range(name: str, values: np.ndarray, steps, lam: float, rows: np.ndarray | None = None) -> None:
-    """ValueRangeError naming the attribute where a Gaussian's value is too large to code at this rate."""
-    count, worst = out_of_range(values, steps, rows)
-    if count:
-        limit = SYMBOL_LIMIT * float(np.min(steps))
-        finest = " for the finest coefficient" if np.size(steps) > 1 else ""
-        raise ValueRangeError(
-            f"{count} Gaussian(s) have {name} values up to {worst:.3g}, beyond what lambda {lam:g} can code "
-            f"(+-{limit:.3g}{finest}; a larger lambda raises the limit)"
-        )
 
 
 def _matrix(chunks: dict[str, bytes], name: str, n: int, c: int) -> np.ndarray:

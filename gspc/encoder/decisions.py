@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 from gspc import __version__
 from gspc.cameras import Camera
-from gspc.codec.attributes import EncodedAttributes, prune_mask
+from gspc.encoder.coding import EncodedAttributes, prune_mask
 from gspc.encoder.policy import CheckInputs, Outcome, SideInfoDecision, check_cameras, check_side_info
 from gspc.encoder.prepare import (
     CodedAttributes,

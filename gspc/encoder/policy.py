@@ -18,9 +18,9 @@ import torch
 
 from gspc.cameras import Camera
 from gspc.codec import residuals
-from gspc.codec.attributes import EncodedAttributes, encode_attributes
-from gspc.codec.params import CodecParams
-from gspc.codec.precision import Significance
+from gspc.encoder.coding import EncodedAttributes, encode_attributes
+from gspc.encoder.params import CodecParams
+from gspc.encoder.precision_plan import Significance
 from gspc.encoder.rate import coded_with, search_lambda
 from gspc.encoder.side import SideCandidate
 from gspc.metrics import mean_psnr

@@ -11,9 +11,9 @@ import numpy as np
 
 from gspc.cameras import Camera
 from gspc.codec import residuals
-from gspc.codec.attributes import EncodedAttributes, encode_attributes
-from gspc.codec.params import CodecParams
-from gspc.codec.precision import Significance
+from gspc.encoder.coding import EncodedAttributes, encode_attributes
+from gspc.encoder.params import CodecParams
+from gspc.encoder.precision_plan import Significance
 from gspc.encoder.rate import search_lambda
 from gspc.encoder.removal import RemovalChoice, RemovalParams, choose_removal
 from gspc.encoder.side import SideCandidate, side_candidate

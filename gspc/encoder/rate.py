@@ -10,9 +10,9 @@ import time
 
 import numpy as np
 
-from gspc.codec.attributes import EncodedAttributes, class_steps, encode_attributes
-from gspc.codec.params import CodecParams
-from gspc.codec.precision import Significance
+from gspc.encoder.coding import EncodedAttributes, class_steps, encode_attributes
+from gspc.encoder.params import CodecParams
+from gspc.encoder.precision_plan import Significance
 from gspc.errors import NothingCodedError, ValueRangeError
 from gspc.scene import GaussianScene
 

@@ -2,8 +2,8 @@
 grid, or a stronger removal or a coarser or finer grid where views near the encoder's cameras show that the
 same bytes code them better with it.
 
-Removal (gspc/codec/precision.py, ``prune``) drops Gaussians painting under ``prune x lambda`` of the median
-Gaussian's blending weight. What that threshold is worth differs by scene: trained captures hold many
+Removal (gspc/encoder/precision_plan.py, ``prune``) drops Gaussians painting under ``prune x lambda`` of the
+median Gaussian's blending weight. What that threshold is worth differs by scene: trained captures hold many
 Gaussians that barely paint, scenes their authors already pruned (the SOG statues) lose by any more
 (bench/precision.md, "Removal chosen per scene"). So the encoder measures, as its check weighs side
 information against the same bytes on attributes: for each stronger removal in turn it searches the lambda
@@ -33,9 +33,9 @@ import numpy as np
 import torch
 
 from gspc.cameras import Camera
-from gspc.codec.attributes import EncodedAttributes
-from gspc.codec.params import CodecParams
-from gspc.codec.precision import Significance
+from gspc.encoder.coding import EncodedAttributes
+from gspc.encoder.params import CodecParams
+from gspc.encoder.precision_plan import Significance
 from gspc.encoder.rate import search_lambda
 from gspc.encoder.significance import evenly_spaced_indices
 from gspc.metrics import mse
@@ -52,7 +52,7 @@ class RemovalParams:
     # Multipliers of the preset's ``prune`` tried in order while each beats the best so far.
     steps: tuple[float, ...] = (2.0, 4.0, 8.0)
     # A stronger removal's floor may pass the median's weight up to this many times (the preset's stops at
-    # it, gspc/codec/precision.py): measured here, not assumed.
+    # it, gspc/encoder/precision_plan.py): measured here, not assumed.
     cap: float = 4.0
     # Each stronger removal's lambda search: within this fraction under the preset's bytes, in at most
     # this many codings (a miss over the bytes is not taken).

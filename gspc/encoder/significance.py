@@ -1,7 +1,7 @@
 """What each Gaussian does to the views: the encoder's measures for spending precision where it shows.
 
 All accumulated over the encoder's cameras, from ONE forward and backward render per view and zoom
-(gspc/codec/precision.py's :class:`Significance` holds them):
+(gspc/encoder/precision_plan.py's :class:`Significance` holds them):
 
 - ``weight``: the blending weight a Gaussian takes over a view, sum_pixels alpha_i T_i (its footprint times
   opacity times the transmittance in front of it), as a fraction of the view's pixels. It is the gradient of
@@ -38,7 +38,7 @@ import numpy as np
 import torch
 
 from gspc.cameras import Camera
-from gspc.codec.precision import Significance
+from gspc.encoder.precision_plan import Significance
 from gspc.progress import Progress
 from gspc.render.project import project
 from gspc.render.rasterize import composite

@@ -35,10 +35,10 @@ import torch
 
 from gspc.adam import FusedAdam
 from gspc.cameras import Camera
-from gspc.codec.attributes import EncodedAttributes, encode_attributes
 from gspc.codec.cells import quantisation_cells
-from gspc.codec.params import CodecParams
-from gspc.codec.precision import Significance
+from gspc.encoder.coding import EncodedAttributes, encode_attributes
+from gspc.encoder.params import CodecParams
+from gspc.encoder.precision_plan import Significance
 from gspc.encoder.significance import wide_cameras
 from gspc.errors import ValueRangeError
 from gspc.progress import Progress

@@ -13,7 +13,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, replace
 
-from gspc.codec.precision import PrecisionParams
+from gspc.encoder.precision_plan import PrecisionParams
 from gspc.errors import InputError
 
 
@@ -55,7 +55,7 @@ class CodecParams:
     # beyond lambda 6").
     unrefined_knee: float = 6.0
     unrefined_lam_exponent: float = 0.25
-    # Per-Gaussian precision (attribute codec version 4, gspc/codec/precision.py) where the encoder has
+    # Per-Gaussian precision (attribute codec version 4, gspc/encoder/precision_plan.py) where the encoder has
     # measured what each Gaussian does to its views; None: every Gaussian at the rate's steps.
     precision: PrecisionParams | None = None
 
