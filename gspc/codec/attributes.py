@@ -52,8 +52,7 @@ def rotation_error_bound(levels: int) -> float:
 
 
 def _np(t: torch.Tensor, rows: np.ndarray) -> np.ndarray:
-    """``t[rows]`` as float64 numpy (rows picked first: the SH rest of a million Gaussians is 180 MB in
-    float32, twice that in float64)."""
+    """``t[rows]`` as float64 numpy (rows picked first: a large scene's SH rest doubles in float64)."""
     return t.detach().cpu().numpy()[rows].astype(np.float64)
 
 

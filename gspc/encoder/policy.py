@@ -35,31 +35,26 @@ class CheckPolicy:
     """The side-information check's rules, each with the measurement behind it."""
 
     # Held-out PSNR gain after refinement per dB that the residuals add to their own views' renders (I~ + R~
-    # over I~), measured with 1000 iterations inside the cells: lego fit lambda 8, 0.86 (residuals at 1/2
-    # resolution) and 0.82 (1/4); donut lambda 64, 0.89 (1/4). The encoder predicts with it which resolution
-    # pays best.
+    # over I~): how the encoder predicts which resolution pays best (bench/pipeline.md).
     refine_transfer: float = 0.85
-    # The rival may fall this far under the side information's bytes: search_lambda's default 3% is worth
-    # 1.5 dB on a curve as steep as the donut's (5 dB per 10% of bytes), a handicap that would favour side
-    # information.
+    # The rival may fall this far under the side information's bytes: a looser search would hand side
+    # information a handicap on steep rate curves (bench/pipeline.md).
     rival_tolerance: float = 0.005
-    # ... and by at most this share of the side information's own bytes: where those are under 0.5% of the
-    # file (1M scale scene: 0.47%), the tolerance alone accepted the coding without them as the rival
-    # (bench/scale_pipeline.md, equal bytes).
+    # ... and by at most this share of the side information's own bytes, where those are a sliver of the
+    # file (bench/scale_pipeline.md, "Equal bytes, within 0.15%").
     rival_share: float = 0.25
     # The rivals' PSNR is read off two codings, one under and one over every candidate's bytes, in log bytes
     # between them: the coding at the file's lambda and one search above the largest target, aiming this
-    # share above it with a window as wide; each candidate used to search to within the tolerance above
-    # (bench/speed.md: the same decisions, the rivals within 0.07 dB, in fewer codings). Only a rival the
-    # file then holds (SPENT_ON_ATTRIBUTES) is searched to the tolerance.
+    # share above it with a window as wide; it takes the same decisions in fewer codings than a search per
+    # candidate (bench/speed.md, "The check's rivals read off two codings"). Only a rival the file then holds
+    # (SPENT_ON_ATTRIBUTES) is searched to the tolerance.
     rival_bracket: float = 0.02
     chunk_entry_bytes: int = 48  # a chunk-table entry plus alignment padding, about (spec section 5)
     # The trial: a refinement of at least ``trial_from`` iterations is scored after its first
     # ``trial_fraction``; where the trial's gain over the coded scene, times ``gain_ratio``, already clears
-    # the bar, the side information is sent without running on. The full run's gain measured 1.33x the
-    # trial's on the lego fit and more on the statue massa (bench/refine.md): the end of a cosine schedule
-    # polishes. A trial that does not clear it decides nothing: on massa the check views scored under the
-    # coded scene at the trial and over the bar at the end, so the run goes on and its end decides.
+    # the bar, the side information is sent without running on (the end of a cosine schedule only
+    # polishes, bench/refine.md). A trial that does not clear it decides nothing: the run goes on and its
+    # end decides.
     trial_from: int = 100
     trial_fraction: float = 0.25
     gain_ratio: float = 1.0
