@@ -112,7 +112,7 @@ class EncoderDecisions:
         out["decoder refines"] = (
             f"{self.refine_iterations} iterations by default"
             if self.side is not None
-            else "nothing (no side info)"
+            else "nothing (no side information)"
         )
         return out
 
@@ -283,7 +283,7 @@ def _side_information(
         reason = "none (no view's residual was worth sending)"
         return _Side(_unrefined(scene, coded, stages), None, runs.refine, reason)
     if runs.check == 0:
-        return _Side(enc, side, runs.refine, _sent(side, "unchecked (--check-iterations 0)"))
+        return _Side(enc, side, runs.refine, _sent(side, "unchecked, --check-iterations 0"))
     inputs = CheckInputs(
         scene=scene,
         attributes=enc,
@@ -307,7 +307,9 @@ def _side_information(
     d = result.decision
     if result.side is not None:
         # The decoder runs what the check ran (a time budget may cut it).
-        return _Side(result.attributes, result.side, d.iterations, _sent(result.side, "the check"), d)
+        return _Side(
+            result.attributes, result.side, d.iterations, _sent(result.side, "the check found it pays"), d
+        )
     attributes = result.attributes
     if d.outcome is Outcome.DROPPED:
         attributes = _unrefined(scene, coded, stages)
@@ -340,9 +342,9 @@ def _candidates(
     return original, coded, candidates
 
 
-def _sent(side: SideCandidate, by: str) -> str:
+def _sent(side: SideCandidate, why: str) -> str:
     return (
-        f"sent ({by}): {side.views_with_residual} of {len(side.records)} views carry a residual, "
+        f"sent ({why}): {side.views_with_residual} of {len(side.records)} views carry a residual, "
         f"{len(side.payload):,} B at 1/{side.scale} resolution"
     )
 

@@ -1,0 +1,178 @@
+"""The encoder's decisions as one typed record (gspc/encoder/decisions.py), what a run's summary says of
+them, and the decoder's stage list (gspc/pipeline.py): what runs, what is read once, what is named."""
+
+import os
+import subprocess
+import sys
+
+import pytest
+from cli_runs import run
+from scenes import random_scene
+
+import gspc.format.container as container_module
+import gspc.pipeline as pipeline
+from gspc.codec import attributes as codec_attributes
+from gspc.encoder.decisions import GaussianCounts
+from gspc.encoder.policy import CandidateScore, Outcome, SideInfoDecision
+from gspc.encoder.removal import RemovalChoice, Trial
+from gspc.io import write_ply
+from gspc.options import DecodeOptions, EncodeOptions
+from gspc.pipeline import decode_bytes, encode_scene
+
+
+def small(**kw) -> EncodeOptions:
+    return EncodeOptions(synth_views=4, max_side=40, **kw)
+
+
+def coarse(**kw) -> EncodeOptions:
+    """A coarse rate, so that residuals are sent (and checked where the check has iterations)."""
+    return EncodeOptions(lam=40, synth_views=5, max_side=40, **kw)
+
+
+def scene(seed=1):
+    return random_scene(
+        200, sh_degree=2, seed=seed, log_scale=-2.8, opacity_logit=1.5, dc_std=0.6, rest_std=0.2
+    )
+
+
+def test_counts_say_where_the_gaussians_went():
+    assert GaussianCounts(100, 0, 0, 100).summary() == "100 given, all coded"
+    said = GaussianCounts(1000, 20, 180, 800).summary()
+    assert said.startswith("1,000 given, 800 coded: 20 not coded") and "180 removed" in said
+
+
+def test_the_removal_line_says_why_the_kept_trial_won():
+    base = Trial(0.035, 8.0, 1000, 40.0)
+    won = Trial(0.07, 7.0, 998, 40.5)
+    lost = Trial(0.14, 6.2, 999, 40.55)  # within the margin of the one kept: not taken
+    choice = RemovalChoice(_Coded(7.0), _params(0.07), base, (won, lost), 16, 1.0, 0.1)
+    said = choice.summary()
+    assert said.startswith("x2 the preset's removal: +0.50 dB over the preset's at 16 views"), said
+    assert "x4 at lambda 6.2 +0.55 dB" in said
+    kept = RemovalChoice(_Coded(8.0), _params(0.035), base, (Trial(0.07, 7.0, 1000, 40.05),), 16, 1.0, 0.1)
+    assert kept.summary().startswith("the preset's removal and grid: no trial gained 0.1 dB over it")
+
+
+class _Coded:
+    def __init__(self, lam):
+        self.lam = lam
+
+
+def _params(prune):
+    from dataclasses import replace
+
+    from gspc.presets import quality_preset
+
+    p = quality_preset("low").attributes
+    return replace(p, precision=replace(p.precision, prune=prune))
+
+
+def test_a_file_without_side_information_says_why(tmp_path):
+    _, rep = encode_scene(scene(), opts=small(side_info=False))
+    assert rep.info["side info"] == "none (--no-side-info)"
+    assert rep.info["decoder refines"] == "nothing (no side information)"
+    assert rep.decisions.side is None and rep.decisions.counts.coded == rep.num_gaussians_out
+
+
+def test_side_information_sent_unchecked_says_so():
+    _, rep = encode_scene(scene(), opts=coarse(check_iterations=0))
+    assert rep.info["side info"].startswith("sent (unchecked, --check-iterations 0): "), rep.info[
+        "side info"
+    ]
+
+
+def test_the_side_information_line_gives_the_checks_figures():
+    d = SideInfoDecision(
+        Outcome.SPENT_ON_ATTRIBUTES,
+        2,
+        8,
+        40.0,
+        40.3,
+        41.0,
+        25,
+        False,
+        100,
+        (CandidateScore(2, 1000, None, 41.0),),
+    )
+    from gspc.encoder.decisions import _not_sent
+
+    said = _not_sent(d)
+    assert "41.00 dB at 8 views carrying none against 40.30 dB refined with it" in said
+
+
+def test_a_lambda_the_encoder_moved_is_explained():
+    _, rep = encode_scene(scene(seed=5), opts=small(side_info=False))
+    line = rep.info["lambda"]
+    if rep.decisions.lambda_reasons:
+        assert "asked (it sets the bytes), coded at" in line, line
+    else:
+        assert line == f"{rep.decisions.attributes.lam:.4g}"
+
+
+def test_decoding_without_refinement_renders_and_restores_nothing(monkeypatch):
+    data, _ = encode_scene(scene(), opts=coarse(check_iterations=0))
+
+    def forbidden(*a, **k):
+        raise AssertionError("a decode that does not refine rendered or restored")
+
+    monkeypatch.setattr(pipeline, "render_images", forbidden)
+    monkeypatch.setattr(pipeline, "restored_targets", forbidden)
+    monkeypatch.setattr(pipeline, "load_restorer", forbidden)
+    for opts in (DecodeOptions(refine=False), DecodeOptions(iterations=0), DecodeOptions(restore=False)):
+        _, rep = decode_bytes(data, opts)
+        assert rep.info["refine"].startswith("none (") and "restorer" not in rep.info
+        assert "render" not in rep.seconds and "restore" not in rep.seconds
+
+
+def test_a_file_is_parsed_once_and_its_precision_map_decoded_once(monkeypatch):
+    data, _ = encode_scene(scene(), opts=coarse(check_iterations=0))
+    calls = {"unpack": 0, "prec": 0}
+    unpack, prec = container_module.unpack, codec_attributes.decode_precision
+
+    def counted_unpack(*a, **k):
+        calls["unpack"] += 1
+        return unpack(*a, **k)
+
+    def counted_prec(*a, **k):
+        calls["prec"] += 1
+        return prec(*a, **k)
+
+    monkeypatch.setattr(container_module, "unpack", counted_unpack)
+    monkeypatch.setattr(codec_attributes, "decode_precision", counted_prec)
+    _, rep = decode_bytes(data, DecodeOptions(iterations=2))
+    assert calls == {"unpack": 1, "prec": 1} and rep.refine_iterations == 2
+    assert rep.bytes["file"] == len(data) and sum(v for k, v in rep.bytes.items() if k != "file") == len(data)
+
+
+def test_the_summary_divides_bytes_by_the_gaussians_given_and_coded(tmp_path):
+    src, out = tmp_path / "in.ply", tmp_path / "s.gspc"
+    sc = random_scene(400, sh_degree=0, seed=3)
+    sc.opacities[:100] = -9.0  # under 1/255 opaque: not coded
+    write_ply(sc, src)
+    res = run("encode", src, "-o", out, "--views", 4, "--max-side", 32, "--no-side-info")
+    assert res.exit_code == 0, res.output
+    assert "B/Gaussian given" in res.output and "B/Gaussian coded" in res.output
+    assert "Gaussians: 400 given" in res.output and "100 not coded" in res.output
+
+
+def test_ctrl_c_exits_130(tmp_path, monkeypatch):
+    src = tmp_path / "in.ply"
+    write_ply(random_scene(50, sh_degree=0), src)
+
+    def interrupted(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(pipeline, "encode", interrupted)
+    res = run("encode", src, "-o", tmp_path / "o.gspc")
+    assert res.exit_code == 130 and "interrupted" in res.output
+    assert not (tmp_path / "o.gspc").exists()
+
+
+@pytest.mark.slow
+def test_a_machine_without_compiled_kernels_is_told_so(tmp_path):
+    # numba's cache in an empty folder: every kernel is uncompiled there (gspc/jit.py), which a run reports
+    # as a stage of its own before it waits.
+    code = "from gspc.jit import uncompiled_kernels; print(len(uncompiled_kernels()))"
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True)
+    assert int(out.stdout) > 0
