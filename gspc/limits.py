@@ -169,3 +169,47 @@ MIN_TARGET_SIZE = 1024
 
 # --views (synthesised cameras): at least one; more than this is hours of rendering for no measured gain.
 MAX_SYNTH_VIEWS = 10_000
+
+
+# --- spatial tiles (format 1.5, spec 10.14) ----------------------------------------------------------------
+
+# Tiles one file may hold: a tile has up to seven chunks and a file 65,535 (spec section 7), so 8,192 tiles
+# of the encoder's default size hold far more Gaussians than any scene yet captured.
+MAX_TILES = 1 << 13
+# Gaussians the encoder puts in one tile by default (--tile-size): the chosen trade of bytes (each tile pays
+# its own entropy models) against memory and parallel work (bench/tiles.md).
+DEFAULT_TILE_SIZE = 1 << 18
+# --tile-size at least this: smaller tiles pay their models more than their Gaussians.
+MIN_TILE_SIZE = 1 << 10
+
+# What decoding a tiled file's attribute payloads may spend in all, P their bytes together: table entries
+# at most max(FILE_TABLE_FLOOR, MODEL_ENTRIES_PER_BYTE x P), decompressed model lists at most
+# max(FILE_MODEL_FLOOR, MODEL_LIST_RATIO x P). Each matrix keeps its own bounds (above); without these, every
+# tile would bring its own floors, and a file of many tiny tiles could ask for thousands of them. The floors
+# are what one untiled file may ask for at most (eight floors' worth of tables; 113 model lists at their
+# floor: sixteen classes of seven chunks and the positions').
+FILE_TABLE_FLOOR = 8 * MODEL_TABLE_FLOOR
+FILE_MODEL_FLOOR = 1 << 23
+
+
+class DecodeBudget:
+    """The table entries and model-list bytes a tiled file's decode may still spend (spec 10.14): shared
+    by its tiles, so each floor counts once per file. Each matrix spends once, when its models are read."""
+
+    def __init__(self, payload_bytes: int) -> None:
+        self.table_entries = max(FILE_TABLE_FLOOR, MODEL_ENTRIES_PER_BYTE * payload_bytes)
+        self.model_bytes = max(FILE_MODEL_FLOOR, MODEL_LIST_RATIO * payload_bytes)
+
+    def spend_tables(self, entries: int) -> bool:
+        """Spend ``entries`` table entries; False (nothing spent) where fewer are left."""
+        if entries > self.table_entries:
+            return False
+        self.table_entries -= entries
+        return True
+
+    def spend_model_bytes(self, size: int) -> bool:
+        """Spend ``size`` decompressed model-list bytes; False (nothing spent) where fewer are left."""
+        if size > self.model_bytes:
+            return False
+        self.model_bytes -= size
+        return True

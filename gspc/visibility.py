@@ -22,6 +22,14 @@ def visible_mask(
     return seen
 
 
+def seeing_cameras(
+    means: np.ndarray, log_scales: np.ndarray, cameras: list[Camera], near: float = 0.01
+) -> list[int]:
+    """Indices of the cameras that see at least one of the Gaussians (the test of :func:`visible_mask`):
+    the views a part of a scene (a spatial tile) is measured and scored at."""
+    return [k for k, (mask, _) in enumerate(_per_camera(means, log_scales, cameras, near)) if mask.any()]
+
+
 def sampling_coverage(
     means: np.ndarray, log_scales: np.ndarray, cameras: list[Camera], near: float = 0.01
 ) -> np.ndarray:

@@ -43,6 +43,7 @@ from gspc.format.attribute_section import (
     check_attribute_chunks,
 )
 from gspc.format.chunks import ATTRIBUTE_TYPES, OPAC, POSN, PREC, ROTN, SCAL, SHDC, SHRS
+from gspc.limits import DecodeBudget
 from gspc.scene import GaussianScene, num_sh_rest
 
 
@@ -217,14 +218,20 @@ class DecodedSection:
     precision: PrecisionMap | None  # each Gaussian's class and SH degree at version 4, else None
 
 
-def decode_section(chunks: dict[str, bytes], section: AttributeSection) -> DecodedSection:
-    """:func:`decode_attributes`, with the precision map the PREC chunk holds (read once)."""
+def decode_section(
+    chunks: dict[str, bytes], section: AttributeSection, budget: DecodeBudget | None = None
+) -> DecodedSection:
+    """:func:`decode_attributes`, with the precision map the PREC chunk holds (read once). ``budget``: what
+    the file's decode may still spend, where the section is one of a tiled file's (spec 10.14)."""
     n, degree, grid = section.n, section.sh_degree, section.position
     check_attribute_chunks(chunks, section)
-    voxels = pos.decode_positions(chunks[POSN], grid, n)
+    voxels = pos.decode_positions(chunks[POSN], grid, n, budget)
     means = pos.positions(voxels, grid)
-    pmap = decode_precision(chunks[PREC], section) if section.precision else None
-    values = _decode_classed(chunks, section, pmap) if pmap is not None else _decode_uniform(chunks, section)
+    pmap = decode_precision(chunks[PREC], section, budget) if section.precision else None
+    if pmap is not None:
+        values = _decode_classed(chunks, section, pmap, budget)
+    else:
+        values = _decode_uniform(chunks, section, budget)
     t = torch.from_numpy
     scene = GaussianScene(
         t(means),
@@ -238,12 +245,14 @@ def decode_section(chunks: dict[str, bytes], section: AttributeSection) -> Decod
     return DecodedSection(scene, pmap)
 
 
-def _decode_uniform(chunks: dict[str, bytes], section: AttributeSection) -> dict[str, np.ndarray]:
+def _decode_uniform(
+    chunks: dict[str, bytes], section: AttributeSection, budget: DecodeBudget | None
+) -> dict[str, np.ndarray]:
     """Versions 1 to 3: every attribute group at the section's one class, by scene attribute."""
     n, degree = section.n, section.sh_degree
     quant = AttributeQuantisers.from_section(section)
     out = {
-        g.attribute: _dequantised(g, quant, decode_matrix(chunks[g.chunk], (n, g.columns)))
+        g.attribute: _dequantised(g, quant, decode_matrix(chunks[g.chunk], (n, g.columns), budget))
         for g in GROUP_CHUNKS
     }
     k = num_sh_rest(degree)
@@ -255,18 +264,18 @@ def _decode_uniform(chunks: dict[str, bytes], section: AttributeSection) -> dict
             raise CodecError("chunk SHRS is malformed") from None
         if not (isinstance(flag_payload, bytes) and isinstance(rest_payload, bytes)):
             raise CodecError("chunk SHRS is not a pair of msgpack bins")
-        flags = decode_matrix(flag_payload, (n, 1))
+        flags = decode_matrix(flag_payload, (n, 1), budget)
         if ((flags != 0) & (flags != 1)).any():
             raise CodecError("chunk SHRS has a malformed flag matrix")
         flags = flags[:, 0].astype(bool)
-        q = decode_matrix(rest_payload, (int(flags.sum()), 3 * k))
+        q = decode_matrix(rest_payload, (int(flags.sum()), 3 * k), budget)
         rest[flags] = quant.sh_rest.dequantise(q)
     out["sh_rest"] = rest
     return out
 
 
 def _decode_classed(
-    chunks: dict[str, bytes], section: AttributeSection, pmap: PrecisionMap
+    chunks: dict[str, bytes], section: AttributeSection, pmap: PrecisionMap, budget: DecodeBudget | None
 ) -> dict[str, np.ndarray]:
     """Version 4 (spec 10.13): every class's rows from their own matrices, SH rest band by band up to each
     Gaussian's degree; by scene attribute."""
@@ -274,8 +283,8 @@ def _decode_classed(
     classes = section.all_classes
     out = {g.attribute: np.empty((n, g.columns) if g.columns > 1 else n, np.float32) for g in GROUP_CHUNKS}
     rest = np.zeros((n, num_sh_rest(degree), 3), np.float32)
-    bins = {g.chunk: unpack_bins(chunks[g.chunk], g.chunk, len(classes)) for g in GROUP_CHUNKS}
-    rest_bins = unpack_bins(chunks[SHRS], SHRS, len(classes) * degree) if degree > 0 else []
+    bins = {g.chunk: unpack_bins(chunks[g.chunk], g.chunk, len(classes), budget) for g in GROUP_CHUNKS}
+    rest_bins = unpack_bins(chunks[SHRS], SHRS, len(classes) * degree, budget) if degree > 0 else []
     for k, steps_k in enumerate(classes):
         rows = pmap.rows(k)
         quant = AttributeQuantisers.from_steps(steps_k)

@@ -29,7 +29,7 @@ import numpy as np
 import zstandard
 
 from gspc.errors import CodecError, ValueRangeError
-from gspc.limits import max_model_entries, max_model_list_bytes
+from gspc.limits import DecodeBudget, max_model_entries, max_model_list_bytes
 
 BASE_STRIDE = 64
 _NUM_SPATIAL = 5  # |a-b| bit length 0, 1, 2, >=3, and "no neighbours" (base rows)
@@ -197,7 +197,7 @@ def table_entries(spec: list[int]) -> int:
     return spec[2] - spec[1] + 1 if spec[0] >= 2 else 0
 
 
-def check_models(header: object, nc: int, payload_bytes: int) -> list:
+def check_models(header: object, nc: int, payload_bytes: int, budget: DecodeBudget | None = None) -> list:
     """CodecError unless ``header`` is the model list of an ``nc``-column matrix (spec 10.0) whose tables
     together stay within gspc/limits.py's bound for a ``payload_bytes``-byte matrix: every spec is checked
     and the tables counted before any table is built."""
@@ -224,6 +224,8 @@ def check_models(header: object, nc: int, payload_bytes: int) -> list:
             f"entropy models build {entries:,} table entries from a {payload_bytes:,}-byte matrix "
             f"(limit {limit:,})"
         )
+    if budget is not None and not budget.spend_tables(entries):
+        raise CodecError("the file's entropy models build more table entries in all than its bytes allow")
     return header
 
 
@@ -386,7 +388,7 @@ def encode_matrix(q: np.ndarray) -> bytes:
     return payload
 
 
-def _unpack_models(packed: bytes) -> list:
+def _unpack_models(packed: bytes, budget: DecodeBudget | None = None) -> list:
     # One zstd frame, nothing after it; a frame that declares more than the limit is refused before
     # zstandard allocates the declared size (it ignores max_output_size for declared sizes).
     # The limit grows with the frame (gspc/limits.py): every decompressed byte is parsed and checked.
@@ -396,11 +398,19 @@ def _unpack_models(packed: bytes) -> list:
         raise CodecError(
             f"entropy models declare {size} bytes from a {len(packed)}-byte frame (at most {limit})"
         )
+    if budget is not None and size > budget.model_bytes:
+        raise CodecError("the file's entropy models decompress to more bytes in all than its bytes allow")
+    if budget is not None:
+        limit = min(limit, budget.model_bytes)
     raw = zstandard.ZstdDecompressor().decompress(packed, max_output_size=limit, allow_extra_data=False)
+    if budget is not None and not budget.spend_model_bytes(len(raw)):
+        raise CodecError("the file's entropy models decompress to more bytes in all than its bytes allow")
     return msgpack.unpackb(raw, raw=False)
 
 
-def _read_matrix(payload: bytes, shape: tuple[int, int] | None) -> tuple[int, int, list, bytes]:
+def _read_matrix(
+    payload: bytes, shape: tuple[int, int] | None, budget: DecodeBudget | None = None
+) -> tuple[int, int, list, bytes]:
     """(rows, columns, checked model list, words) of a matrix payload, every rule of spec 10.0 checked that
     needs no symbol decoded (an empty matrix: no models, no words)."""
     ecm = msgpack.unpackb(payload, raw=False, strict_map_key=False)
@@ -419,15 +429,15 @@ def _read_matrix(payload: bytes, shape: tuple[int, int] | None) -> tuple[int, in
         return m, nc, [], words
     if len(words) % 4:
         raise CodecError(f"range coder words take {len(words)} bytes, not a multiple of 4")
-    return m, nc, check_models(_unpack_models(packed), nc, len(payload)), words
+    return m, nc, check_models(_unpack_models(packed, budget), nc, len(payload), budget), words
 
 
-def matrix_table_entries(payload: bytes) -> int:
+def matrix_table_entries(payload: bytes, budget: DecodeBudget | None = None) -> int:
     """Entries of the probability tables a matrix payload's models build, read and checked as
     :func:`decode_matrix` reads them, no table built: the matrices of one chunk at attribute codec version 4
     share one bound (spec 10.10, gspc/limits.py max_model_entries), summed from these first."""
     try:
-        _, _, header, _ = _read_matrix(payload, None)
+        _, _, header, _ = _read_matrix(payload, None, budget)
     except CodecError:
         raise
     except Exception as err:  # malformed payloads surface as one-line codec errors
@@ -435,11 +445,14 @@ def matrix_table_entries(payload: bytes) -> int:
     return sum(table_entries(spec) for _, specs in header for spec in specs)
 
 
-def decode_matrix(payload: bytes, shape: tuple[int, int] | None = None) -> np.ndarray:
+def decode_matrix(
+    payload: bytes, shape: tuple[int, int] | None = None, budget: DecodeBudget | None = None
+) -> np.ndarray:
     """Inverse of :func:`encode_matrix`. With ``shape``, a matrix of another shape is refused before
-    anything of its size is allocated (spec 10.0: the caller knows the shape)."""
+    anything of its size is allocated (spec 10.0: the caller knows the shape). ``budget``: what the file's
+    decode may still spend, shared with its other matrices (a tiled file's, spec 10.14)."""
     try:
-        m, nc, header, words = _read_matrix(payload, shape)
+        m, nc, header, words = _read_matrix(payload, shape, budget)
         if m == 0:
             return np.zeros((0, nc), np.int64)
         dec = constriction.stream.queue.RangeDecoder(np.frombuffer(words, dtype="<u4").copy())

@@ -33,7 +33,7 @@ leading one are stored raw.
 from __future__ import annotations
 
 import math
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import msgpack
 import numpy as np
@@ -48,6 +48,7 @@ from gspc.format.attribute_section import (
     FarSet,
     PositionGrid,
 )
+from gspc.limits import DecodeBudget
 
 # Region of interest: R = ROI_MARGIN times the median distance of the Gaussians from their median. The
 # mapping is the identity up to 2 R (the first octave keeps its scale), so only Gaussians beyond 6 median
@@ -178,8 +179,14 @@ def contracted_grid(y: np.ndarray, precision: float) -> tuple[int, list[float], 
     size (at most MAX_BITS; beyond, the voxels grow)."""
     inside = np.sqrt((y * y).sum(1)) <= IDENTITY_RADIUS
     core = y[inside] if inside.any() else y
-    step = cubic_step(core.max(0) - core.min(0), precision)
-    lo, hi = y.min(0), y.max(0)
+    return _contracted_grid(y.min(0), y.max(0), np.stack([core.min(0), core.max(0)]), precision)
+
+
+def _contracted_grid(
+    lo: np.ndarray, hi: np.ndarray, core: np.ndarray, precision: float
+) -> tuple[int, list[float], list[float]]:
+    """:func:`contracted_grid` from the bounds: all the points' (``lo``, ``hi``), the core's (2 x 3)."""
+    step = cubic_step(core[1] - core[0], precision)
     need = span_bits(hi - lo, step)
     bits = min(max(grid_bits(precision), need), CONTRACTED_MAX_BITS)
     if need > CONTRACTED_MAX_BITS:
@@ -209,20 +216,76 @@ def curve_order(
     bits per axis over the positions (fractional: :func:`voxel_grid`). ``sizes``: each
     Gaussian's world size (the encoder's choice of a far set needs it; None, no far set). CodecError where
     the scene's positions lie beyond the format's bounds (spec 10.1)."""
+    return grid_order(means, grid_frame(means).grid(precision), sizes)
+
+
+@dataclass(frozen=True)
+class GridFrame:
+    """What a scene's grid at any precision is made from: its contraction (None: a bounded scene) and the
+    bounds of its points in grid space, all of them and those the contraction leaves as they are. The
+    spatial tiles of a scene code on their scene's grid, made from its frame (gspc/encoder/tiles.py)."""
+
+    contraction: Contraction | None
+    lo: tuple[float, float, float]
+    hi: tuple[float, float, float]
+    core_lo: tuple[float, float, float]
+    core_hi: tuple[float, float, float]
+
+    def grid(self, precision: float) -> PositionGrid:
+        """The grid of ``precision`` bits per axis (:func:`voxel_grid`, :func:`contracted_grid`)."""
+        lo, hi = np.asarray(self.lo), np.asarray(self.hi)
+        if self.contraction is None:
+            bits, lo_, step = voxel_grid(np.stack([lo, hi]), precision)
+            return PositionGrid(bits, tuple(lo_), tuple(step))
+        core = np.stack([np.asarray(self.core_lo), np.asarray(self.core_hi)])
+        bits, lo_, step = _contracted_grid(lo, hi, core, precision)
+        return PositionGrid(bits, tuple(lo_), tuple(step), self.contraction)
+
+
+def grid_frame(means: np.ndarray) -> GridFrame:
+    """The frame of ``means``'s grid: contracted where the scene is unbounded (:func:`region_of_interest`)."""
     roi = region_of_interest(means)
     if roi is None:
-        bits, lo, step = voxel_grid(means, precision)
-        v = voxelise(means, lo, step, bits)
-        grid = PositionGrid(bits, tuple(lo), tuple(step))
-        order = np.argsort(morton_encode(v, bits), kind="stable")
-        return v[order], order, grid
+        m = np.asarray(means, np.float64)
+        lo, hi = tuple(m.min(0).tolist()), tuple(m.max(0).tolist())
+        return GridFrame(None, lo, hi, lo, hi)
     centre, radius = roi
     y = contract(means, centre, radius)
-    bits, lo, step = contracted_grid(y, precision)
-    grid = PositionGrid(bits, tuple(lo), tuple(step), Contraction(tuple(float(c) for c in centre), radius))
+    inside = np.sqrt((y * y).sum(1)) <= IDENTITY_RADIUS
+    core = y[inside] if inside.any() else y
+    contraction = Contraction(tuple(float(c) for c in centre), radius)
+    return GridFrame(
+        contraction,
+        tuple(y.min(0).tolist()),
+        tuple(y.max(0).tolist()),
+        tuple(core.min(0).tolist()),
+        tuple(core.max(0).tolist()),
+    )
+
+
+def grid_coordinates(means: np.ndarray, grid: PositionGrid) -> np.ndarray:
+    """Positions in the grid's space (contracted where the grid is), float64."""
+    if grid.contraction is None:
+        return np.asarray(means, np.float64)
+    return contract(means, grid.contraction.centre, grid.contraction.radius)
+
+
+def grid_order(
+    means: np.ndarray,
+    grid: PositionGrid,
+    sizes: np.ndarray | None = None,
+    reference: float | None = None,
+) -> tuple[np.ndarray, np.ndarray, PositionGrid]:
+    """:func:`curve_order` on a given ``grid`` (its far set, if any, ignored: one is chosen here from
+    ``sizes``, against the median precision ``reference`` where given, else the points' own)."""
+    grid = replace(grid, far=None)
+    y = grid_coordinates(means, grid)
+    lo, step, bits = list(grid.lo), list(grid.step), grid.bits
     v = voxelise(y, lo, step, bits)
     order = np.argsort(morton_encode(v, bits), kind="stable")
-    shift, far = (0, None) if sizes is None else far_set(means, y, sizes, grid)
+    if grid.contraction is None or sizes is None:
+        return v[order], order, grid
+    shift, far = far_set(means, y, sizes, grid, reference)
     if far is None:
         return v[order], order, grid
     near_idx, far_idx = np.flatnonzero(~far), np.flatnonzero(far)
@@ -239,7 +302,7 @@ def curve_order(
 
 
 def far_set(
-    means: np.ndarray, y: np.ndarray, sizes: np.ndarray, grid: PositionGrid
+    means: np.ndarray, y: np.ndarray, sizes: np.ndarray, grid: PositionGrid, reference: float | None = None
 ) -> tuple[int, np.ndarray | None]:
     """(shift, mask) of the far set for a contracted grid, or (0, None) where none pays (see the module).
 
@@ -247,16 +310,12 @@ def far_set(
     centre (the contraction's tangential stretch |u| / |y|). A Gaussian beyond the identity radius may join
     the far set at shift k if its relative precision is at least 2^(k + FAR_MARGIN_BITS) times the median
     inside; the k that saves the most bits (k bits per axis for each member) wins. Encoder-only: the file
-    states the set."""
-    roi = grid.contraction
-    u = np.sqrt(((np.asarray(means, np.float64) - np.asarray(roi.centre)) ** 2).sum(1)) / roi.radius
-    rho = np.sqrt((y * y).sum(1))
-    outside = u > IDENTITY_RADIUS
+    states the set. ``reference``: the median inside, where the points are a part of the scene (a tile)."""
+    outside, precision = _relative_precision(means, y, sizes, grid)
     if not outside.any() or outside.all():
         return 0, None
-    voxel = max(grid.step) * roi.radius * np.where(outside, u / np.maximum(rho, 1e-300), 1.0)
-    precision = np.asarray(sizes, np.float64) / voxel
-    reference = float(np.median(precision[~outside]))
+    if reference is None:
+        reference = float(np.median(precision[~outside]))
     if not reference > 0:
         return 0, None
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -271,6 +330,28 @@ def far_set(
     if far.all():  # the near curve is never empty (spec 10.1)
         return 0, None
     return k, far
+
+
+def _relative_precision(
+    means: np.ndarray, y: np.ndarray, sizes: np.ndarray, grid: PositionGrid
+) -> tuple[np.ndarray, np.ndarray]:
+    """(beyond the identity radius, each Gaussian's size over its voxel's world size across the line of
+    sight): the far set's measure (:func:`far_set`)."""
+    roi = grid.contraction
+    u = np.sqrt(((np.asarray(means, np.float64) - np.asarray(roi.centre)) ** 2).sum(1)) / roi.radius
+    rho = np.sqrt((y * y).sum(1))
+    outside = u > IDENTITY_RADIUS
+    voxel = max(grid.step) * roi.radius * np.where(outside, u / np.maximum(rho, 1e-300), 1.0)
+    return outside, np.asarray(sizes, np.float64) / voxel
+
+
+def far_reference(means: np.ndarray, sizes: np.ndarray, grid: PositionGrid) -> float | None:
+    """The median relative precision of the Gaussians inside the identity radius (:func:`far_set`'s
+    reference) on ``grid``; None on a plain grid or with none inside."""
+    if grid.contraction is None:
+        return None
+    outside, precision = _relative_precision(means, grid_coordinates(means, grid), sizes, grid)
+    return float(np.median(precision[~outside])) if (~outside).any() else None
 
 
 def positions(v: np.ndarray, grid: PositionGrid) -> np.ndarray:
@@ -308,7 +389,9 @@ def encode_positions(voxels: np.ndarray, grid: PositionGrid) -> bytes:
     return msgpack.packb(parts, use_bin_type=True)
 
 
-def decode_positions(payload: bytes, grid: PositionGrid, n: int) -> np.ndarray:
+def decode_positions(
+    payload: bytes, grid: PositionGrid, n: int, budget: DecodeBudget | None = None
+) -> np.ndarray:
     """Voxels of the fine grid in decoded order from a POSN payload."""
     bits = grid.bits
     near, shift = grid.split(n)
@@ -319,10 +402,10 @@ def decode_positions(payload: bytes, grid: PositionGrid, n: int) -> np.ndarray:
     expected = 2 if near == n else 4
     if not (isinstance(parts, list) and len(parts) == expected and all(isinstance(p, bytes) for p in parts)):
         raise CodecError(f"position payload is not an array of {expected} msgpack bins")
-    v = _decode_curve(parts[0], parts[1], bits, near)
+    v = _decode_curve(parts[0], parts[1], bits, near, budget)
     if near == n:
         return v
-    far = np.left_shift(_decode_curve(parts[2], parts[3], bits - shift, n - near), shift)
+    far = np.left_shift(_decode_curve(parts[2], parts[3], bits - shift, n - near, budget), shift)
     return np.concatenate([v, far])
 
 
@@ -335,8 +418,8 @@ def _encode_curve(v_sorted: np.ndarray, bits: int) -> list[bytes]:
     return [encode_matrix(lengths[:, None]), pack_bits(delta.astype(np.uint64), mantissa_len)]
 
 
-def _decode_curve(classes: bytes, raw: bytes, bits: int, n: int) -> np.ndarray:
-    lengths = decode_matrix(classes, (n, 1))[:, 0]
+def _decode_curve(classes: bytes, raw: bytes, bits: int, n: int, budget: DecodeBudget | None) -> np.ndarray:
+    lengths = decode_matrix(classes, (n, 1), budget)[:, 0]
     if (lengths > 3 * bits).any() or (lengths < 0).any():
         raise CodecError("position payload does not match the header's bit depth")
     mantissa_len = np.maximum(lengths - 1, 0)

@@ -14,7 +14,7 @@ import numpy as np
 from gspc.codec.entropy import decode_matrix, encode_matrix, matrix_table_entries
 from gspc.errors import CodecError, ValueRangeError
 from gspc.format.attribute_section import AttributeSection
-from gspc.limits import max_model_entries
+from gspc.limits import DecodeBudget, max_model_entries
 
 
 @dataclass(frozen=True)
@@ -35,10 +35,12 @@ def encode_precision(pmap: PrecisionMap, sh_degree: int) -> bytes:
     return encode_matrix(np.stack(cols, 1).astype(np.int64))
 
 
-def decode_precision(payload: bytes, section: AttributeSection) -> PrecisionMap:
+def decode_precision(
+    payload: bytes, section: AttributeSection, budget: DecodeBudget | None = None
+) -> PrecisionMap:
     """The PREC payload of a version-4 section, each value checked against the section."""
     n, degree = section.n, section.sh_degree
-    m = decode_matrix(payload, (n, 1 if degree == 0 else 2))
+    m = decode_matrix(payload, (n, 1 if degree == 0 else 2), budget)
     classes = m[:, 0].astype(np.int64)
     if ((classes < 0) | (classes >= len(section.all_classes))).any():
         raise CodecError(f"chunk PREC names a precision class outside 0..{len(section.all_classes) - 1}")
@@ -61,8 +63,9 @@ def pack_bins(parts: list[bytes]) -> bytes:
     return payload
 
 
-def unpack_bins(payload: bytes, name: str, count: int) -> list[bytes]:
-    """A chunk that is a msgpack array of exactly ``count`` bins (spec 10.13)."""
+def unpack_bins(payload: bytes, name: str, count: int, budget: DecodeBudget | None = None) -> list[bytes]:
+    """A chunk that is a msgpack array of exactly ``count`` bins (spec 10.13); its matrices' models spend
+    ``budget`` here, once (their decode does not spend it again)."""
     try:
         parts = msgpack.unpackb(payload, raw=False)
     except Exception:
@@ -72,7 +75,7 @@ def unpack_bins(payload: bytes, name: str, count: int) -> list[bytes]:
     # The chunk's matrices share one table bound (spec 10.10), checked before any table is built: each
     # matrix's own bound has a floor, and 16 classes would multiply it (bench/robustness.md, "Moved from code
     # comments").
-    entries, limit = sum(matrix_table_entries(p) for p in parts), max_model_entries(len(payload))
+    entries, limit = sum(matrix_table_entries(p, budget) for p in parts), max_model_entries(len(payload))
     if entries > limit:
         raise CodecError(
             f"chunk {name}'s entropy models build {entries:,} table entries from {len(payload):,} bytes "

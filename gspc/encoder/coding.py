@@ -23,8 +23,26 @@ from gspc.codec.quantisers import OPACITY_FLOOR, SQRT_HALF
 from gspc.encoder.params import CodecParams
 from gspc.encoder.precision_plan import Plan, RateSteps, Significance, plan_precision
 from gspc.errors import CodecError, InputError, NothingCodedError, ValueRangeError
-from gspc.format.attribute_section import AttributeSection, ClassSteps
+from gspc.format.attribute_section import AttributeSection, ClassSteps, PositionGrid
 from gspc.scene import GaussianScene, num_sh_rest
+
+
+@dataclass(frozen=True)
+class SharedGrid:
+    """The position grid of a whole scene, which each of its spatial tiles codes on (gspc/encoder/tiles.py):
+    its frame (the grid at any precision, so a tile's rate and position offset move it as they move a
+    scene's) and the median world size of its Gaussians inside the contraction's identity radius, which
+    each tile's far set is chosen against (gspc/codec/positions.py far_set)."""
+
+    frame: pos.GridFrame
+    inside_size: float | None = None
+
+    def at(self, precision: float) -> tuple[PositionGrid, float | None]:
+        """The grid of ``precision`` bits per axis, and its far sets' reference precision."""
+        grid = self.frame.grid(precision)
+        if grid.contraction is None or self.inside_size is None:
+            return grid, None
+        return grid, self.inside_size / (max(grid.step) * grid.contraction.radius)
 
 
 @dataclass
@@ -123,15 +141,17 @@ def encode_attributes(
     visible: np.ndarray | None = None,
     significance: Significance | None = None,
     planned_on: GaussianScene | None = None,
+    grid: SharedGrid | None = None,
 ) -> EncodedAttributes:
     """Encode a scene; ``decoded`` is what the decoder decodes from these chunks. With ``params.precision``
     and the ``significance`` of the scene's Gaussians, per-Gaussian precision (version 4,
     gspc/encoder/precision_plan.py); otherwise every Gaussian at the rate's steps. ``planned_on``: the scene
     (of the same Gaussians) whose opacities and sizes decide which Gaussians are coded, their classes and the
     far set (default: ``scene``): the encoder's tuning codes moved values under the original's plan
-    (gspc/encoder/tuning.py). ValueRangeError where a value is beyond what lambda codes."""
+    (gspc/encoder/tuning.py). ``grid``: the grid of the scene this one is a tile of (default: its own,
+    over its positions). ValueRangeError where a value is beyond what lambda codes."""
     try:
-        return _encode(scene, params, visible, significance, planned_on)
+        return _encode(scene, params, visible, significance, planned_on, grid)
     except OutOfRange as e:
         at = " for the finest coefficient" if e.finest else ""
         raise ValueRangeError(
@@ -146,6 +166,7 @@ def _encode(
     visible: np.ndarray | None,
     significance: Significance | None,
     planned_on: GaussianScene | None,
+    shared: SharedGrid | None,
 ) -> EncodedAttributes:
     scene.validate()
     base = scene if planned_on is None else planned_on
@@ -169,7 +190,11 @@ def _encode(
         # plan gives finer steps needs its position as much finer (bench/far_set.md).
         sizes = sizes * 2.0 ** np.minimum(plan.exponent[keep_idx], 0).astype(np.float64)
     try:
-        voxels, order, grid = pos.curve_order(means, params.position_precision, sizes)
+        if shared is None:
+            voxels, order, grid = pos.curve_order(means, params.position_precision, sizes)
+        else:
+            on, reference = shared.at(params.position_precision)
+            voxels, order, grid = pos.grid_order(means, on, sizes, reference)
     except CodecError as err:  # a grid the format's bounds refuse (spec 10.1)
         raise InputError(f"the scene's positions cannot be coded: {err}") from None
     kept = keep_idx[order]

@@ -11,7 +11,7 @@ import numpy as np
 
 from gspc.cameras import Camera
 from gspc.codec import residuals
-from gspc.encoder.coding import EncodedAttributes, encode_attributes
+from gspc.encoder.coding import EncodedAttributes, SharedGrid, encode_attributes
 from gspc.encoder.params import CodecParams
 from gspc.encoder.precision_plan import Significance
 from gspc.encoder.rate import search_lambda
@@ -107,21 +107,23 @@ def code_attributes(
     removal: RemovalParams | None = None,
     deadline: float | None = None,
     measure: Measure | None = None,
+    grid: SharedGrid | None = None,
 ) -> CodedAttributes:
     """Prune what no camera sees and code the rest (at most ``target_size`` bytes when given), on the CPU:
     the visibility mask decides what is coded, so it is numpy like the codec. ``measure``: the scene's, where
     already taken (:func:`measure_scene` otherwise). With ``removal``, views between the encoder's cameras
-    choose how much to remove in the bytes that coding takes (gspc/encoder/removal.py)."""
+    choose how much to remove in the bytes that coding takes (gspc/encoder/removal.py). ``grid``: the
+    scene's whose tile this is (gspc/encoder/tiles.py)."""
     m = measure if measure is not None else measure_scene(scene, cameras, params, background, progress)
     visible, sig = m.visible, m.significance
     if target_size is not None:
-        enc = search_lambda(scene, target_size, params, visible=visible, significance=sig)
+        enc = search_lambda(scene, target_size, params, visible=visible, significance=sig, grid=grid)
     else:
-        enc = encode_attributes(scene, params, visible=visible, significance=sig)
+        enc = encode_attributes(scene, params, visible=visible, significance=sig, grid=grid)
     choice = None
     if removal is not None and sig is not None:
         choice = choose_removal(
-            scene.to("cpu"), enc, params, visible, sig, cameras, background, removal, deadline, progress
+            scene.to("cpu"), enc, params, visible, sig, cameras, background, removal, deadline, progress, grid
         )
         enc, params = choice.encoded, choice.params
     return CodedAttributes(enc, params, visible, sig, choice)

@@ -10,7 +10,7 @@ import time
 
 import numpy as np
 
-from gspc.encoder.coding import EncodedAttributes, class_steps, encode_attributes
+from gspc.encoder.coding import EncodedAttributes, SharedGrid, class_steps, encode_attributes
 from gspc.encoder.params import CodecParams
 from gspc.encoder.precision_plan import Significance
 from gspc.errors import NothingCodedError, ValueRangeError
@@ -36,6 +36,7 @@ def search_lambda(
     first: EncodedAttributes | None = None,
     significance: Significance | None = None,
     deadline: float | None = None,
+    grid: SharedGrid | None = None,
 ) -> EncodedAttributes:
     """The encoding with the smallest lambda whose size is at most ``target_bytes``.
 
@@ -61,7 +62,9 @@ def search_lambda(
             enc = first
         else:
             try:
-                enc = encode_attributes(scene, params.with_lambda(math.exp(x)), visible, significance)
+                enc = encode_attributes(
+                    scene, params.with_lambda(math.exp(x)), visible, significance, grid=grid
+                )
             except ValueRangeError:
                 # Too fine for the scene's largest values: a larger lambda, as if the size were too big.
                 if x >= hi or k == max_iter - 1:

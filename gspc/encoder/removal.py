@@ -33,7 +33,7 @@ import numpy as np
 import torch
 
 from gspc.cameras import Camera
-from gspc.encoder.coding import EncodedAttributes
+from gspc.encoder.coding import EncodedAttributes, SharedGrid
 from gspc.encoder.params import CodecParams
 from gspc.encoder.precision_plan import Significance
 from gspc.encoder.rate import search_lambda
@@ -161,6 +161,7 @@ def choose_removal(
     rp: RemovalParams = RemovalParams(),
     deadline: float | None = None,
     progress: Progress | None = None,
+    grid: SharedGrid | None = None,
 ) -> RemovalChoice:
     """The removal for ``scene`` (``first``: its coding with ``params``): the preset's, or the strongest of
     ``rp.steps`` tried until one fails to beat the best so far in ``first``'s bytes (none where the
@@ -196,6 +197,7 @@ def choose_removal(
             max_iter=rp.max_codings,
             significance=significance,
             deadline=deadline,
+            grid=grid,
         )
         trials.append(Trial(p.precision.prune, enc.lam, enc.num_bytes, score(enc), offset))
         _tick(progress, len(trials), stages)

@@ -36,7 +36,7 @@ import torch
 from gspc.adam import FusedAdam
 from gspc.cameras import Camera
 from gspc.codec.cells import quantisation_cells
-from gspc.encoder.coding import EncodedAttributes, encode_attributes
+from gspc.encoder.coding import EncodedAttributes, SharedGrid, encode_attributes
 from gspc.encoder.params import CodecParams
 from gspc.encoder.precision_plan import Significance
 from gspc.encoder.significance import wide_cameras
@@ -114,6 +114,7 @@ def tune_coding(
     byte_limit: int | None = None,
     deadline: float | None = None,
     progress: Progress | None = None,
+    grid: SharedGrid | None = None,
 ) -> Tuned:
     """``enc`` (``scene`` coded with ``params.with_lambda(enc.lam)``, ``visible`` and ``significance``) with
     its values tuned at ``cameras`` (see the module). ``byte_limit``: the most bytes the tuned coding may
@@ -155,7 +156,8 @@ def tune_coding(
             for v in z.values():
                 v.clamp_(-tuning.reach, tuning.reach)
         try:
-            current = encode_attributes(_moved(scene, origin, width, z), params, visible, significance, scene)
+            moved = _moved(scene, origin, width, z)
+            current = encode_attributes(moved, params, visible, significance, scene, grid)
         except ValueRangeError:  # a value at the edge of what the rate codes moved past it: stop there
             break
         done = it + 1

@@ -398,9 +398,12 @@ def attribute_chunks(chunks: list) -> dict[str, bytes]:
     return out
 
 
-def check_attribute_chunks(chunks: dict[str, bytes], section: AttributeSection) -> None:
+def check_attribute_chunks(
+    chunks: dict[str, bytes], section: AttributeSection, payload_bytes: int | None = None
+) -> None:
     """What can be checked of the attribute payloads before decoding them (``gspc info`` runs it too): each
-    chunk the section needs is present, no other, and the count is within what their bytes may declare."""
+    chunk the section needs is present, no other, and the count is within what their bytes may declare
+    (``payload_bytes``: their total where the payloads are not read yet, from the chunk table)."""
     n, degree = section.n, section.sh_degree
     if degree == 0 and SHRS in chunks:
         raise CodecError("chunk SHRS in a file of SH degree 0")
@@ -409,7 +412,8 @@ def check_attribute_chunks(chunks: dict[str, bytes], section: AttributeSection) 
     for t in ATTRIBUTE_TYPES:
         if t not in chunks and (t != SHRS or degree > 0) and (t != PREC or section.precision):
             raise CodecError(f"chunk {t} is missing")
-    payload_bytes = sum(len(chunks[t]) for t in chunks)
+    if payload_bytes is None:
+        payload_bytes = sum(len(chunks[t]) for t in chunks)
     if n > max_coded_gaussians(payload_bytes):  # gspc/limits.py: a minimum of coded bits per Gaussian
         raise CodecError(
             f"{n} Gaussians from {payload_bytes} payload bytes (at most {max_coded_gaussians(payload_bytes)})"

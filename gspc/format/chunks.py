@@ -25,6 +25,7 @@ SHRS = "SHRS"
 PREC = "PREC"
 SIDE = "SIDE"
 RESI = "RESI"
+TIDX = "TIDX"
 
 REGISTRY: dict[str, ChunkType] = {
     c.name: c
@@ -38,6 +39,7 @@ REGISTRY: dict[str, ChunkType] = {
         ChunkType(PREC, "each Gaussian's precision class and SH degree (attribute codec version 4)", "10.13"),
         ChunkType(RESI, "one residual image per view (format 1.0; read only)", "10.7"),
         ChunkType(SIDE, "every side-information view and residual image (format 1.1 on)", "10.9"),
+        ChunkType(TIDX, "the tile index: each tile's box and attribute section (format 1.5)", "10.14"),
     )
 }
 

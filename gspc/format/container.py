@@ -9,10 +9,10 @@ from __future__ import annotations
 import os
 import struct
 import zlib
-from collections.abc import Collection
+from collections.abc import Callable, Collection
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 import msgpack
 
@@ -171,8 +171,10 @@ def _check_value(obj: Any, path: str) -> None:
             raise ValueError(f"header value at {where} has type {type(value).__name__}, not a msgpack type")
 
 
-def pack(header: dict, chunks: list[Chunk]) -> bytes:
-    """The bytes of a gspc file (format VERSION) holding `header` (the codecs' metadata) and `chunks`."""
+def pack(header: dict, chunks: list[Chunk], version: tuple[int, int] = VERSION) -> bytes:
+    """The bytes of a gspc file holding `header` (the codecs' metadata) and `chunks`, marked with
+    `version` (default the newest this module writes; spec section 3: a writer marks the lowest minor
+    version whose features the file uses)."""
     if not isinstance(header, dict):
         raise ValueError(f"header must be a dict, not {type(header).__name__}")
     _check_value({"meta": header}, "header")
@@ -205,7 +207,7 @@ def pack(header: dict, chunks: list[Chunk]) -> bytes:
     head = msgpack.packb({"chunks": table, "meta": header}, use_bin_type=True)
     if len(head) > MAX_HEADER_LENGTH:
         raise ValueError(f"header is {len(head)} bytes; the limit is {MAX_HEADER_LENGTH}")
-    parts = [PREAMBLE.pack(MAGIC, *VERSION, len(head), crc32(head)), head]
+    parts = [PREAMBLE.pack(MAGIC, *version, len(head), crc32(head)), head]
     size = PREAMBLE.size + len(head)
     for c in [None, *chunks]:  # None: the padding after the header
         if c is not None:
@@ -342,17 +344,66 @@ def _region_at(pos: int, header_length: int, entries: list[_Entry], trailer_at: 
 def _parse(data: bytes, known_types: Collection[str] | None) -> _Parsed:
     """Every check of spec section 8, in its order. known_types=None skips the required-chunk rule."""
     n = len(data)
+    head = _parse_head(lambda start, end: data[start:end], n, known_types)
+    header_length, entries, data_start, trailer_at = (
+        head.header_length,
+        head.entries,
+        head.data_start,
+        head.trailer_at,
+    )
+    # 7. padding and chunk checksums, in file order
+    _check_zero(data, PREAMBLE.size + header_length, data_start, "header")
+    for e in entries:
+        got = crc32(memoryview(data)[e.offset : e.offset + e.length])
+        if got != e.crc:
+            raise ChecksumMismatch(
+                f"chunk {e.name} (payload at offset {e.offset}, {e.length} bytes) has CRC-32 {got:08x}, "
+                f"the chunk table says {e.crc:08x}"
+            )
+        _check_zero(data, e.offset + e.length, _align(e.offset + e.length), "chunk " + e.name)
+    # 8. trailer
+    marker, file_crc = TRAILER.unpack_from(data, trailer_at)
+    if marker != END_MARKER:
+        raise BadMagic(
+            f"end marker at offset {trailer_at} is {marker.hex()}, expected {END_MARKER.hex()} (GEND)"
+        )
+    got = crc32(memoryview(data)[: n - 4])
+    if got != file_crc:
+        raise ChecksumMismatch(
+            f"whole file (bytes 0-{n - 5}) has CRC-32 {got:08x}, "
+            f"the trailer at offset {n - 4} says {file_crc:08x}"
+        )
+    return _Parsed(head.version, header_length, head.meta, entries, data)
+
+
+@dataclass(frozen=True)
+class Head:
+    """What spec section 8's checks 1 to 8 read: the preamble, the header and the chunk table, with each
+    payload's offset; enough to find any chunk without reading the others (spec 10.14, partial reading)."""
+
+    version: tuple[int, int]
+    header_length: int
+    meta: dict
+    entries: list[_Entry]
+    data_start: int
+    trailer_at: int
+    file_size: int
+
+
+def _parse_head(get: Callable[[int, int], bytes], n: int, known_types: Collection[str] | None) -> Head:
+    """Checks 1 to 8 of spec section 8 on a file of ``n`` bytes, reading bytes ``start:end`` with ``get``."""
+    first = get(0, min(n, PREAMBLE.size))
     # 1. magic
     if n < len(MAGIC):
-        if data == MAGIC[:n]:
+        if first == MAGIC[:n]:
             raise Truncated(f"file ends at offset {n}, inside the magic")
-        raise BadMagic(f"not a gspc file: the first {n} bytes {data.hex()} are not the gspc magic")
-    if data[:8] != MAGIC:
-        raise BadMagic(f"not a gspc file: bytes 0-7 are {data[:8].hex()}, the gspc magic is {MAGIC.hex()}")
+        raise BadMagic(f"not a gspc file: the first {n} bytes {first.hex()} are not the gspc magic")
+    if first[:8] != MAGIC:
+        raise BadMagic(f"not a gspc file: bytes 0-7 are {first[:8].hex()}, the gspc magic is {MAGIC.hex()}")
     # 2. version
     if n < 12:
         raise Truncated(f"file ends at offset {n}, inside the version (offset 8)")
-    major, minor = struct.unpack_from("<HH", data, 8)
+    major, minor = struct.unpack_from("<HH", first, 8)
     if major != VERSION[0]:
         newer = "a newer" if major > VERSION[0] else "an older"
         raise UnsupportedVersion(
@@ -361,7 +412,7 @@ def _parse(data: bytes, known_types: Collection[str] | None) -> _Parsed:
     # 3. header length and checksum
     if n < PREAMBLE.size:
         raise Truncated(f"file ends at offset {n}, inside the preamble (20 bytes)")
-    _, _, _, header_length, header_crc = PREAMBLE.unpack_from(data, 0)
+    _, _, _, header_length, header_crc = PREAMBLE.unpack_from(first, 0)
     if header_length > MAX_HEADER_LENGTH:
         raise LimitExceeded(
             f"header_length {header_length} at offset 12 exceeds the limit {MAX_HEADER_LENGTH}"
@@ -373,7 +424,7 @@ def _parse(data: bytes, known_types: Collection[str] | None) -> _Parsed:
         )
     if header_length == 0:
         raise BadHeader("header_length at offset 12 is 0; the header must be a msgpack map")
-    raw = data[PREAMBLE.size : PREAMBLE.size + header_length]
+    raw = get(PREAMBLE.size, PREAMBLE.size + header_length)
     if crc32(raw) != header_crc:
         raise ChecksumMismatch(
             f"header (offset 20, {header_length} bytes) has CRC-32 {crc32(raw):08x}, "
@@ -408,29 +459,39 @@ def _parse(data: bytes, known_types: Collection[str] | None) -> _Parsed:
         )
     if n > expected:
         raise TrailingBytes(f"{n - expected} bytes follow the trailer, which ends at offset {expected}")
-    # 7. padding and chunk checksums, in file order
-    _check_zero(data, PREAMBLE.size + header_length, data_start, "header")
-    for e in entries:
-        got = crc32(memoryview(data)[e.offset : e.offset + e.length])
-        if got != e.crc:
-            raise ChecksumMismatch(
-                f"chunk {e.name} (payload at offset {e.offset}, {e.length} bytes) has CRC-32 {got:08x}, "
-                f"the chunk table says {e.crc:08x}"
-            )
-        _check_zero(data, e.offset + e.length, _align(e.offset + e.length), "chunk " + e.name)
-    # 8. trailer
-    marker, file_crc = TRAILER.unpack_from(data, trailer_at)
-    if marker != END_MARKER:
-        raise BadMagic(
-            f"end marker at offset {trailer_at} is {marker.hex()}, expected {END_MARKER.hex()} (GEND)"
-        )
-    got = crc32(memoryview(data)[: n - 4])
-    if got != file_crc:
+    return Head((major, minor), header_length, top["meta"], entries, data_start, trailer_at, n)
+
+
+def read_head(f: BinaryIO, known_types: Collection[str] = KNOWN_TYPES) -> Head:
+    """Checks 1 to 8 of spec section 8 on an open file, reading only its preamble and header (and its
+    size): a reader that decodes part of a file then reads just the chunks it needs (:func:`read_chunk`)."""
+    n = os.fstat(f.fileno()).st_size
+
+    def get(start: int, end: int) -> bytes:
+        f.seek(start)
+        return f.read(end - start)
+
+    return _parse_head(get, n, known_types)
+
+
+def read_chunk(f: BinaryIO, head: Head, index: int) -> Chunk:
+    """Chunk ``index`` of the table ``head`` read from ``f``, its CRC and padding checked (spec section 8,
+    check 9, for this chunk alone)."""
+    e = head.entries[index]
+    end = _align(e.offset + e.length)
+    f.seek(e.offset)
+    data = f.read(end - e.offset)
+    if len(data) != end - e.offset:
+        raise Truncated(f"file ends inside chunk {e.name}")
+    got = crc32(memoryview(data)[: e.length])
+    if got != e.crc:
         raise ChecksumMismatch(
-            f"whole file (bytes 0-{n - 5}) has CRC-32 {got:08x}, "
-            f"the trailer at offset {n - 4} says {file_crc:08x}"
+            f"chunk {e.name} (payload at offset {e.offset}, {e.length} bytes) has CRC-32 {got:08x}, "
+            f"the chunk table says {e.crc:08x}"
         )
-    return _Parsed((major, minor), header_length, top["meta"], entries, data)
+    if data[e.length :].count(0) != end - e.offset - e.length:
+        raise BadPadding(f"padding after chunk {e.name} is not zero")
+    return Chunk(e.type, bytes(data[: e.length]), e.required, e.index)
 
 
 def _check_zero(data: bytes, start: int, end: int, after: str) -> None:

@@ -1,0 +1,187 @@
+"""Spatial tiles: how the encoder splits a scene larger than one tile, and codes each tile on its own.
+
+A tile is a run of the scene's Morton order on the scene's grid, cut where an octree cell ends: the cells
+of more than ``tile_size`` Gaussians split into their eight children, and runs of consecutive small cells
+join while they fit. Each tile is then coded alone, as a scene of its own on the scene's grid (so its voxels
+are the scene's), with the whole method: what no camera sees pruned, its Gaussians measured at the cameras
+that see it, its precision planned, its removal and position grid searched, its values tuned. A tile is a
+task: a plain function of its rows and the run's settings to its chunks, run in this process or in a
+worker's (gspc/workers.py), with the same bytes either way.
+
+Each tile is measured, searched and tuned with its own Gaussians alone: the Gaussians of other tiles that
+occlude it are not drawn (bench/tiles.md measures what that costs against one block).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from gspc.cameras import Camera
+from gspc.codec import positions as pos
+from gspc.encoder.coding import EncodedAttributes, SharedGrid, prune_mask
+from gspc.encoder.params import CodecParams
+from gspc.encoder.prepare import code_attributes, measure_scene
+from gspc.encoder.removal import RemovalChoice, RemovalParams
+from gspc.encoder.tuning import TuningParams, TuningReport, tune_coding
+from gspc.format.tiles import Box, Tile
+from gspc.scene import GaussianScene
+from gspc.visibility import seeing_cameras
+
+
+@dataclass(frozen=True)
+class TilePlan:
+    """The scene's tiles: its shared grid, and each tile's input Gaussians (indices, in curve order)."""
+
+    shared: SharedGrid
+    rows: tuple[np.ndarray, ...]
+
+
+def plan_tiles(means: np.ndarray, log_scales: np.ndarray, precision: float, tile_size: int) -> TilePlan:
+    """Tiles of at most ``tile_size`` Gaussians over the scene whose positions and log scales are given,
+    on its grid at ``precision`` bits per axis (the rate's: the tiles are the same at every rate)."""
+    means = np.asarray(means, np.float64)
+    frame = pos.grid_frame(means)
+    grid = frame.grid(precision)
+    voxels = pos.voxelise(pos.grid_coordinates(means, grid), grid.lo, grid.step, grid.bits)
+    codes = pos.morton_encode(voxels, grid.bits)
+    order = np.argsort(codes, kind="stable")
+    runs = _octree_runs(codes[order], grid.bits, tile_size)
+    rows = tuple(order[a:b] for a, b in runs)
+    return TilePlan(SharedGrid(frame, _inside_size(means, log_scales, frame)), rows)
+
+
+def _inside_size(means: np.ndarray, log_scales: np.ndarray, frame: pos.GridFrame) -> float | None:
+    """The median world size of the Gaussians the contraction leaves as they are (None: a bounded scene)."""
+    if frame.contraction is None:
+        return None
+    c = frame.contraction
+    u = np.sqrt(((means - np.asarray(c.centre)) ** 2).sum(1)) / c.radius
+    inside = u <= pos.IDENTITY_RADIUS
+    if not inside.any():
+        return None
+    return float(np.median(np.exp(np.median(np.asarray(log_scales, np.float64)[inside], axis=1))))
+
+
+def _octree_runs(codes: np.ndarray, bits: int, tile_size: int) -> list[tuple[int, int]]:
+    """(start, end) runs of sorted Morton ``codes``: octree cells of at most ``tile_size`` codes (a cell of
+    more splits into its children; one voxel of more is cut in pieces), consecutive cells joined while
+    they fit."""
+    cells: list[tuple[int, int]] = []
+    stack = [(0, len(codes), 3 * bits)]  # (start, end, bits of the code below the cell's prefix)
+    while stack:
+        a, b, low = stack.pop()
+        if b - a <= tile_size:
+            cells.append((a, b))
+        elif low == 0:  # one voxel holds more than a tile
+            cells.extend((s, min(s + tile_size, b)) for s in range(a, b, tile_size))
+        else:
+            child = low - 3
+            prefix = (int(codes[a]) >> low) << low
+            bounds = [a, *np.searchsorted(codes[a:b], [prefix + (k << child) for k in range(1, 8)]) + a, b]
+            # Pushed last child first, so cells come off the stack in curve order.
+            for k in range(7, -1, -1):
+                if bounds[k + 1] > bounds[k]:
+                    stack.append((int(bounds[k]), int(bounds[k + 1]), child))
+    runs: list[tuple[int, int]] = []
+    for a, b in cells:
+        if runs and b - runs[-1][0] <= tile_size:
+            runs[-1] = (runs[-1][0], b)
+        else:
+            runs.append((a, b))
+    return runs
+
+
+@dataclass(frozen=True)
+class TileJob:
+    """What coding one tile needs: its Gaussians, the run's cameras and settings (all plain data, so a
+    worker process receives it whole)."""
+
+    number: int
+    scene: GaussianScene  # the tile's Gaussians, on the CPU
+    cameras: tuple[Camera, ...]
+    params: CodecParams  # at the rate's lambda
+    shared: SharedGrid
+    background: tuple[float, float, float]
+    removal: RemovalParams | None
+    tuning: TuningParams | None
+    byte_target: int | None = None  # code in at most this many bytes (None: at the rate)
+
+
+@dataclass(frozen=True)
+class TileCoding:
+    """One coded tile: its record in the tile index, its chunks and what its coding decided."""
+
+    number: int
+    tile: Tile
+    chunks: dict[str, bytes]
+    kept: np.ndarray  # the tile's input rows it codes, in decoded order
+    lam: float
+    num_bytes: int
+    given: int
+    candidates: int  # Gaussians some camera sees and at least 1/255 opaque
+    removal: RemovalChoice | None
+    tuning: TuningReport | None
+    seconds: float
+
+
+def code_tile(job: TileJob) -> TileCoding:
+    """Code one tile with the whole method (the module's docstring): a task, the same bytes wherever it
+    runs."""
+    t0 = time.perf_counter()
+    scene = job.scene
+    seen = seeing_cameras(scene.means.detach().numpy(), scene.log_scales.detach().numpy(), list(job.cameras))
+    cams = [job.cameras[k] for k in seen] or list(job.cameras)
+    measure = measure_scene(scene, cams, job.params, job.background)
+    removal = job.removal if len(cams) > 1 else None  # scoring views lie between two cameras
+    coded = code_attributes(
+        scene, cams, job.params, job.byte_target, job.background, None, removal, None, measure, job.shared
+    )
+    enc = coded.encoded
+    tuning = None
+    if job.tuning is not None:
+        tuned = tune_coding(
+            scene,
+            enc,
+            coded.params,
+            cams,
+            job.background,
+            coded.visible,
+            coded.significance,
+            job.tuning,
+            byte_limit=job.byte_target,
+            grid=job.shared,
+        )
+        enc, tuning = tuned.encoded, tuned.report
+    candidates = int(prune_mask(scene, coded.params, coded.visible).sum())
+    removal_choice = coded.removal if coded.removal is not None and coded.removal.base is not None else None
+    return TileCoding(
+        job.number,
+        Tile(_box(enc), enc.section),
+        enc.chunks,
+        enc.kept,
+        enc.lam,
+        enc.num_bytes,
+        scene.num_gaussians,
+        candidates,
+        removal_choice,
+        tuning,
+        time.perf_counter() - t0,
+    )
+
+
+def _box(enc: EncodedAttributes) -> Box:
+    """The box of a coding's decoded positions (the decoder checks every one lies in it: spec 10.14)."""
+    m = enc.decoded.means.numpy()
+    lo, hi = m.min(0), m.max(0)
+    return tuple(float(x) for x in (*lo, *hi))  # type: ignore[return-value]
+
+
+def retarget(codings: Sequence[TileCoding], target: int) -> list[int]:
+    """Each tile's share of ``target`` attribute bytes, in proportion to what it codes at the rate."""
+    total = sum(c.num_bytes for c in codings)
+    return [max(1, int(c.num_bytes * target / total)) for c in codings]
+

@@ -1,0 +1,147 @@
+"""Spatial tiles (format 1.5, spec 10.14): the tile index and the rules that tie each tile to its chunks.
+
+A tiled file codes its scene as tiles, each an attribute section (spec 10.0) a decoder can decode alone: the
+``TIDX`` chunk lists every tile's box and section, and tile ``k``'s attribute chunks carry index ``k``, all
+of them after tile ``k - 1``'s. A reader finds any tile from the header's chunk table and the index, without
+reading the others.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import msgpack
+
+from gspc.errors import CodecError
+from gspc.format.attribute_section import AttributeSection, check_attribute_chunks
+from gspc.format.chunks import ATTRIBUTE_TYPES, TIDX
+from gspc.limits import MAX_TILES, max_coded_gaussians
+
+TILED_VERSION = (1, 5)  # the format version a file with a tile index is written as (spec section 3)
+Box = tuple[float, float, float, float, float, float]  # lo x, y, z, hi x, y, z
+
+
+@dataclass(frozen=True)
+class Tile:
+    """One tile: the box of its decoded positions and its attribute section."""
+
+    box: Box
+    section: AttributeSection
+
+    @property
+    def n(self) -> int:
+        return self.section.n
+
+    def meets(self, region: Box) -> bool:
+        """Whether the tile's box meets the closed box ``region``."""
+        return all(self.box[a] <= region[a + 3] and region[a] <= self.box[a + 3] for a in range(3))
+
+
+@dataclass(frozen=True)
+class TileIndex:
+    tiles: tuple[Tile, ...]
+
+    @property
+    def num_gaussians(self) -> int:
+        return sum(t.n for t in self.tiles)
+
+    @property
+    def sh_degree(self) -> int:
+        return self.tiles[0].section.sh_degree
+
+    def meeting(self, region: Box | None) -> list[int]:
+        """The tiles whose boxes meet ``region`` (every tile for None), in file order."""
+        return [k for k, t in enumerate(self.tiles) if region is None or t.meets(region)]
+
+
+def pack_tile_index(tiles: Sequence[Tile]) -> bytes:
+    """The TIDX payload (spec 10.14): a msgpack array of one map per tile."""
+    return msgpack.packb(
+        [{"box": [float(x) for x in t.box], "attributes": t.section.to_dict()} for t in tiles],
+        use_bin_type=True,
+    )
+
+
+def _refuse_ext(code: int, data: bytes) -> None:
+    raise CodecError(f"chunk {TIDX} holds a msgpack extension type ({code})")
+
+
+def read_tile_index(payload: bytes) -> TileIndex:
+    """The tile index of a TIDX payload, every field checked (CodecError naming the first bad one)."""
+    n = len(payload)
+    try:
+        raw = msgpack.unpackb(
+            payload,
+            raw=False,
+            ext_hook=_refuse_ext,
+            max_str_len=n,
+            max_bin_len=n,
+            max_array_len=n,
+            max_map_len=n,
+            max_ext_len=n,
+        )
+    except CodecError:
+        raise
+    except Exception:
+        raise CodecError(f"chunk {TIDX} is not one msgpack value") from None
+    if not isinstance(raw, list) or not 2 <= len(raw) <= MAX_TILES:
+        raise CodecError(f"chunk {TIDX} is not an array of 2..{MAX_TILES} tiles")
+    tiles = []
+    for k, entry in enumerate(raw):
+        if not isinstance(entry, dict) or "box" not in entry or "attributes" not in entry:
+            raise CodecError(f"tile {k} of chunk {TIDX} is not a map with a box and attributes")
+        tiles.append(Tile(_box(entry["box"], k), AttributeSection.from_dict(entry["attributes"])))
+    degrees = {t.section.sh_degree for t in tiles}
+    if len(degrees) != 1:
+        raise CodecError(f"the tiles of chunk {TIDX} have SH degrees {sorted(degrees)}; a scene has one")
+    return TileIndex(tuple(tiles))
+
+
+def _box(value: object, k: int) -> Box:
+    ok = isinstance(value, list) and len(value) == 6 and all(isinstance(x, float) for x in value)
+    if not ok or not all(math.isfinite(x) for x in value):
+        raise CodecError(f"tile {k}'s box is not an array of 6 finite floats")
+    if any(value[a] > value[a + 3] for a in range(3)):
+        raise CodecError(f"tile {k}'s box has a lower corner above its upper one")
+    return tuple(value)  # type: ignore[return-value]
+
+
+def tile_chunks(chunks: Sequence, index: TileIndex) -> list[dict[str, bytes]]:
+    """Each tile's attribute payloads by type, from a file's chunks (or chunk-table entries: anything with
+    ``type``, ``index`` and, for the bounds, ``payload`` or ``length``), checked against spec 10.14: the
+    index first, every attribute chunk naming a tile, a tile's chunks after the previous tile's, each tile's
+    chunks those its section needs, and the Gaussians within what the bytes may declare, per tile and in
+    all (gspc/limits.py)."""
+    out: list[dict[str, bytes]] = [{} for _ in index.tiles]
+    sizes = [0] * len(index.tiles)
+    last, seen_index = -1, False
+    for c in chunks:
+        if c.type == TIDX:
+            seen_index = True
+            continue
+        if c.type not in ATTRIBUTE_TYPES:
+            continue
+        if not seen_index:
+            raise CodecError(f"chunk {c.type}#{c.index} comes before the tile index ({TIDX})")
+        if not 0 <= c.index < len(index.tiles):
+            raise CodecError(f"chunk {c.type}#{c.index} names no tile (the file has {len(index.tiles)})")
+        if c.index < last:
+            raise CodecError(f"chunk {c.type}#{c.index} comes after tile {last}'s chunks")
+        last = c.index
+        payload = getattr(c, "payload", None)
+        out[c.index][c.type] = payload if payload is not None else b""
+        sizes[c.index] += len(payload) if payload is not None else c.length
+    for k, (tile, chunks_k) in enumerate(zip(index.tiles, out)):
+        try:
+            check_attribute_chunks(chunks_k, tile.section, sizes[k])
+        except CodecError as e:
+            raise CodecError(f"tile {k}: {e}") from None
+    total = sum(sizes)
+    if index.num_gaussians > max_coded_gaussians(total):
+        raise CodecError(
+            f"{index.num_gaussians:,} Gaussians in all from {total:,} payload bytes (at most "
+            f"{max_coded_gaussians(total):,})"
+        )
+    return out
