@@ -49,7 +49,7 @@ from gspc.format.chunks import ATTRIBUTE_TYPES, SIDE
 from gspc.format.header import FileHeader, SceneSummary, SideInfoHeader
 from gspc.format.side_chunk import SideViews, read_side_views
 from gspc.format.view_records import check_view_pixels
-from gspc.io import read_scene, write_ply
+from gspc.io import read_scene, scene_writer
 from gspc.io.camera_files import load_cameras
 from gspc.limits import default_refine_iterations
 from gspc.options import DecodeOptions, EncodeOptions
@@ -326,7 +326,9 @@ def _file_bytes(scene: GaussianScene, choice: _EncoderChoice, opts: EncodeOption
         chunks.append(container.Chunk(SIDE, side.payload))  # all views in one chunk (spec 10.9)
     file_header = FileHeader(
         encoder=f"gspc {__version__}",
-        scene=SceneSummary(enc.decoded.num_gaussians, enc.decoded.sh_degree, scene.num_gaussians),
+        scene=SceneSummary(
+            enc.decoded.num_gaussians, enc.decoded.sh_degree, scene.num_gaussians, scene.coordinates
+        ),
         attributes=enc.section,
         side_info=SideInfoHeader(opts.background, opts.restorer, choice.refine_iterations),
     )
@@ -354,17 +356,18 @@ def decode(
     opts: DecodeOptions | None = None,
     progress: Progress | None = None,
 ) -> Report:
-    """Decode the .gspc file at ``in_path`` into an INRIA PLY at ``out_path``."""
+    """Decode the .gspc file at ``in_path`` into ``out_path``: a PLY, SPZ or glb, as its extension names."""
     opts = opts or DecodeOptions()
     opts.validate()
     check_device(opts.device)
     refuse_output_over_input(out_path, in_path)
+    write = scene_writer(out_path)
     rep = Report()
     with rep.timed("read"):
         data = container.read_bytes(in_path)
     scene, rep = decode_bytes(data, opts, progress, rep)
     with _stage(rep, progress, "write"):
-        write_ply(scene.to("cpu"), out_path)
+        write(scene.to("cpu"), out_path)
     return rep
 
 
@@ -397,6 +400,7 @@ def decode_bytes(
     rep.info["restorer"] = restorer_name if opts.restore else "off"
     rep.num_views = rep.info["views"] = len(cams)
     rep.num_views_with_residual = len(side.images)
+    scene.coordinates = file.header.scene.coordinates if file.header.scene else None
     return scene, rep
 
 
