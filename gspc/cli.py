@@ -32,6 +32,7 @@ app = typer.Typer(
 out = Console()
 err = Console(stderr=True)
 RENDER_DEVICE_HELP = "cpu or cuda (where the renders run)"
+OUTPUT_HELP = "output scene, by its extension: .ply (INRIA layout), .spz (Niantic SPZ) or .glb (glTF)"
 
 
 @contextmanager
@@ -244,7 +245,7 @@ def encode(
 @_one_line_errors
 def decode(
     source: Path = typer.Argument(..., help="input .gspc file"),
-    output: str = typer.Option(..., "-o", "--output", help="output PLY (INRIA layout)"),
+    output: str = typer.Option(..., "-o", "--output", help=OUTPUT_HELP),
     iterations: int | None = _option(DecodeOptions, "iterations"),
     restore: bool = _option(DecodeOptions, "restore"),
     refine: bool = _option(DecodeOptions, "refine"),
@@ -253,7 +254,7 @@ def decode(
     device: str = _option(DecodeOptions, "device"),
     time_budget: float | None = _option(DecodeOptions, "time_budget"),
 ) -> None:
-    """Decode a .gspc file into a standard 3DGS PLY."""
+    """Decode a .gspc file into a 3DGS scene: PLY, SPZ or glb, as the output's extension names."""
     check_output_path(output)
     from gspc.pipeline import decode as run
 
@@ -329,6 +330,8 @@ def info(
             f"{len(f.side.views)} side-information views ({len(f.side.images)} with a residual)",
             markup=False,
         )
+        if summary.coordinates is not None:
+            out.print(f"coordinates: {summary.coordinates} (as the source stated them)")
         out.print(_position_grid_line(fields.attributes.position))
         if fields.attributes.precision:
             out.print(_precision_line(fields.attributes))
@@ -464,18 +467,19 @@ def evaluate(
 @_one_line_errors
 def convert(
     scene: Path = typer.Argument(..., help="scene file (PLY/SOG/compressed PLY/SPZ)"),
-    output: str = typer.Option(..., "-o", "--output", help="output PLY (INRIA layout)"),
+    output: str = typer.Option(..., "-o", "--output", help=OUTPUT_HELP),
 ) -> None:
-    """Convert any readable scene to a standard INRIA 3DGS PLY."""
+    """Convert any readable scene to PLY, SPZ or glb, as the output's extension names."""
     from gspc.paths import refuse_output_over_input
 
     check_output_path(output)
     refuse_output_over_input(output, scene)
     _use_threads()
-    from gspc.io import read_scene, write_ply
+    from gspc.io import read_scene, scene_writer
 
+    write = scene_writer(output)
     sc = read_scene(scene)
-    write_ply(sc, output)
+    write(sc, output)
     _console_for(output).print(
         f"wrote {sc.num_gaussians:,} Gaussians (SH degree {sc.sh_degree}) to {output}", markup=False
     )

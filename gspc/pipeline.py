@@ -26,7 +26,7 @@ from gspc.format import container
 from gspc.format.file import GspcFile, byte_budget, file_chunks, read_file
 from gspc.format.header import FileHeader
 from gspc.format.side_chunk import SideViews
-from gspc.io import read_scene, write_ply
+from gspc.io import read_scene, scene_writer
 from gspc.io.camera_files import load_cameras
 from gspc.jit import compile_kernels, uncompiled_kernels
 from gspc.limits import default_refine_iterations
@@ -125,18 +125,19 @@ def decode(
     opts: DecodeOptions | None = None,
     progress: Progress | None = None,
 ) -> Report:
-    """Decode the .gspc file at ``in_path`` into an INRIA PLY at ``out_path``."""
+    """Decode the .gspc file at ``in_path`` into ``out_path``: a PLY, SPZ or glb, as its extension names."""
     opts = opts or DecodeOptions()
     opts.validate()
     check_device(opts.device)
     refuse_output_over_input(out_path, in_path)
+    write = scene_writer(out_path)
     rep = Report()
     stages = rep.stages(progress, opts.time_budget)
     with stages.stage("read", announce=False):
         data = container.read_bytes(in_path)
     scene, rep = decode_bytes(data, opts, progress, rep)
     with stages.stage("write"):
-        write_ply(scene.to("cpu"), out_path)
+        write(scene.to("cpu"), out_path)
     return rep
 
 
@@ -158,6 +159,8 @@ def decode_bytes(
     with stages.stage("attributes"):
         decoded = decode_section(file.attribute_chunks, file.header.attributes)
     scene = decoded.scene
+    # The axes the encoder's input stated, for writers that convert to their format's (spec 10.8).
+    scene.coordinates = coordinates = file.header.scene.coordinates if file.header.scene else None
     rep.num_gaussians_in = rep.num_gaussians_out = scene.num_gaussians
     side = file.side
     rep.num_views = rep.info["views"] = len(side.views)
@@ -177,6 +180,7 @@ def decode_bytes(
     scene = _restore_and_refine(
         scene.to(device), file, restorer, iterations, opts, stages, rep, decoded.precision
     )
+    scene.coordinates = coordinates
     return scene, rep
 
 

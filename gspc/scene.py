@@ -56,6 +56,9 @@ class GaussianScene:
     sh_degree: int = 0
     # Per-Gaussian PLY properties gspc does not interpret (e.g. normals); kept for round trips.
     extra: dict[str, np.ndarray] = field(default_factory=dict)
+    # The axis convention the arrays are in as the source stated it ("RUB", "RDF", ...), None when it stated
+    # none; writers convert to their format's convention (gspc/io/coordinates.py).
+    coordinates: str | None = None
 
     @property
     def num_gaussians(self) -> int:

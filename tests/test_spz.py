@@ -144,8 +144,8 @@ def test_extension_records_are_skipped_or_refused():
     unknown = struct.pack("<II", 0x12340001, 5) + b"hello"
     _, scene = _decode(_v4(_blocks(body), flags=2, extensions=unknown))
     assert scene.num_gaussians == 128
-    fields[5] = 2
-    _, scene = _decode(_legacy(fields, unknown + body))
+    fields[5] = 2  # versions 2-3: records follow the attribute blocks (Niantic's load-spz.cc)
+    _, scene = _decode(_legacy(fields, body + unknown))
     assert scene.num_gaussians == 128
     quantised = struct.pack("<II", 0xADBE0001, 10) + bytes(10)
     with pytest.raises(InputError, match="SH-quantisation extension 0xADBE0001"):
@@ -154,7 +154,7 @@ def test_extension_records_are_skipped_or_refused():
         _decode(_v4(_blocks(body), flags=2, extensions=struct.pack("<II", 0x12340001, 99) + b"x"))
     fields[5] = 0  # extension bytes without the flag: more data than the header implies
     with pytest.raises(InputError, match="holds more than the 8,320 bytes the header implies"):
-        _decode(_legacy(fields, unknown + body))
+        _decode(_legacy(fields, body + unknown))
 
 
 @pytest.mark.parametrize("cut", [3, 31, 40, 200, -1])

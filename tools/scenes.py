@@ -1,7 +1,7 @@
 """Small random scenes for tests and tools/fuzz_inputs.py: a plausible object (a blob of Gaussians around
 the origin), and unbounded scenes (an object with a background shell and far floaters) for the contracted
 grid and its far set; :func:`with_shells` surrounds a real object with shells of large Gaussians
-(tools/bench_precision.py)."""
+(tools/bench_precision.py); :func:`spz_range_scene` stays inside what SPZ represents."""
 
 from dataclasses import dataclass
 
@@ -50,6 +50,22 @@ def varied_scene(n: int = 500, degree: int = 3, seed: int = 0, **over) -> Gaussi
     )
     attrs.update(over)
     return make_scene(**attrs, sh_degree=degree)
+
+
+def spz_range_scene(n: int = 300, degree: int = 3, seed: int = 3) -> GaussianScene:
+    """Values inside what SPZ represents (log scales in [-10, 6), SH rest in [-1, 1], colours within its
+    bytes), higher SH bands weaker as in trained scenes: its round trips measure SPZ's steps alone."""
+    rng = np.random.default_rng(seed)
+    k = (degree + 1) ** 2 - 1
+    return make_scene(
+        rng.uniform(-5, 5, (n, 3)),
+        rng.normal(size=(n, 4)),
+        rng.uniform(-9, 2, (n, 3)),
+        rng.uniform(-6, 6, n),
+        rng.uniform(-3, 3, (n, 3)),
+        rng.uniform(-0.95, 0.95, (n, k, 3)) * np.linspace(1, 0.3, max(k, 1))[None, :k, None],
+        degree,
+    )
 
 
 def unbounded(seed: int = 0, n: int = 4000) -> np.ndarray:

@@ -425,7 +425,9 @@ def file_bytes(decisions: EncoderDecisions, scene: GaussianScene, opts: EncodeOp
     enc, side = decisions.attributes, decisions.side
     header = FileHeader(
         encoder=f"gspc {__version__}",
-        scene=SceneSummary(enc.decoded.num_gaussians, enc.decoded.sh_degree, scene.num_gaussians),
+        scene=SceneSummary(
+            enc.decoded.num_gaussians, enc.decoded.sh_degree, scene.num_gaussians, scene.coordinates
+        ),
         attributes=enc.section,
         side_info=SideInfoHeader(opts.background, opts.restorer, decisions.refine_iterations),
     )

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 from gspc.errors import CodecError
 from gspc.format.attribute_section import MAX_SH_DEGREE, AttributeSection
+from gspc.format.coordinates import CONVENTIONS as COORDINATE_CONVENTIONS
 from gspc.format.side_chunk import legacy_views
 from gspc.format.view_records import ViewRecord
 from gspc.limits import MAX_REFINE_ITERATIONS
@@ -101,6 +102,7 @@ class SceneSummary:
     num_gaussians: int = 0
     sh_degree: int | None = None
     source_gaussians: int | None = None  # the count the encoder received
+    coordinates: str | None = None  # the axis convention the source stated (spec 10.8)
 
     def to_dict(self) -> dict:
         out: dict = {"num_gaussians": self.num_gaussians}
@@ -108,6 +110,8 @@ class SceneSummary:
             out["sh_degree"] = self.sh_degree
         if self.source_gaussians is not None:
             out["source_gaussians"] = self.source_gaussians
+        if self.coordinates is not None:
+            out["coordinates"] = self.coordinates
         return out
 
     @classmethod
@@ -120,7 +124,13 @@ class SceneSummary:
         n = _int(scene, "num_gaussians", "scene.num_gaussians", 0, None, 0)
         degree = _int(scene, "sh_degree", "scene.sh_degree", 0, MAX_SH_DEGREE, -1)
         source = scene.get("source_gaussians")  # informative only: never refused
-        return cls(n, None if degree < 0 else degree, source if _is_int(source) and source >= 0 else None)
+        coordinates = scene.get("coordinates")  # informative: a value naming no convention is ignored
+        return cls(
+            n,
+            None if degree < 0 else degree,
+            source if _is_int(source) and source >= 0 else None,
+            coordinates if coordinates in COORDINATE_CONVENTIONS else None,
+        )
 
 
 @dataclass(frozen=True)

@@ -18,6 +18,7 @@ from plyfile import PlyData, PlyElement
 
 from gspc.atomic import atomic_write
 from gspc.errors import InputError
+from gspc.io.coordinates import OPENCV, oriented
 from gspc.io.interop import finite_opacity_logits, float32_column, normalise_tiny_quaternions
 from gspc.scene import GaussianScene, num_sh_rest, sh_degree_from_rest
 
@@ -199,9 +200,10 @@ def scene_to_vertex_array(scene: GaussianScene) -> np.ndarray:
 
 
 def write_ply(scene: GaussianScene, path: str | os.PathLike) -> None:
-    """Write ``scene`` as a binary little-endian INRIA PLY, atomically (temp file + rename)."""
+    """Write ``scene`` as a binary little-endian INRIA PLY, atomically (temp file + rename). A scene that
+    states its axis convention is converted to INRIA's, OpenCV's (gspc/io/coordinates.py): PLY states none."""
     path = Path(path)
-    vertices = scene_to_vertex_array(scene)
+    vertices = scene_to_vertex_array(oriented(scene, OPENCV))
     element = PlyElement.describe(vertices, "vertex")
     ply = PlyData([element], text=False, byte_order="<")
     atomic_write(path, ply.write)

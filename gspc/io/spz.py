@@ -20,9 +20,15 @@ stream, and one zstd frame per non-empty attribute block. All integers are littl
   sh rest          K x 3 bytes (coefficient-major, colour channel innermost): (byte - 128) / 128. Writers
                    may zero low bits (fewer effective bits); the stored width is always 8.
 
-Coordinates are returned as stored. Niantic's own PLY tools flip y and z (SPZ is specified in RUB, INRIA
-PLY is RDF) while splat-transform and spz-js store PLY coordinates unchanged; gspc reads like the latter,
-so a PLY -> SPZ -> gspc round trip through them keeps the scene where it was.
+Extension records (flags & 2) are ``uint32 type, uint32 length, payload``: in versions 2-3 after the
+attribute blocks, inside the gzip stream; in version 4 between the header and the table of contents.
+
+Coordinates are returned as stored. A coordinate-system record (type 0xADBE0003, SPZ_ADOBE_coordinate_system:
+a uint32, a convention's number 1-16 in gspc/format/coordinates.py's order) states the convention the data
+is in, and becomes the scene's ``coordinates``. Without one a file states nothing gspc trusts: Niantic's
+library calls the default RUB, but its own ply_to_spz, splat-transform and spz-js store a PLY's coordinates
+unchanged and viewers read such files as they read PLY (bench/outputs.md, "Coordinate conventions"), so gspc
+leaves the scene unstated and a PLY -> SPZ -> gspc round trip through those tools keeps the scene in place.
 """
 
 from __future__ import annotations
@@ -39,6 +45,7 @@ import numpy as np
 import zstandard
 
 from gspc.errors import InputError
+from gspc.format.coordinates import CONVENTIONS
 from gspc.limits import max_scene_gaussians
 from gspc.scene import GaussianScene, alpha_to_logit, make_scene, num_sh_rest, validate_named
 
@@ -55,6 +62,9 @@ FLAG_ANTIALIASED = 0x1
 FLAG_EXTENSIONS = 0x2
 # Adobe's SH-quantisation extension rescales the SH bytes onto a stored [min, max]; gspc cannot honour it.
 SH_QUANTISATION_EXTENSION = 0xADBE0001
+# Adobe's coordinate-system record: the convention the stored data is in (one uint32, 1-16).
+COORDINATE_SYSTEM_EXTENSION = 0xADBE0003
+COORDINATE_SYSTEM_RECORD = struct.Struct("<III")  # type, length (4), convention number
 
 COLOUR_SCALE = 0.15
 MAX_FRACTIONAL_BITS = 24
@@ -129,22 +139,40 @@ def _check_header(h: SpzHeader, magic: int, file_size: int, source: object) -> N
         )
 
 
-def _skip_extensions(block: bytes, source: object) -> None:
-    """Walk ``type, length, payload`` records; refuse the one gspc cannot honour and any malformed block."""
-    at = 0
+def _read_extensions(block: bytes, source: object) -> str | None:
+    """Walk ``type, length, payload`` records: the coordinate convention a record states (None: none
+    stated); refuses the record gspc cannot honour and any malformed block; skips the others."""
+    at, coordinates = 0, None
     while at < len(block):
         if at + EXTENSION_RECORD.size > len(block):
             raise InputError(f"{source}: SPZ extension block ends inside a record header")
         kind, length = EXTENSION_RECORD.unpack_from(block, at)
         if kind == SH_QUANTISATION_EXTENSION:
             raise InputError(f"{source}: SPZ uses the SH-quantisation extension 0xADBE0001, not supported")
+        payload = block[at + EXTENSION_RECORD.size : at + EXTENSION_RECORD.size + length]
         at += EXTENSION_RECORD.size + length
         if at > len(block):
             raise InputError(f"{source}: SPZ extension 0x{kind:08x} runs past the extension block")
+        if kind == COORDINATE_SYSTEM_EXTENSION:
+            coordinates = _coordinate_system(payload, source)
+    return coordinates
 
 
-def _inflate_legacy(data: bytes, source: object) -> tuple[SpzHeader, bytes]:
-    """Header and attribute bytes of a gzip SPZ; never inflates more than the header implies."""
+def _coordinate_system(payload: bytes, source: object) -> str | None:
+    """The convention a coordinate-system record names; 0 (UNSPECIFIED) is, as Niantic reads it, no record."""
+    if len(payload) != 4:
+        raise InputError(f"{source}: SPZ coordinate-system record holds {len(payload)} bytes, not 4")
+    (number,) = struct.unpack("<I", payload)
+    if number > len(CONVENTIONS):
+        raise InputError(
+            f"{source}: SPZ coordinate-system record names system {number}, not one of 1-{len(CONVENTIONS)}"
+        )
+    return CONVENTIONS[number - 1] if number else None
+
+
+def _inflate_legacy(data: bytes, source: object) -> tuple[SpzHeader, bytes, str | None]:
+    """Header, attribute bytes and stated convention of a gzip SPZ; never inflates more than the header
+    implies."""
     inflater = zlib.decompressobj(16 + zlib.MAX_WBITS)
     try:
         head = inflater.decompress(data, LEGACY_HEADER.size)
@@ -175,9 +203,8 @@ def _inflate_legacy(data: bytes, source: object) -> tuple[SpzHeader, bytes]:
         raise InputError(f"{source}: truncated SPZ file (gzip stream ends early)")
     if len(body) < expected:
         raise InputError(f"{source}: truncated SPZ data ({len(body):,} of {expected:,} bytes)")
-    extra = len(body) - expected  # non-zero only with the extension flag (``limit``)
-    _skip_extensions(body[:extra], source)
-    return header, body[extra:]
+    # Extension records follow the attribute blocks (present only with the extension flag: ``limit``).
+    return header, body[:expected], _read_extensions(body[expected:], source)
 
 
 def _unzstd(frame: bytes, size: int, name: str, source: object) -> bytes:
@@ -197,7 +224,7 @@ def _unzstd(frame: bytes, size: int, name: str, source: object) -> bytes:
     return bytes(out)
 
 
-def _read_v4(data: bytes, source: object) -> tuple[SpzHeader, bytes]:
+def _read_v4(data: bytes, source: object) -> tuple[SpzHeader, bytes, str | None]:
     if len(data) < V4_HEADER.size:
         raise InputError(f"{source}: truncated SPZ file ({len(data)} bytes, the header alone is 32)")
     magic, version, count, degree, frac, flags, streams, toc, _ = V4_HEADER.unpack_from(data)
@@ -213,8 +240,7 @@ def _read_v4(data: bytes, source: object) -> tuple[SpzHeader, bytes]:
     toc_end = toc + streams * TOC_ENTRY.size
     if toc < V4_HEADER.size or toc_end > len(data):
         raise InputError(f"{source}: SPZ table of contents at byte {toc} lies outside the file")
-    if header.has_extensions:
-        _skip_extensions(data[V4_HEADER.size : toc], source)
+    coordinates = _read_extensions(data[V4_HEADER.size : toc], source) if header.has_extensions else None
     at, out = toc_end, []
     for i, (name, size) in enumerate(blocks):
         packed, unpacked = TOC_ENTRY.unpack_from(data, toc + i * TOC_ENTRY.size)
@@ -227,7 +253,7 @@ def _read_v4(data: bytes, source: object) -> tuple[SpzHeader, bytes]:
         at += packed
     if at != len(data):
         raise InputError(f"{source}: {len(data) - at:,} bytes after the last SPZ stream")
-    return header, b"".join(out)
+    return header, b"".join(out), coordinates
 
 
 def _int24(raw: np.ndarray) -> np.ndarray:
@@ -260,7 +286,7 @@ def _rotations_v3(raw: np.ndarray) -> np.ndarray:
     return xyzw[:, [3, 0, 1, 2]]
 
 
-def _scene(header: SpzHeader, payload: bytes, source: object) -> GaussianScene:
+def _scene(header: SpzHeader, payload: bytes, coordinates: str | None, source: object) -> GaussianScene:
     n, k = header.num_points, num_sh_rest(header.sh_degree)
     blocks, at = {}, 0
     for name, size in header.block_sizes():
@@ -274,22 +300,23 @@ def _scene(header: SpzHeader, payload: bytes, source: object) -> GaussianScene:
     quats = _rotations_v2(rot) if header.version == 2 else _rotations_v3(rot)
     sh_rest = (blocks["sh"].reshape(n, k, 3).astype(np.float64) - 128.0) / 128.0
     scene = make_scene(means, quats, log_scales, opacities, sh_dc, sh_rest, header.sh_degree)
+    scene.coordinates = coordinates
     return validate_named(scene, source)
 
 
 def decode_spz(data: bytes, source: object = "SPZ") -> tuple[SpzHeader, GaussianScene]:
     """Header and scene of SPZ bytes; InputError (naming ``source``) on anything malformed."""
     if data[:4] == NGSP:
-        header, payload = _read_v4(data, source)
+        header, payload, coordinates = _read_v4(data, source)
     elif data[:2] == GZIP_MAGIC:
-        header, payload = _inflate_legacy(data, source)
+        header, payload, coordinates = _inflate_legacy(data, source)
     elif not data:
         raise InputError(f"{source}: file is empty")
     elif len(data) < len(NGSP) and NGSP.startswith(data):
         raise InputError(f"{source}: truncated SPZ file ({len(data)} bytes)")
     else:
         raise InputError(f"{source}: not an SPZ file (neither gzip nor an NGSP header)")
-    return header, _scene(header, payload, source)
+    return header, _scene(header, payload, coordinates, source)
 
 
 def is_spz(head: bytes) -> bool:
