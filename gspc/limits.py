@@ -182,23 +182,26 @@ DEFAULT_TILE_SIZE = 1 << 18
 # --tile-size at least this: smaller tiles pay their models more than their Gaussians.
 MIN_TILE_SIZE = 1 << 10
 
-# What decoding a tiled file's attribute payloads may spend in all, P their bytes together: table entries
-# at most max(FILE_TABLE_FLOOR, MODEL_ENTRIES_PER_BYTE x P), decompressed model lists at most
-# max(FILE_MODEL_FLOOR, MODEL_LIST_RATIO x P). Each matrix keeps its own bounds (above); without these, every
-# tile would bring its own floors, and a file of many tiny tiles could ask for thousands of them. The floors
-# are what one untiled file may ask for at most (eight floors' worth of tables; 113 model lists at their
-# floor: sixteen classes of seven chunks and the positions').
+# What decoding one tile of a tiled file may spend, P_k its attribute payload bytes and P all tiles': table
+# entries at most max(FILE_TABLE_FLOOR x P_k // P, MODEL_ENTRIES_PER_BYTE x P_k), decompressed model lists at
+# most max(FILE_MODEL_FLOOR x P_k // P, MODEL_LIST_RATIO x P_k). Each matrix keeps its own bounds (above);
+# without these, every tile would bring its own floors, and a file of many tiny tiles could ask for
+# thousands of them. The floors are what one untiled file may ask for at most (eight floors' worth of
+# tables; 113 model lists at their floor: sixteen classes of seven chunks and the positions').
 FILE_TABLE_FLOOR = 8 * MODEL_TABLE_FLOOR
 FILE_MODEL_FLOOR = 1 << 23
 
 
 class DecodeBudget:
-    """The table entries and model-list bytes a tiled file's decode may still spend (spec 10.14): shared
-    by its tiles, so each floor counts once per file. Each matrix spends once, when its models are read."""
+    """The table entries and model-list bytes one tile of a tiled file may spend (spec 10.14): the file's
+    floors shared among its tiles in proportion to their bytes, so each counts once per file, and each tile
+    can be decoded alone (in parallel, or as part of a region) under the same rule. Each matrix spends
+    once, when its models are read."""
 
-    def __init__(self, payload_bytes: int) -> None:
-        self.table_entries = max(FILE_TABLE_FLOOR, MODEL_ENTRIES_PER_BYTE * payload_bytes)
-        self.model_bytes = max(FILE_MODEL_FLOOR, MODEL_LIST_RATIO * payload_bytes)
+    def __init__(self, tile_bytes: int, file_bytes: int) -> None:
+        share = max(file_bytes, 1)
+        self.table_entries = max(FILE_TABLE_FLOOR * tile_bytes // share, MODEL_ENTRIES_PER_BYTE * tile_bytes)
+        self.model_bytes = max(FILE_MODEL_FLOOR * tile_bytes // share, MODEL_LIST_RATIO * tile_bytes)
 
     def spend_tables(self, entries: int) -> bool:
         """Spend ``entries`` table entries; False (nothing spent) where fewer are left."""

@@ -18,6 +18,7 @@ from typing import Any
 from gspc.errors import InputError
 from gspc.format.view_records import MAX_RESIDUAL_SCALE
 from gspc.limits import (
+    DEFAULT_TILE_SIZE,
     MAX_CAMERA_SIDE,
     MAX_LAMBDA,
     MAX_REFINE_ITERATIONS,
@@ -26,10 +27,13 @@ from gspc.limits import (
     MIN_LAMBDA,
     MIN_MAX_SIDE,
     MIN_TARGET_SIZE,
+    MIN_TILE_SIZE,
 )
 from gspc.presets import DEFAULT_RESTORER, QUALITY, quality_preset
 
 MAX_TIME_BUDGET_S = 1e7  # about 4 months: anything larger is a typo
+MAX_TILE_SIZE = 1 << 26  # a tile is one attribute section: at most its Gaussian count (spec 10.0)
+MAX_WORKERS = 1024  # processes on one machine; more is a typo
 
 
 def check_int(name: str, value: Any, lo: int, hi: int | None = None) -> int:
@@ -110,7 +114,32 @@ def check_encode_options(o: Any) -> None:
     check_int("check_views", o.check_views, 1)
     check_real("check_margin_db", o.check_margin_db, -100.0, 100.0)
     check_time_budget(o.time_budget)
+    if o.tile_size != 0:
+        check_int("--tile-size", o.tile_size, MIN_TILE_SIZE, MAX_TILE_SIZE)
+    check_workers(o.workers)
     # device: checked (DeviceError) by gspc/device.py check_device, also before any work (it needs torch)
+
+
+def check_workers(value: Any) -> int | None:
+    """``--workers``: None (the cores this process may use) or a whole number of processes, 1 or more."""
+    return None if value is None else check_int("--workers", value, 1, MAX_WORKERS)
+
+
+def check_region(value: Any) -> tuple[float, ...] | None:
+    """``--region XMIN,YMIN,ZMIN,XMAX,YMAX,ZMAX``: six finite numbers, each minimum at most its maximum."""
+    if value is None:
+        return None
+    if isinstance(value, str):
+        value = value.split(",")
+    try:
+        box = tuple(float(v) for v in value)
+    except (TypeError, ValueError):
+        raise InputError(f"--region {value!r}: give six numbers XMIN,YMIN,ZMIN,XMAX,YMAX,ZMAX") from None
+    if len(box) != 6 or not all(math.isfinite(v) for v in box):
+        raise InputError(f"--region {value!r}: give six finite numbers XMIN,YMIN,ZMIN,XMAX,YMAX,ZMAX")
+    if any(box[a] > box[a + 3] for a in range(3)):
+        raise InputError(f"--region {','.join(f'{v:g}' for v in box)}: a minimum is above its maximum")
+    return box
 
 
 def check_decode_options(o: Any) -> None:
@@ -122,6 +151,8 @@ def check_decode_options(o: Any) -> None:
     check_int("seed", o.seed, 0)
     check_real("lr_scale", o.lr_scale, 0.0, 1e3, lo_open=True)
     check_time_budget(o.time_budget)
+    check_workers(o.workers)
+    o.region = check_region(o.region)
 
 
 def knob(default: Any, help: str, flag: str | None = None) -> Any:
@@ -190,6 +221,14 @@ class EncodeOptions:
         "by a fixed rule, gspc/presets.py)",
     )
     device: str = knob("cpu", "cpu or cuda (renders, check, restorer; the attribute codec runs on the CPU)")
+    tile_size: int = knob(
+        DEFAULT_TILE_SIZE,
+        "Gaussians per spatial tile: a larger scene is coded as tiles a decoder reads one at a time "
+        "(0: one block whatever the size; bench/tiles.md)",
+    )
+    workers: int | None = knob(
+        None, "worker processes that code tiles side by side (default: the cores this process may use)"
+    )
 
     def validate(self) -> None:
         """InputError naming the first option out of range; called before any work."""
@@ -212,6 +251,12 @@ class DecodeOptions:
         None,
         "seconds the decode may take before writing: refinement is shortened to end in time (its result "
         "then depends on this machine's speed)",
+    )
+    region: tuple[float, float, float, float, float, float] | None = knob(
+        None, "decode only the tiles of a tiled file that meet this box: XMIN,YMIN,ZMIN,XMAX,YMAX,ZMAX"
+    )
+    workers: int | None = knob(
+        None, "worker processes that decode tiles side by side (default: the cores this process may use)"
     )
 
     def validate(self) -> None:

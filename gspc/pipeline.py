@@ -12,31 +12,36 @@ the CPU (gspc/device.py), and its decoded scene is moved to the device where it 
 from __future__ import annotations
 
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from gspc.atomic import atomic_write_bytes
+from gspc.atomic import atomic_write, atomic_write_bytes
 from gspc.cameras import Camera
-from gspc.codec.attributes import decode_section
+from gspc.codec.attributes import DecodedSection, decode_section
 from gspc.codec.precision import PrecisionMap
+from gspc.codec.tiles import TileDecodeJob, decode_tile
 from gspc.device import check_device, renderer_info
-from gspc.encoder.decisions import EncoderDecisions, decide, file_bytes
+from gspc.encoder.decisions import EncoderDecisions, decide, decide_tiled, file_bytes, is_tiled
 from gspc.encoder.policy import SideInfoDecision
+from gspc.errors import InputError
 from gspc.format import container
-from gspc.format.file import GspcFile, byte_budget, file_chunks, read_file
+from gspc.format.file import FileReader, GspcFile, byte_budget, file_chunks, read_file, tiled_file_chunks
 from gspc.format.header import FileHeader
 from gspc.format.side_chunk import SideViews
 from gspc.io import read_scene, scene_writer
 from gspc.io.camera_files import load_cameras
+from gspc.io.ply import PlyRows, write_ply, write_ply_parts
 from gspc.jit import compile_kernels, uncompiled_kernels
 from gspc.limits import default_refine_iterations
-from gspc.options import DecodeOptions, EncodeOptions
+from gspc.options import DecodeOptions, EncodeOptions, check_region
 from gspc.paths import refuse_output_over_input
 from gspc.progress import Progress
 from gspc.reconstruct import refine_in_cells, render_images, restored_targets
 from gspc.restore.restorer import load_restorer
 from gspc.scene import GaussianScene
 from gspc.stages import Stages
+from gspc.workers import default_workers, run_tasks
 
 
 @dataclass
@@ -80,12 +85,28 @@ def encode(
     rep = Report()
     stages = rep.stages(progress, opts.time_budget)
     with stages.stage("read"):
-        scene = read_scene(scene_path)
         cameras = load_cameras(cameras_path) if cameras_path else None
-    data, rep = encode_scene(scene, cameras, opts, progress, rep)
+        rows = large_ply(scene_path, opts)  # a scene larger than a tile is read by rows, tile by tile
+        scene = read_scene(scene_path) if rows is None else None
+    if rows is not None:
+        data = _encode_with(lambda: decide_tiled(rows, cameras, opts, stages), None, opts, progress, rep)
+    else:
+        data, rep = encode_scene(scene, cameras, opts, progress, rep)
     with stages.stage("write"):
         atomic_write_bytes(out_path, data, fsync=True)
     return rep
+
+
+def large_ply(path: str | Path, opts: EncodeOptions) -> PlyRows | None:
+    """The PLY at ``path`` as rows to read on demand, where it holds more Gaussians than one tile and its
+    layout allows (little-endian float32 properties of one vertex element); else None: read it whole."""
+    if not str(path).lower().endswith(".ply"):
+        return None
+    try:
+        rows = PlyRows(path)
+    except InputError:
+        return None  # another layout: read_scene reads it, and names anything wrong with it
+    return rows if is_tiled(rows.num_gaussians, opts) else None
 
 
 def encode_scene(
@@ -101,22 +122,34 @@ def encode_scene(
     device = check_device(opts.device)
     rep = rep or Report()
     stages = rep.stages(progress, opts.time_budget)
-    rep.num_gaussians_in = scene.num_gaussians
+    data = _encode_with(lambda: decide(scene, cameras, opts, stages, device), scene, opts, progress, rep)
+    return data, rep
+
+
+def _encode_with(decide_fn, scene: GaussianScene | None, opts: EncodeOptions, progress, rep: Report) -> bytes:
+    """The encoder's decisions (``decide_fn``), then the file they describe, reported in ``rep``."""
+    device = check_device(opts.device)
+    stages = rep.stages(progress, opts.time_budget)
     rep.info["renderer"] = renderer_info(device, progress, encoder=True)
     if uncompiled_kernels():  # a first run on this machine says why it waits
         with stages.stage("compile", announce=False):
             compile_kernels(progress, encoder=True)
-    decisions = decide(scene, cameras, opts, stages, device)
+    decisions = decide_fn()
     with stages.stage("write", announce=False):
         data = file_bytes(decisions, scene, opts)
     side = decisions.side
-    rep.bytes = byte_budget(len(data), file_chunks(decisions.attributes.chunks, side and side.payload))
+    if decisions.tiles:  # the chunks the file was packed from: it is not parsed again
+        chunks = tiled_file_chunks([(t.tile, t.chunks) for t in decisions.tiles], None)
+    else:
+        chunks = file_chunks(decisions.attributes.chunks, side and side.payload)
+    rep.bytes = byte_budget(len(data), chunks)
     rep.decisions = decisions
+    rep.num_gaussians_in = decisions.counts.given
     rep.num_gaussians_out = decisions.counts.coded
     rep.num_views = len(side.records) if side is not None else 0
     rep.num_views_with_residual = side.views_with_residual if side is not None else 0
     rep.info.update(decisions.summary())
-    return data, rep
+    return data
 
 
 def decode(
@@ -134,11 +167,99 @@ def decode(
     rep = Report()
     stages = rep.stages(progress, opts.time_budget)
     with stages.stage("read", announce=False):
+        reader = FileReader(in_path)
+    with reader:
+        if reader.tiles is not None:  # read, decoded and written tile by tile
+            _decode_tiles_to(reader, out_path, write, opts, stages, rep)
+            return rep
+    with stages.stage("read", announce=False):
         data = container.read_bytes(in_path)
     scene, rep = decode_bytes(data, opts, progress, rep)
     with stages.stage("write"):
         write(scene.to("cpu"), out_path)
     return rep
+
+
+@dataclass(frozen=True)
+class DecodedTile:
+    """One tile of a tiled file, decoded: its number, box (spec 10.14) and Gaussians."""
+
+    number: int
+    box: tuple[float, ...]
+    scene: GaussianScene
+
+
+def decode_tiles(
+    in_path: str | Path, region: tuple[float, ...] | None = None, workers: int = 1
+) -> Iterator[DecodedTile]:
+    """The tiles of the .gspc file at ``in_path`` that meet ``region`` (every tile for None), decoded one
+    at a time in file order, on ``workers`` processes: memory follows the tiles, not the file. An untiled
+    file is one tile, its box that of its Gaussians."""
+    region = check_region(region)
+    with FileReader(in_path) as reader:
+        if reader.tiles is None:
+            scene = decode_bytes(container.read_bytes(in_path), DecodeOptions(refine=False))[0]
+            m = scene.means.numpy()
+            yield DecodedTile(0, tuple(float(x) for x in (*m.min(0), *m.max(0))), scene)
+            return
+        chosen = reader.tiles.meeting(region)
+        for k, scene in zip(chosen, _tile_scenes(reader, chosen, workers, None)):
+            yield DecodedTile(k, reader.tiles.tiles[k].box, scene)
+        if region is None:
+            reader.check_trailer()
+
+
+def _tile_scenes(
+    reader: FileReader, chosen: list[int], workers: int, progress: Progress | None
+) -> Iterator[GaussianScene]:
+    """The ``chosen`` tiles decoded, in order, on ``workers`` processes (gspc/codec/tiles.py)."""
+    total = sum(reader.tile_bytes())
+    coordinates = reader.header.scene.coordinates if reader.header.scene else None
+    tiles = reader.tiles.tiles
+    jobs = (TileDecodeJob(k, reader.tile(k), tiles[k].section, tiles[k].box, total) for k in chosen)
+    for scene in run_tasks(decode_tile, jobs, workers, _tile_name, len(chosen), progress, "tiles"):
+        scene.coordinates = coordinates
+        yield scene
+
+
+def _tile_name(job: TileDecodeJob) -> str:
+    return f"tile {job.number}"
+
+
+def _decode_tiles_to(
+    reader: FileReader, out_path, write, opts: DecodeOptions, stages: Stages, rep: Report
+) -> None:
+    """Decode a tiled file's tiles that meet ``opts.region`` (all of them by default) into ``out_path``:
+    a PLY is written tile by tile (memory follows the tiles); another format takes the scene whole. A
+    decode of every tile checks the whole file's trailer before its output is in place; a tiled file's
+    side information is not used (its attributes are decoded as they are)."""
+    tiles = reader.tiles
+    chosen = tiles.meeting(opts.region)
+    if not chosen:
+        raise InputError(f"--region meets none of the file's {len(tiles.tiles)} tiles; nothing to write")
+    n = sum(tiles.tiles[k].n for k in chosen)
+    workers = opts.workers or default_workers()
+    rep.bytes = reader.budget
+    rep.num_gaussians_in = rep.num_gaussians_out = n
+    region = "" if opts.region is None else ", those meeting the region"
+    rep.info["tiles"] = f"{len(chosen)} of {len(tiles.tiles)}{region}, decoded on {workers} worker(s)"
+    rep.num_views = rep.info["views"] = len(reader.side.views)
+    rep.info["refine"] = "none (a tiled file's attributes are decoded as they are)"
+    parts = _tile_scenes(reader, chosen, workers, stages.progress)
+    with stages.stage("tiles", announce=False):
+        if write is write_ply:
+
+            def body(f) -> None:
+                write_ply_parts(f, parts, n, tiles.sh_degree)
+                if opts.region is None:
+                    reader.check_trailer()
+
+            atomic_write(out_path, body)
+            return
+        scene = GaussianScene.concat(list(parts))
+        if opts.region is None:
+            reader.check_trailer()
+        write(scene, out_path)
 
 
 def decode_bytes(
@@ -157,7 +278,7 @@ def decode_bytes(
         file = read_file(data)
     rep.bytes = file.budget
     with stages.stage("attributes"):
-        decoded = decode_section(file.attribute_chunks, file.header.attributes)
+        decoded = _decode_attributes(file)
     scene = decoded.scene
     # The axes the encoder's input stated, for writers that convert to their format's (spec 10.8).
     scene.coordinates = coordinates = file.header.scene.coordinates if file.header.scene else None
@@ -167,6 +288,8 @@ def decode_bytes(
     rep.num_views_with_residual = len(side.images)
     iterations = _refine_iterations(file, scene.num_gaussians, opts)
     reason = _no_refinement(side, opts, iterations)
+    if file.tiles is not None:
+        reason = "none (a tiled file's attributes are decoded as they are)"
     if reason is not None:
         rep.info["refine"] = reason
         return scene, rep
@@ -182,6 +305,18 @@ def decode_bytes(
     )
     scene.coordinates = coordinates
     return scene, rep
+
+
+def _decode_attributes(file: GspcFile) -> DecodedSection:
+    """The file's attributes: its one section, or every tile's in file order (spec 10.14)."""
+    if file.tiles is None:
+        return decode_section(file.attribute_chunks, file.header.attributes)
+    total = sum(sum(len(p) for p in c.values()) for c in file.tile_chunks)
+    parts = [
+        decode_tile(TileDecodeJob(k, c, t.section, t.box, total))
+        for k, (t, c) in enumerate(zip(file.tiles.tiles, file.tile_chunks))
+    ]
+    return DecodedSection(GaussianScene.concat(parts), None)
 
 
 def _refine_iterations(file: GspcFile, num_gaussians: int, opts: DecodeOptions) -> int:

@@ -85,6 +85,21 @@ class GaussianScene:
         out.extra = {k: v[idx_np] for k, v in self.extra.items()}
         return out
 
+    @staticmethod
+    def concat(parts: list[GaussianScene]) -> GaussianScene:
+        """The Gaussians of ``parts`` one after another (one SH degree; extras common to all kept)."""
+        if not parts:
+            raise InputError("no Gaussians to join")
+        degrees = {p.sh_degree for p in parts}
+        if len(degrees) != 1:
+            raise InputError(f"parts of SH degrees {sorted(degrees)} cannot be joined")
+        tensors = {k: torch.cat([getattr(p, k) for p in parts]) for k in ATTRIBUTE_NAMES}
+        names = set.intersection(*(set(p.extra) for p in parts))
+        extra = {k: np.concatenate([p.extra[k] for p in parts]) for k in sorted(names)}
+        return GaussianScene(
+            **tensors, sh_degree=parts[0].sh_degree, extra=extra, coordinates=parts[0].coordinates
+        )
+
     def validate(self) -> GaussianScene:
         """Check shapes and finiteness; returns self so it chains. Raises InputError."""
         n = self.num_gaussians

@@ -20,6 +20,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
+
 from gspc import __version__
 from gspc.cameras import Camera
 from gspc.encoder.coding import EncodedAttributes, prune_mask
@@ -40,9 +42,10 @@ from gspc.encoder.prepare import (
 from gspc.encoder.rate import coded_with, search_lambda
 from gspc.encoder.removal import RemovalChoice
 from gspc.encoder.side import SideCandidate, view_residuals
+from gspc.encoder.tiles import SceneRows, TileCoding, TileSettings, code_tiles
 from gspc.encoder.tuning import TuningReport, tune_coding
 from gspc.errors import CodecError, InputError
-from gspc.format.file import pack_file
+from gspc.format.file import pack_file, pack_tiled_file
 from gspc.format.header import FileHeader, SceneSummary, SideInfoHeader
 from gspc.format.view_records import check_view_pixels
 from gspc.options import EncodeOptions
@@ -50,6 +53,7 @@ from gspc.reconstruct import render_images
 from gspc.restore.restorer import load_restorer
 from gspc.scene import GaussianScene
 from gspc.stages import Stages
+from gspc.workers import default_workers
 
 # A SIDE chunk's table entry and padding, about (spec section 5): what side information adds to a file
 # beyond its payload, so that attributes and side information share a --target-size.
@@ -57,6 +61,8 @@ CHUNK_ENTRY_BYTES = 48
 # The file's bytes around the attributes' own (preamble, the header beyond the attribute section, the
 # chunk table, padding and trailer: spec sections 2 and 5), about: a --target-size's first share for them.
 FRAMING_BYTES = 448
+# Gaussians a tiled scene's synthesised cameras are placed around (evenly spaced rows of the scene).
+CAMERA_SAMPLE = 1 << 20
 # A --target-size fit that lands over the target is tried again this many times with the attributes'
 # share cut by the excess (the container's framing is only known once the file is packed).
 TARGET_RETRIES = 2
@@ -86,7 +92,7 @@ class GaussianCounts:
 class EncoderDecisions:
     """What the encoder sends and why: the .gspc file's parts and every choice that shaped them."""
 
-    attributes: EncodedAttributes
+    attributes: EncodedAttributes | None  # None where the scene is coded as tiles
     side: SideCandidate | None  # the side information sent (None: none)
     refine_iterations: int  # the decoder's default refinement, written to the header
     counts: GaussianCounts
@@ -98,9 +104,14 @@ class EncoderDecisions:
     check: SideInfoDecision | None = None  # the side-information check, where it ran
     tuning: TuningReport | None = None  # the tuning of the coded values, where it ran
     target_size: int | None = None
+    tiles: tuple[TileCoding, ...] = ()  # a scene coded as spatial tiles (gspc/encoder/tiles.py), in order
+    workers: int = 1  # processes that coded the tiles
+    coordinates: str | None = None  # the axes the input stated (spec 10.8)
 
     def summary(self) -> dict[str, str]:
         """One line per decision, in the order they were taken, for the command line's summary."""
+        if self.tiles:
+            return self._tiled_summary()
         out = {"Gaussians": self.counts.summary(), "lambda": self._lambda_line()}
         if self.removal is not None:
             out["removal"] = self.removal.summary()
@@ -114,6 +125,34 @@ class EncoderDecisions:
             if self.side is not None
             else "nothing (no side information)"
         )
+        return out
+
+    def _tiled_summary(self) -> dict[str, str]:
+        """A tiled scene's decisions: each tile took its own, as a scene of its own would."""
+        tiles = self.tiles
+        lams = [t.lam for t in tiles]
+        sizes = [t.tile.n for t in tiles]
+        out = {
+            "Gaussians": self.counts.summary(),
+            "tiles": f"{len(tiles)} of {min(sizes):,}-{max(sizes):,} Gaussians, coded on {self.workers} "
+            f"worker{'s' if self.workers > 1 else ''} ({sum(t.seconds for t in tiles):.1f} s of tile work)",
+            "lambda": f"{self.lam_asked:.4g} asked (it sets the bytes); tiles coded at {min(lams):.3g}-"
+            f"{max(lams):.3g} with their own removal and grid, in those bytes"
+            + (f", then each in its share of the {self.target_size:,} B target" if self.target_size else ""),
+        }
+        chosen: dict[str, int] = {}
+        for t in tiles:
+            key = t.removal.chosen() if t.removal is not None else "the preset's removal and grid (no search)"
+            chosen[key] = chosen.get(key, 0) + 1
+        out["removal"] = "; ".join(f"{k}: {v} tile{'s' if v > 1 else ''}" for k, v in chosen.items())
+        tuned = [t.tuning for t in tiles if t.tuning is not None and t.tuning.kept]
+        if any(t.tuning is not None for t in tiles):
+            gain = sum(t.after_db - t.before_db for t in tuned) / max(1, len(tuned))
+            out["tuning"] = (
+                f"{len(tuned)} of {len(tiles)} tiles kept their tuned values ({gain:+.2f} dB mean)"
+            )
+        out["side info"] = self.side_info
+        out["decoder refines"] = "nothing (no side information)"
         return out
 
     def _lambda_line(self) -> str:
@@ -134,7 +173,10 @@ def decide(
     device,
 ) -> EncoderDecisions:
     """The encoder's decisions for ``scene`` (``cameras`` None: synthesised) under ``opts``; renders,
-    the check and the restorer run on ``device``, the attribute codec on the CPU."""
+    the check and the restorer run on ``device``, the attribute codec on the CPU. A scene of more than
+    ``opts.tile_size`` Gaussians is coded as spatial tiles (:func:`decide_tiled`)."""
+    if is_tiled(scene.num_gaussians, opts):
+        return decide_tiled(SceneRows(scene), cameras, opts, stages)
     cams = encoder_cameras(scene, cameras, opts)
     restorer = load_restorer(opts.restorer, device=device)  # fails early on a name the package lacks
     params = codec_params(opts)
@@ -153,6 +195,72 @@ def decide(
         f"--target-size {opts.target_size:,} B cannot be reached: the file stays at {size:,} B (its framing "
         "and side information leave too few bytes for the attributes); a larger target"
     )
+
+
+def is_tiled(num_gaussians: int, opts: EncodeOptions) -> bool:
+    """Whether a scene of ``num_gaussians`` is coded as spatial tiles (``--tile-size``; 0: never)."""
+    return opts.tile_size > 0 and num_gaussians > opts.tile_size
+
+
+def decide_tiled(
+    source, cameras: list[Camera] | None, opts: EncodeOptions, stages: Stages
+) -> EncoderDecisions:
+    """A scene larger than a tile, as spatial tiles each coded alone, on the options' workers
+    (gspc/encoder/tiles.py); ``source`` reads its Gaussians by rows (gspc/io/ply.py PlyRows, SceneRows).
+    Tiled files carry no side information: the decoder takes their attributes as they are."""
+    cams = encoder_cameras(_camera_sample(source), cameras, opts)
+    params = codec_params(opts)
+    settings = TileSettings(tuple(cams), params, opts.background, removal_params(opts), tuning_params(opts))
+    workers = opts.workers or default_workers()
+    target = None if opts.target_size is None else opts.target_size
+    for _ in range(TARGET_RETRIES + 1):
+        budget = None if target is None else target - _tiled_framing(source.num_gaussians, opts.tile_size)
+        with stages.stage("tiles", announce=False):
+            plan, codings = code_tiles(source, settings, opts.tile_size, workers, budget, stages.progress)
+        given = sum(c.given for c in codings)
+        candidates = sum(c.candidates for c in codings)
+        coded = sum(c.tile.n for c in codings)
+        reason = (
+            "none (a tiled file carries no side information yet)"
+            if opts.side_info
+            else "none (--no-side-info)"
+        )
+        decisions = EncoderDecisions(
+            attributes=None,
+            side=None,
+            refine_iterations=0,
+            counts=GaussianCounts(given, given - candidates, candidates - coded, coded),
+            lam_asked=params.lam,
+            lambda_reasons=(),
+            side_info=reason,
+            target_size=opts.target_size,
+            tiles=tuple(codings),
+            workers=workers,
+            coordinates=source.coordinates,
+        )
+        if target is None:
+            return decisions
+        size = len(file_bytes(decisions, None, opts))
+        if size <= opts.target_size:
+            return decisions
+        target -= size - opts.target_size + 8
+    raise InputError(
+        f"--target-size {opts.target_size:,} B cannot be reached: the tiled file stays at {size:,} B"
+    )
+
+
+def _tiled_framing(num_gaussians: int, tile_size: int) -> int:
+    """About what a tiled file spends around its tiles' attribute bytes: the header, and per tile its index
+    entry and its chunks' table entries and padding (spec 10.14)."""
+    tiles = -(-num_gaussians // tile_size)
+    return FRAMING_BYTES + tiles * (7 * CHUNK_ENTRY_BYTES + 512)
+
+
+def _camera_sample(source) -> GaussianScene:
+    """Evenly spaced Gaussians of ``source``, enough to place synthesised cameras around the scene."""
+    n = source.num_gaussians
+    rows = np.unique(np.linspace(0, n - 1, min(n, CAMERA_SAMPLE)).astype(np.int64))
+    return source.rows(rows)
 
 
 def _decide_at(
@@ -419,9 +527,11 @@ def _unrefined(scene: GaussianScene, coded: CodedAttributes, stages: Stages) -> 
     return found if found.num_bytes <= enc.num_bytes else enc
 
 
-def file_bytes(decisions: EncoderDecisions, scene: GaussianScene, opts: EncodeOptions) -> bytes:
+def file_bytes(decisions: EncoderDecisions, scene: GaussianScene | None, opts: EncodeOptions) -> bytes:
     """The .gspc file the decisions describe. The decoder refuses views beyond its pixel budget for the
     file's size (gspc/limits.py): the encoder refuses to write a file it would refuse."""
+    if decisions.tiles:
+        return _tiled_file_bytes(decisions, opts)
     enc, side = decisions.attributes, decisions.side
     header = FileHeader(
         encoder=f"gspc {__version__}",
@@ -437,3 +547,20 @@ def file_bytes(decisions: EncoderDecisions, scene: GaussianScene, opts: EncodeOp
     except CodecError as e:
         raise InputError(f"{e}; lower --max-side or --views-fraction") from None
     return data
+
+
+def _tiled_file_bytes(decisions: EncoderDecisions, opts: EncodeOptions) -> bytes:
+    """A tiled file (spec 10.14): its header names no attribute section, its tile index holds the tiles'."""
+    tiles = decisions.tiles
+    header = FileHeader(
+        encoder=f"gspc {__version__}",
+        scene=SceneSummary(
+            decisions.counts.coded,
+            tiles[0].tile.section.sh_degree,
+            decisions.counts.given,
+            decisions.coordinates,
+        ),
+        attributes=None,
+        side_info=SideInfoHeader(opts.background, opts.restorer, 0),
+    )
+    return pack_tiled_file(header, [(t.tile, t.chunks) for t in tiles], None)

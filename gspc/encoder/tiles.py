@@ -28,8 +28,10 @@ from gspc.encoder.prepare import code_attributes, measure_scene
 from gspc.encoder.removal import RemovalChoice, RemovalParams
 from gspc.encoder.tuning import TuningParams, TuningReport, tune_coding
 from gspc.format.tiles import Box, Tile
+from gspc.progress import Progress
 from gspc.scene import GaussianScene
 from gspc.visibility import seeing_cameras
+from gspc.workers import run_tasks
 
 
 @dataclass(frozen=True)
@@ -95,13 +97,37 @@ def _octree_runs(codes: np.ndarray, bits: int, tile_size: int) -> list[tuple[int
     return runs
 
 
+class SceneRows:
+    """A scene in memory read as a large one is (gspc/io/ply.py PlyRows): its positions and sizes whole,
+    its Gaussians by rows."""
+
+    def __init__(self, scene: GaussianScene) -> None:
+        self.scene = scene.to("cpu")
+        self.num_gaussians, self.sh_degree = scene.num_gaussians, scene.sh_degree
+        self.coordinates = scene.coordinates
+
+    def positions(self) -> np.ndarray:
+        return self.scene.means.detach().numpy().astype(np.float64)
+
+    def log_scales(self) -> np.ndarray:
+        return self.scene.log_scales.detach().numpy().astype(np.float64)
+
+    def rows(self, rows: np.ndarray) -> GaussianScene:
+        return self.scene.subset(rows)
+
+    def tile(self, rows: np.ndarray) -> tuple[GaussianScene, None]:
+        """What a tile's job carries: its Gaussians themselves (a worker has no other way to them)."""
+        return self.rows(rows), None
+
+
 @dataclass(frozen=True)
 class TileJob:
-    """What coding one tile needs: its Gaussians, the run's cameras and settings (all plain data, so a
-    worker process receives it whole)."""
+    """What coding one tile needs: its Gaussians (a scene, or a file's rows a worker reads itself), the
+    run's cameras and settings; all plain data, so a worker process receives it whole."""
 
     number: int
-    scene: GaussianScene  # the tile's Gaussians, on the CPU
+    source: object  # the tile's GaussianScene, or a PlyRows whose ``rows`` are the tile
+    rows: np.ndarray | None
     cameras: tuple[Camera, ...]
     params: CodecParams  # at the rate's lambda
     shared: SharedGrid
@@ -132,7 +158,7 @@ def code_tile(job: TileJob) -> TileCoding:
     """Code one tile with the whole method (the module's docstring): a task, the same bytes wherever it
     runs."""
     t0 = time.perf_counter()
-    scene = job.scene
+    scene = job.source if job.rows is None else job.source.rows(job.rows)
     seen = seeing_cameras(scene.means.detach().numpy(), scene.log_scales.detach().numpy(), list(job.cameras))
     cams = [job.cameras[k] for k in seen] or list(job.cameras)
     measure = measure_scene(scene, cams, job.params, job.background)
@@ -185,3 +211,55 @@ def retarget(codings: Sequence[TileCoding], target: int) -> list[int]:
     total = sum(c.num_bytes for c in codings)
     return [max(1, int(c.num_bytes * target / total)) for c in codings]
 
+
+@dataclass(frozen=True)
+class TileSettings:
+    """The run's settings every tile is coded with (the preset's, and the options' overrides)."""
+
+    cameras: tuple[Camera, ...]
+    params: CodecParams
+    background: tuple[float, float, float]
+    removal: RemovalParams | None
+    tuning: TuningParams | None
+
+
+def code_tiles(
+    source,
+    settings: TileSettings,
+    tile_size: int,
+    workers: int,
+    byte_target: int | None = None,
+    progress: Progress | None = None,
+) -> tuple[TilePlan, list[TileCoding]]:
+    """The tiles of ``source`` (gspc/io/ply.py PlyRows, or :class:`SceneRows`) and each one's coding, on
+    ``workers`` processes. With ``byte_target``, the tiles' attribute bytes in all are brought under it:
+    each tile gets its share, in proportion to what it codes at the rate, and is coded again in it."""
+    plan = plan_tiles(source.positions(), source.log_scales(), settings.params.position_precision, tile_size)
+
+    def jobs(targets: list[int] | None):
+        for k, rows in enumerate(plan.rows):
+            src, own = source.tile(rows)
+            yield TileJob(
+                k,
+                src,
+                own,
+                settings.cameras,
+                settings.params,
+                plan.shared,
+                settings.background,
+                settings.removal,
+                settings.tuning,
+                None if targets is None else targets[k],
+            )
+
+    def run(targets: list[int] | None, stage: str) -> list[TileCoding]:
+        return list(run_tasks(code_tile, jobs(targets), workers, _job_name, len(plan.rows), progress, stage))
+
+    codings = run(None, "tiles")
+    if byte_target is not None:
+        codings = run(retarget(codings, byte_target), "tiles in the target")
+    return plan, codings
+
+
+def _job_name(job: TileJob) -> str:
+    return f"tile {job.number}"

@@ -530,6 +530,35 @@ def read(path: str | os.PathLike, known_types: Collection[str] = KNOWN_TYPES) ->
     return unpack(read_bytes(path), known_types)
 
 
+def align(n: int) -> int:
+    """``n`` rounded up to a multiple of 8: where the next payload starts (spec section 2)."""
+    return _align(n)
+
+
+def check_stream(f: BinaryIO, head: Head, block: int = 1 << 20) -> None:
+    """Spec section 8's header padding, end marker and whole-file CRC on an open file, read in blocks (the
+    chunks themselves are checked where read: :func:`read_chunk`)."""
+    pad_start = PREAMBLE.size + head.header_length
+    f.seek(pad_start)
+    pad = f.read(head.data_start - pad_start)
+    if pad.count(0) != len(pad):
+        raise BadPadding(f"padding after the header (offset {pad_start}) is not zero")
+    f.seek(head.trailer_at)
+    marker, file_crc = TRAILER.unpack(f.read(TRAILER.size))
+    if marker != END_MARKER:
+        raise BadMagic(f"end marker at offset {head.trailer_at} is {marker.hex()}, expected GEND")
+    f.seek(0)
+    crc, left = 0, head.file_size - 4
+    while left > 0:
+        data = f.read(min(block, left))
+        if not data:
+            raise Truncated("the file ended while its checksum was read")
+        crc = zlib.crc32(data, crc)
+        left -= len(data)
+    if crc != file_crc:
+        raise ChecksumMismatch(f"whole file has CRC-32 {crc:08x}, the trailer says {file_crc:08x}")
+
+
 def stored_size(chunk: Chunk) -> int:
     """Bytes a chunk takes in the file: its payload and the padding after it (every payload starts at a
     multiple of 8, spec section 2)."""

@@ -1,21 +1,25 @@
-"""A whole .gspc file as gspc writes and reads it: the typed header, the attribute payloads, the side
-information and the bytes each part takes.
+"""A whole .gspc file as gspc writes and reads it: the typed header, the attribute payloads (one section, or
+one per spatial tile), the side information and the bytes each part takes.
 
-A file is parsed and checked once, here: the container (every CRC), the header's records, the side views'
-pixels against the file's budget (gspc/limits.py) and each residual image's declared size, before any
-camera is built or view rendered. The decoder and ``gspc info`` read the same :class:`GspcFile`.
+A file is parsed and checked once, here: the container (every CRC), the header's records, the tile index
+and each tile's chunks, the side views' pixels against the file's budget (gspc/limits.py) and each residual
+image's declared size, before any camera is built or view rendered. The decoder and ``gspc info`` read the
+same :class:`GspcFile`; :class:`FileReader` reads a file on disk in parts (a region of a tiled one).
 """
 
 from __future__ import annotations
 
+import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+from gspc.errors import CodecError
 from gspc.format import container
 from gspc.format.attribute_section import attribute_chunks, check_attribute_chunks
-from gspc.format.chunks import ATTRIBUTE_TYPES, SIDE
+from gspc.format.chunks import ATTRIBUTE_TYPES, SIDE, TIDX
 from gspc.format.header import FileHeader
 from gspc.format.side_chunk import SideViews, read_side_views
+from gspc.format.tiles import TILED_VERSION, Tile, TileIndex, pack_tile_index, read_tile_index, tile_chunks
 
 
 @dataclass(frozen=True)
@@ -27,6 +31,8 @@ class GspcFile:
     chunks: tuple[container.Chunk, ...]  # every chunk in file order, unknown optional ones too
     file_size: int
     header_length: int
+    tiles: TileIndex | None = None  # a tiled file's index (spec 10.14); its tiles' payloads below
+    tile_chunks: tuple[dict[str, bytes], ...] = ()
 
     @property
     def budget(self) -> dict[str, int]:
@@ -34,12 +40,22 @@ class GspcFile:
         msgpack header, padding, trailer)."""
         return byte_budget(self.file_size, self.chunks)
 
+    @property
+    def num_gaussians(self) -> int:
+        return self.tiles.num_gaussians if self.tiles is not None else self.header.attributes.n
 
-def byte_budget(file_size: int, chunks: Sequence[container.Chunk]) -> dict[str, int]:
-    """Bytes per part of a file of ``file_size`` bytes holding ``chunks`` (see GspcFile.budget)."""
+    @property
+    def sh_degree(self) -> int:
+        return self.tiles.sh_degree if self.tiles is not None else self.header.attributes.sh_degree
+
+
+def byte_budget(file_size: int, chunks: Sequence) -> dict[str, int]:
+    """Bytes per part of a file of ``file_size`` bytes holding ``chunks`` (payloads, or table entries with a
+    ``length``; see GspcFile.budget)."""
     budget = {"file": file_size}
     for c in chunks:
-        budget[c.type] = budget.get(c.type, 0) + container.stored_size(c)
+        length = len(c.payload) if hasattr(c, "payload") else c.length
+        budget[c.type] = budget.get(c.type, 0) + container.align(length)
     budget["header+framing"] = file_size - sum(v for k, v in budget.items() if k != "file")
     return budget
 
@@ -47,11 +63,89 @@ def byte_budget(file_size: int, chunks: Sequence[container.Chunk]) -> dict[str, 
 def read_file(data: bytes) -> GspcFile:
     """Unpack and check everything a decode uses (FormatError or CodecError, one line, otherwise)."""
     c = container.unpack(data)
-    header = FileHeader.from_dict(c.header)
+    index_chunk = c.find(TIDX, 0)
+    header = FileHeader.from_dict(c.header, tiled=index_chunk is not None)
     side = read_side_views(header.side_info.legacy_views, c.chunks, len(data))
-    chunks = attribute_chunks(c.chunks)
-    check_attribute_chunks(chunks, header.attributes)
-    return GspcFile(c.version, header, chunks, side, (*c.chunks, *c.skipped), c.file_size, c.header_length)
+    chunks = (*c.chunks, *c.skipped)
+    if index_chunk is None:
+        attributes = attribute_chunks(c.chunks)
+        check_attribute_chunks(attributes, header.attributes)
+        return GspcFile(c.version, header, attributes, side, chunks, c.file_size, c.header_length)
+    tiles = _tile_index(c.chunks)
+    per_tile = tuple(tile_chunks(c.chunks, tiles))
+    return GspcFile(c.version, header, {}, side, chunks, c.file_size, c.header_length, tiles, per_tile)
+
+
+def _tile_index(chunks: Sequence) -> TileIndex:
+    """The index of a file whose chunks (or table entries) hold a TIDX; only index 0 is one."""
+    found = [ch for ch in chunks if ch.type == TIDX]
+    if len(found) != 1 or found[0].index != 0:
+        raise CodecError(f"a tiled file holds one {TIDX} chunk, of index 0")
+    return read_tile_index(found[0].payload)
+
+
+class FileReader:
+    """A .gspc file on disk read in parts: its head, header and tile index first, then the chunks asked for,
+    each checked as it is read (spec section 8, and 10.14 on reading part of a file). A reader that reads
+    every chunk checks the whole file's trailer too (:meth:`check_trailer`)."""
+
+    def __init__(self, path: str | os.PathLike) -> None:
+        self.path = os.fspath(path)
+        self._f = open(self.path, "rb")  # noqa: SIM115 (closed by close() / the context manager)
+        try:
+            self.head = container.read_head(self._f)
+            entries = self.head.entries
+            has_index = any(e.type == TIDX for e in entries)
+            self.header = FileHeader.from_dict(self.head.meta, tiled=has_index)
+            self.tiles: TileIndex | None = None
+            self.side = SideViews()
+            if has_index:  # an untiled file is read whole (read_file); a tiled one in parts, from here
+                k = next(i for i, e in enumerate(entries) if e.type == TIDX)
+                index_chunk = container.read_chunk(self._f, self.head, k)
+                self.tiles = _tile_index([*entries[:k], index_chunk, *entries[k + 1 :]])
+                tile_chunks(entries, self.tiles)  # the table's layout, before any tile is read
+                side_entries = [i for i, e in enumerate(entries) if e.type in (SIDE, "RESI")]
+                side_chunks = [container.read_chunk(self._f, self.head, i) for i in side_entries]
+                self.side = read_side_views(
+                    self.header.side_info.legacy_views, side_chunks, self.head.file_size
+                )
+        except BaseException:
+            self._f.close()
+            raise
+
+    def __enter__(self) -> FileReader:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def close(self) -> None:
+        self._f.close()
+
+    @property
+    def budget(self) -> dict[str, int]:
+        return byte_budget(self.head.file_size, self.head.entries)
+
+    def tile_bytes(self) -> list[int]:
+        """Each tile's attribute payload bytes, from the chunk table."""
+        sizes = [0] * len(self.tiles.tiles)
+        for e in self.head.entries:
+            if e.type in ATTRIBUTE_TYPES:
+                sizes[e.index] += e.length
+        return sizes
+
+    def tile(self, k: int) -> dict[str, bytes]:
+        """Tile ``k``'s attribute payloads by type, each chunk's CRC checked as it is read."""
+        out = {}
+        for i, e in enumerate(self.head.entries):
+            if e.type in ATTRIBUTE_TYPES and e.index == k:
+                out[e.type] = container.read_chunk(self._f, self.head, i).payload
+        return out
+
+    def check_trailer(self) -> None:
+        """Spec section 8's checks 9 and 10 over the whole file, read in blocks (a decode that read every
+        tile runs it before its output is in place)."""
+        container.check_stream(self._f, self.head)
 
 
 def file_chunks(attributes: dict[str, bytes], side: bytes | None) -> list[container.Chunk]:
@@ -63,6 +157,26 @@ def file_chunks(attributes: dict[str, bytes], side: bytes | None) -> list[contai
     return chunks
 
 
+def tiled_file_chunks(
+    tiles: Sequence[tuple[Tile, dict[str, bytes]]], side: bytes | None
+) -> list[container.Chunk]:
+    """A tiled file's chunks (spec 10.14): the tile index, then each tile's attribute chunks (index: the
+    tile's number) in the order the format lists them, then the side information."""
+    chunks = [container.Chunk(TIDX, pack_tile_index([t for t, _ in tiles]))]
+    for k, (_, payloads) in enumerate(tiles):
+        chunks += [container.Chunk(t, payloads[t], index=k) for t in ATTRIBUTE_TYPES if t in payloads]
+    if side is not None:
+        chunks.append(container.Chunk(SIDE, side))
+    return chunks
+
+
 def pack_file(header: FileHeader, attributes: dict[str, bytes], side: bytes | None) -> bytes:
     """The file of these parts (:func:`file_chunks`)."""
     return container.pack(header.to_dict(), file_chunks(attributes, side))
+
+
+def pack_tiled_file(
+    header: FileHeader, tiles: Sequence[tuple[Tile, dict[str, bytes]]], side: bytes | None
+) -> bytes:
+    """The tiled file of these parts (:func:`tiled_file_chunks`), marked format 1.5 (spec section 3)."""
+    return container.pack(header.to_dict(), tiled_file_chunks(tiles, side), TILED_VERSION)

@@ -170,10 +170,10 @@ class SideInfoHeader:
 
 @dataclass(frozen=True)
 class FileHeader:
-    """A .gspc file's header: the attribute codec's section, the side information's, the informative scene
-    summary and the writer's name."""
+    """A .gspc file's header: the attribute codec's section (None in a tiled file, whose sections are in its
+    tile index: spec 10.14), the side information's, the informative scene summary and the writer's name."""
 
-    attributes: AttributeSection
+    attributes: AttributeSection | None
     side_info: SideInfoHeader
     scene: SceneSummary | None = None
     encoder: str | None = None
@@ -185,14 +185,21 @@ class FileHeader:
             out["encoder"] = self.encoder
         if self.scene is not None:
             out["scene"] = self.scene.to_dict()
-        out["attributes"] = self.attributes.to_dict()
+        if self.attributes is not None:
+            out["attributes"] = self.attributes.to_dict()
         out["side_info"] = self.side_info.to_dict()
         return out
 
     @classmethod
-    def from_dict(cls, meta: dict) -> FileHeader:
-        """The header sections gspc 1 writes (spec 10.8), checked field by field; CodecError otherwise."""
-        attributes = AttributeSection.from_dict(_map(meta, "attributes", "attributes section"))
+    def from_dict(cls, meta: dict, tiled: bool = False) -> FileHeader:
+        """The header sections gspc 1 writes (spec 10.8), checked field by field; CodecError otherwise.
+        ``tiled``: the file has a tile index, and no attribute section of its own (spec 10.14)."""
+        if tiled:
+            if "attributes" in meta:
+                raise CodecError("a tiled file's header has an attributes section; its tiles hold theirs")
+            attributes = None
+        else:
+            attributes = AttributeSection.from_dict(_map(meta, "attributes", "attributes section"))
         side = SideInfoHeader.from_dict(_map(meta, "side_info", "side_info section"))
         scene = SceneSummary.from_dict(meta) if "scene" in meta else None
         encoder = meta.get("encoder")

@@ -207,3 +207,116 @@ def write_ply(scene: GaussianScene, path: str | os.PathLike) -> None:
     element = PlyElement.describe(vertices, "vertex")
     ply = PlyData([element], text=False, byte_order="<")
     atomic_write(path, ply.write)
+
+
+# --- large scenes: rows read on demand, rows written in pieces --------------------------------------------
+
+_LE_FLOAT = np.dtype("<f4")
+
+
+class PlyRows:
+    """An INRIA PLY of little-endian float32 vertex properties, memory-mapped: columns and rows are read from
+    the file when asked for, so a scene larger than memory can be coded tile by tile (gspc/encoder/tiles.py).
+    Picklable (it holds the path): a worker process maps the file itself."""
+
+    def __init__(self, path: str | os.PathLike) -> None:
+        self.path = str(path)
+        self._data: np.ndarray | None = None
+        head, offset, n, names = _binary_float_layout(Path(path))
+        self.num_gaussians = n
+        self.offset = offset
+        self.names = names
+        k = len([p for p in names if p.startswith("f_rest_")]) // 3
+        self.sh_degree = sh_degree_from_rest(k)
+        self.coordinates = None
+        required = [*POSITION, *DC, *rest_names(k), OPACITY, *SCALES, *ROTATION]
+        missing = [p for p in required if p not in names]
+        if missing:
+            raise InputError(f"{path}: missing vertex properties: {', '.join(missing)}")
+
+    def __getstate__(self) -> dict:
+        return {**self.__dict__, "_data": None}
+
+    @property
+    def data(self) -> np.ndarray:
+        if self._data is None:
+            dtype = np.dtype([(p, _LE_FLOAT) for p in self.names])
+            self._data = np.memmap(self.path, dtype, "r", self.offset, (self.num_gaussians,))
+        return self._data
+
+    def column(self, names: tuple[str, ...], rows: np.ndarray | slice = slice(None)) -> np.ndarray:
+        """The float32 columns ``names`` (N x len) of ``rows``, each checked finite where read."""
+        return np.stack([float32_column(np.asarray(self.data[p][rows]), p, self.path) for p in names], 1)
+
+    def positions(self) -> np.ndarray:
+        """Every Gaussian's position (N x 3, float64)."""
+        return self.column(POSITION).astype(np.float64)
+
+    def log_scales(self) -> np.ndarray:
+        """Every Gaussian's log scales (N x 3, float64)."""
+        return self.column(SCALES).astype(np.float64)
+
+    def tile(self, rows: np.ndarray) -> tuple[PlyRows, np.ndarray]:
+        """What a tile's job carries: this file and the tile's rows (a worker maps the file itself)."""
+        return self, rows
+
+    def rows(self, rows: np.ndarray) -> GaussianScene:
+        """The Gaussians ``rows`` (input indices) as a validated scene."""
+        part = np.asarray(self.data[np.asarray(rows)])
+        ply = PlyData([PlyElement.describe(part, "vertex")], text=False, byte_order="<")
+        return scene_from_plydata(ply, source=self.path)
+
+
+def _binary_float_layout(path: Path) -> tuple[bytes, int, int, list[str]]:
+    """(header, data offset, vertex count, property names) of a PLY whose only element is ``vertex`` of
+    little-endian float32 properties; InputError for any other (those are read whole: gspc/io/__init__.py)."""
+    with open(path, "rb") as f:
+        head = f.read(MAX_HEADER_BYTES)
+    end = head.find(b"end_header\n")
+    if not head.startswith(b"ply\n") or end < 0:
+        raise InputError(f"{path}: not a PLY file with an end_header line")
+    lines = head[:end].decode("ascii", "replace").splitlines()
+    if "format binary_little_endian 1.0" not in lines:
+        raise InputError(f"{path}: not a binary little-endian PLY")
+    names, count, elements = [], 0, 0
+    for line in lines:
+        words = line.split()
+        if words[:1] == ["element"]:
+            elements += 1
+            if len(words) != 3 or words[1] != "vertex" or not words[2].isdigit():
+                raise InputError(f"{path}: holds an element other than one vertex element")
+            count = int(words[2])
+        elif words[:1] == ["property"]:
+            if len(words) != 3 or words[1] not in ("float", "float32"):
+                raise InputError(f"{path}: vertex property {' '.join(words[1:])} is not a float32")
+            names.append(words[2])
+    offset = end + len(b"end_header\n")
+    if elements != 1 or count == 0:
+        raise InputError(f"{path}: no vertex element of Gaussians")
+    if path.stat().st_size < offset + count * 4 * len(names):
+        raise InputError(f"{path}: truncated PLY (its header declares {count:,} Gaussians)")
+    return head[:offset], offset, count, names
+
+
+def ply_header(n: int, sh_degree: int) -> bytes:
+    """The header write_ply writes for ``n`` Gaussians of ``sh_degree`` and no extra property."""
+    props = [*POSITION, *NORMALS, *DC, *rest_names(num_sh_rest(sh_degree)), OPACITY, *SCALES, *ROTATION]
+    lines = ["ply", "format binary_little_endian 1.0", f"element vertex {n}"]
+    lines += [f"property float {p}" for p in props]
+    return ("\n".join([*lines, "end_header"]) + "\n").encode("ascii")
+
+
+def write_ply_parts(f, parts, n: int, sh_degree: int) -> int:
+    """Write to the open binary file ``f`` the INRIA PLY of ``n`` Gaussians of ``sh_degree`` given as the
+    scenes ``parts`` yields (a tiled file's tiles), one at a time: memory follows the largest part. Returns
+    the Gaussians written; ValueError where ``parts`` holds another count (the caller's bug)."""
+    f.write(ply_header(n, sh_degree))
+    written = 0
+    for scene in parts:
+        if scene.sh_degree != sh_degree or not set(scene.extra) <= set(NORMALS):
+            raise ValueError("a part of another SH degree or with extra properties")
+        f.write(scene_to_vertex_array(oriented(scene, OPENCV)).tobytes())
+        written += scene.num_gaussians
+    if written != n:
+        raise ValueError(f"wrote {written} Gaussians of a PLY that declares {n}")
+    return written

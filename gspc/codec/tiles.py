@@ -1,0 +1,35 @@
+"""Decoding one spatial tile of a tiled file (spec 10.14): a task of plain data, so tiles decode side by side
+in worker processes (gspc/workers.py) with the same bits wherever they run."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from gspc.codec.attributes import decode_section
+from gspc.errors import CodecError
+from gspc.format.attribute_section import AttributeSection
+from gspc.format.tiles import Box
+from gspc.limits import DecodeBudget
+from gspc.scene import GaussianScene
+
+
+@dataclass(frozen=True)
+class TileDecodeJob:
+    number: int
+    chunks: dict[str, bytes]  # the tile's attribute payloads by type
+    section: AttributeSection
+    box: Box
+    file_bytes: int  # the attribute payload bytes of all the file's tiles (the budget's share)
+
+
+def decode_tile(job: TileDecodeJob) -> GaussianScene:
+    """The tile's Gaussians in its decoded order, each position checked inside the tile's box."""
+    tile_bytes = sum(len(p) for p in job.chunks.values())
+    decoded = decode_section(job.chunks, job.section, DecodeBudget(tile_bytes, job.file_bytes)).scene
+    m = decoded.means.numpy()
+    lo, hi = np.asarray(job.box[:3], np.float32), np.asarray(job.box[3:], np.float32)
+    if ((m < lo) | (m > hi)).any():
+        raise CodecError(f"tile {job.number} decodes positions outside its box")
+    return decoded
