@@ -1,5 +1,5 @@
 """Running the command line in-process, and the one-line error it must give for bad input: shared by
-tests/test_cli.py and tests/test_gpu.py."""
+tests/test_cli.py, tests/test_gpu.py, tests/test_input_edges.py and tests/test_outputs.py."""
 
 from typer.testing import CliRunner
 

@@ -27,20 +27,12 @@ from gspc.presets import QUALITY
 HUGE = [1e20, 1e38, 1e100, 1e300, -1e20, -1e300]
 
 
-def _scene(n: int = 300, far: float = 0.0, seed: int = 0):
-    scene = random_scene(n, sh_degree=0, seed=seed)
-    if far:
-        with torch.no_grad():
-            scene.means[: n // 10] *= far  # a background far away: a contracted grid
-    return scene
-
-
 @pytest.fixture(scope="module")
 def sections() -> dict[int, tuple[AttributeSection, dict[str, bytes]]]:
     """A box grid (version 1) and a contracted one (version 2), with their payloads."""
     out = {}
-    for far in (0.0, 400.0):
-        enc = encode_attributes(_scene(far=far), QUALITY["low"].attributes)
+    for far in (1.0, 400.0):  # a background 400x further out: a contracted grid
+        enc = encode_attributes(random_scene(300, sh_degree=0, far=far), QUALITY["low"].attributes)
         out[enc.section.version] = (enc.section, enc.chunks)
     assert set(out) == {1, 2}
     return out
@@ -127,7 +119,7 @@ def test_a_grid_past_its_bound_is_refused():
 
 
 def test_a_scene_beyond_the_coordinate_bound_is_an_input_error():
-    scene = _scene()
+    scene = random_scene(300, sh_degree=0)
     with torch.no_grad():
         scene.means[0] = 1e30
     with pytest.raises(InputError, match="cannot be coded"):

@@ -5,6 +5,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 import torch
+from scenes import random_scene
 from scenes import varied_scene as _scene
 
 from gspc.codec.attributes import decode_attributes, rotation_error_bound
@@ -14,7 +15,7 @@ from gspc.encoder.coding import encode_attributes
 from gspc.encoder.params import CodecParams
 from gspc.errors import CodecError, InputError
 from gspc.presets import QUALITY
-from gspc.scene import make_scene, scene_equal
+from gspc.scene import scene_equal
 
 
 def _check_exact(scene, params=QUALITY["high"].attributes, visible=None):
@@ -181,15 +182,8 @@ def test_geometry_steps_grow_as_sqrt_lambda_beyond_the_knee():
     assert CodecParams(lam=128.0).geometry_lam == pytest.approx(32.0)
     assert CodecParams(lam=8.0001).geometry_lam == pytest.approx(8.0, abs=1e-3)  # continuous at the knee
     # At a very coarse rate the log-scale error stays within half a (sqrt-grown) step: no inflated Gaussians.
-    rng = np.random.default_rng(3)
-    n = 500
-    scene = make_scene(
-        means=rng.uniform(-1, 1, (n, 3)),
-        quats=rng.normal(size=(n, 4)),
-        log_scales=rng.uniform(-4, 0, (n, 3)),
-        opacities=rng.uniform(0, 4, n),
-        sh_dc=rng.normal(0, 1, (n, 3)),
-        sh_rest=np.zeros((n, 0, 3)),
+    scene = random_scene(
+        500, sh_degree=0, seed=3, spread=0.6, log_scale=-2.0, scale_std=1.2, opacity_logit=2.0, dc_std=1.0
     )
     enc = encode_attributes(scene, CodecParams(lam=128.0))
     assert enc.section.scale_step == pytest.approx(0.021 * 32)

@@ -7,13 +7,14 @@ import imagecodecs
 import numpy as np
 import pytest
 import torch
+from input_files import COLMAP_CAMS, write_colmap_bin, write_colmap_txt
+from scenes import floater_scene, random_scene
 
 from gspc.cameras import Camera, natural_key
 from gspc.errors import InputError
 from gspc.io.camera_files import load_cameras
 from gspc.io.cameras_json import save_cameras_json
 from gspc.io.transforms import image_size
-from gspc.scene import make_scene
 from gspc.views import (
     between_views,
     halfway,
@@ -159,41 +160,6 @@ def test_image_size_of_jpeg(tmp_path):
 
 # --- COLMAP ---------------------------------------------------------------------------------------
 
-# (camera id, model, width, height, params), (image id, quaternion wxyz, t, camera id, name)
-_COLMAP_CAMS = [
-    (1, "PINHOLE", 64, 48, [50.0, 55.0, 31.0, 23.0]),
-    (2, "SIMPLE_PINHOLE", 40, 30, [35.0, 20.0, 15.0]),
-]
-_COLMAP_IMGS = [
-    (3, [0.9, 0.1, -0.3, 0.2], [0.5, -1.0, 4.0], 1, "DSC_10.JPG"),
-    (1, [1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 3.0], 2, "DSC_9.JPG"),
-]
-
-
-def _write_colmap_txt(d, cams=_COLMAP_CAMS, imgs=_COLMAP_IMGS):
-    d.mkdir(parents=True)
-    lines = ["# Camera list with one line of data per camera:"]
-    lines += [f"{c} {m} {w} {h} " + " ".join(map(str, p)) for c, m, w, h, p in cams]
-    (d / "cameras.txt").write_text("\n".join(lines) + "\n")
-    lines = ["# Image list with two lines of data per image:", "#   POINTS2D[] as (X, Y, POINT3D_ID)"]
-    for i, q, t, c, name in imgs:
-        lines += [f"{i} {' '.join(map(str, q))} {' '.join(map(str, t))} {c} {name}", ""]  # no 2D points
-    (d / "images.txt").write_text("\n".join(lines) + "\n")
-
-
-def _write_colmap_bin(d):
-    ids = {"SIMPLE_PINHOLE": 0, "PINHOLE": 1}
-    d.mkdir(parents=True)
-    buf = struct.pack("<Q", len(_COLMAP_CAMS))
-    for c, m, w, h, p in _COLMAP_CAMS:
-        buf += struct.pack("<iiQQ", c, ids[m], w, h) + struct.pack(f"<{len(p)}d", *p)
-    (d / "cameras.bin").write_bytes(buf)
-    buf = struct.pack("<Q", len(_COLMAP_IMGS))
-    for k, (i, q, t, c, name) in enumerate(_COLMAP_IMGS):
-        buf += struct.pack("<i7di", i, *q, *t, c) + name.encode() + b"\0"
-        buf += struct.pack("<Q", k) + struct.pack("<ddq", 1.5, 2.5, -1) * k  # some 2D points to skip
-    (d / "images.bin").write_bytes(buf)
-
 
 def _check_colmap(cams):
     assert [c.name for c in cams] == ["DSC_9", "DSC_10"]
@@ -210,13 +176,13 @@ def _check_colmap(cams):
 
 
 def test_colmap_text(tmp_path):
-    _write_colmap_txt(tmp_path / "sparse" / "0")
+    write_colmap_txt(tmp_path / "sparse" / "0")
     _check_colmap(load_cameras(tmp_path))
     _check_colmap(load_cameras(tmp_path / "sparse" / "0" / "images.txt"))
 
 
 def test_colmap_binary(tmp_path):
-    _write_colmap_bin(tmp_path / "sparse" / "0")
+    write_colmap_bin(tmp_path / "sparse" / "0")
     _check_colmap(load_cameras(tmp_path / "sparse" / "0"))
 
 
@@ -225,17 +191,17 @@ def test_colmap_distortion_warns_and_unknown_model_fails(tmp_path):
         (1, "OPENCV", 64, 48, [50.0, 55.0, 31.0, 23.0, 0.1, 0, 0, 0]),
         (2, "SIMPLE_RADIAL", 40, 30, [35, 20, 15, 0]),
     ]
-    _write_colmap_txt(tmp_path / "a", cams)
+    write_colmap_txt(tmp_path / "a", cams)
     with pytest.warns(UserWarning, match="OPENCV"):
         loaded = load_cameras(tmp_path / "a")
     assert loaded[1].fx == 50 and loaded[1].cy == 23
-    _write_colmap_txt(tmp_path / "b", [(1, "OPENCV_FISHEYE", 64, 48, [1.0] * 8), _COLMAP_CAMS[1]])
+    write_colmap_txt(tmp_path / "b", [(1, "OPENCV_FISHEYE", 64, 48, [1.0] * 8), COLMAP_CAMS[1]])
     with pytest.raises(InputError, match="OPENCV_FISHEYE"):
         load_cameras(tmp_path / "b")
-    _write_colmap_txt(tmp_path / "c", [(1, "WEIRD", 64, 48, [1.0]), _COLMAP_CAMS[1]])
+    write_colmap_txt(tmp_path / "c", [(1, "WEIRD", 64, 48, [1.0]), COLMAP_CAMS[1]])
     with pytest.raises(InputError, match="WEIRD"):
         load_cameras(tmp_path / "c")
-    _write_colmap_txt(tmp_path / "d", _COLMAP_CAMS[1:])
+    write_colmap_txt(tmp_path / "d", COLMAP_CAMS[1:])
     with pytest.raises(InputError, match="camera 1"):
         load_cameras(tmp_path / "d")
 
@@ -283,20 +249,8 @@ def test_bad_camera_files(tmp_path):
 # --- synthesised views, sampling, splits -----------------------------------------------------------
 
 
-def _random_scene(n=3000, seed=0, floaters=30):
-    g = torch.Generator().manual_seed(seed)
-    means = torch.randn(n, 3, generator=g) * torch.tensor([2.0, 1.0, 0.5]) + torch.tensor([5.0, -3.0, 1.0])
-    opac = torch.full((n,), 2.0)
-    # Far, faint floaters must not stretch the volume.
-    means[:floaters] = torch.randn(floaters, 3, generator=g) * 500
-    opac[:floaters] = -4.0
-    return make_scene(
-        means, torch.randn(n, 4, generator=g), torch.full((n, 3), -3.0), opac, torch.zeros(n, 3)
-    )
-
-
 def test_robust_bounds_ignore_floaters():
-    lo, hi = robust_bounds(_random_scene())
+    lo, hi = robust_bounds(floater_scene())
     # 0.2%-99.8% of a normal cloud spans about 5.8 sigma (2, 1, 0.5); floaters at +-500 would dwarf that.
     assert np.all(hi - lo < [13, 6.5, 3.3]) and np.all(hi > lo)
     assert np.allclose((lo + hi) / 2, [5, -3, 1], atol=0.3)
@@ -304,7 +258,7 @@ def test_robust_bounds_ignore_floaters():
 
 @pytest.mark.parametrize("n,width,height,fov", [(1, 64, 64, 50.0), (24, 320, 180, 60.0), (7, 100, 200, 30.0)])
 def test_synthesized_views_see_the_whole_volume(n, width, height, fov):
-    scene = _random_scene()
+    scene = floater_scene()
     cams = synthesize_views(scene, n, width=width, height=height, fov_deg=fov)
     assert len(cams) == n and len({c.name for c in cams}) == n
     lo, hi = robust_bounds(scene)
@@ -326,7 +280,7 @@ def test_synthesized_views_see_the_whole_volume(n, width, height, fov):
 
 
 def test_synthesized_views_spread_and_poles():
-    scene = _random_scene(500)
+    scene = floater_scene(500)
     cams = synthesize_views(scene, 40, up=(0, 1, 0))
     dirs = np.array([c.center for c in cams])
     dirs -= dirs.mean(0)
@@ -406,8 +360,6 @@ def test_limit_size_scales_only_large_views():
 
 def test_views_of_a_scene_with_a_background_frame_its_object():
     """A background shell (20% of the count, 30x away) and floaters do not push synthesised cameras away."""
-    from scenes import random_scene
-
     obj = random_scene(1000, sh_degree=0, seed=4)
     g = np.random.default_rng(4)
     d = g.normal(size=(220, 3))

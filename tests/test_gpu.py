@@ -22,7 +22,7 @@ import pytest
 import torch
 from bench_gpu import NOT_RENDERED
 from cli_runs import assert_one_line_error, run
-from scenes import random_scene
+from scenes import coarse_residual_scene, random_scene
 
 import gspc.device as device_module
 import gspc.encoder.decisions as decisions
@@ -54,12 +54,6 @@ needs_gsplat = pytest.mark.skipif(
 without_cuda = pytest.mark.skipif(CUDA, reason="checks the no-GPU message")
 
 
-def scene(seed=1):
-    return random_scene(
-        200, sh_degree=2, seed=seed, log_scale=-2.8, opacity_logit=1.5, dc_std=0.6, rest_std=0.2
-    )
-
-
 def small_encode(**kw) -> EncodeOptions:
     """A coarse rate, so that residuals are sent and the check runs when it has iterations."""
     return EncodeOptions(lam=40, synth_views=5, max_side=40, **kw)
@@ -74,7 +68,7 @@ def test_unknown_device_is_refused_before_any_work(tmp_path):
     with pytest.raises(DeviceError, match="unknown device"):
         encode(tmp_path / "missing.ply", tmp_path / "o.gspc", opts=EncodeOptions(device="tpu"))
     with pytest.raises(DeviceError, match="unknown device"):
-        encode_scene(scene(), opts=EncodeOptions(device="tpu"))
+        encode_scene(coarse_residual_scene(), opts=EncodeOptions(device="tpu"))
     with pytest.raises(DeviceError, match="unknown device"):
         decode_bytes(b"not a gspc file", DecodeOptions(device="tpu"))
     assert not (tmp_path / "o.gspc").exists()
@@ -92,7 +86,7 @@ def test_encode_on_cuda_without_gpu_is_refused_before_any_work(tmp_path, monkeyp
 
     monkeypatch.setattr(decisions, "encoder_cameras", no_work)
     with pytest.raises(DeviceError, match="no CUDA GPU"):
-        encode_scene(scene(), opts=EncodeOptions(device="cuda"))
+        encode_scene(coarse_residual_scene(), opts=EncodeOptions(device="cuda"))
 
 
 @pytest.mark.parametrize(
@@ -101,7 +95,7 @@ def test_encode_on_cuda_without_gpu_is_refused_before_any_work(tmp_path, monkeyp
 )
 def test_cli_encode_refuses_a_device_in_one_line(tmp_path, device, message):
     src = tmp_path / "scene.ply"
-    write_ply(scene(), src)
+    write_ply(coarse_residual_scene(), src)
     out = tmp_path / "s.gspc"
     assert_one_line_error(run("encode", src, "-o", out, "--device", device), message)
     assert not out.exists()
@@ -130,9 +124,9 @@ def test_the_device_reaches_the_restorer_and_the_check(monkeypatch):
     monkeypatch.setattr(pipeline, "load_restorer", spy_restorer)
     monkeypatch.setattr(decisions, "check_side_info", spy_check)
     with pytest.raises(Checked):
-        encode_scene(scene(), opts=small_encode(check_iterations=2, restorer="none"))
+        encode_scene(coarse_residual_scene(), opts=small_encode(check_iterations=2, restorer="none"))
     assert check_devices == [marker] and restorer_devices == [marker]
-    data, rep = encode_scene(scene(), opts=small_encode(check_iterations=0, restorer="none"))
+    data, rep = encode_scene(coarse_residual_scene(), opts=small_encode(check_iterations=0, restorer="none"))
     assert rep.info["renderer"] == CPU_RENDERER
     _, rep = decode_bytes(data, DecodeOptions(refine=False))
     assert restorer_devices == [marker] * 2  # a decode that does not refine loads no restorer
@@ -291,7 +285,7 @@ def test_gsplat_failing_at_render_time_is_one_line_device_error(fake_gsplat):
             emulated_rasterization(0.999),
         )
     )
-    s = scene()
+    s = coarse_residual_scene()
     with pytest.raises(DeviceError) as e:
         gb.render_gsplat(s, _camera(), torch.zeros(3), s.sh_degree)
     assert str(e.value).startswith("gsplat 1.5.3 failed on cpu (RuntimeError: CUDA out of memory.")
@@ -300,7 +294,7 @@ def test_gsplat_failing_at_render_time_is_one_line_device_error(fake_gsplat):
 
 def test_gsplat_unavailable_is_one_line_device_error(fake_gsplat):
     fake_gsplat(raising(NO_KERNELS))
-    s = scene()
+    s = coarse_residual_scene()
     with pytest.raises(
         DeviceError, match="render backend 'gsplat' is unavailable: gsplat 1.5.3's CUDA kernels"
     ):
@@ -331,7 +325,7 @@ def test_alpha_cap_miss_bound_is_reached_behind_a_translucent_gaussian(fake_gspl
     # stops before the opaque one (0.08 x 0.001 <= 1e-4), the rules draw it (0.08 x 0.01 > 1e-4).
     fake_gsplat(emulated_rasterization(0.999))
     s = dataclasses.replace(
-        scene(),
+        coarse_residual_scene(),
         means=torch.tensor([[0.0, 0.0, 0.0], [0.0, 0.0, 0.5]]),
         quats=torch.tensor([[1.0, 0, 0, 0]] * 2),
         log_scales=torch.full((2, 3), -1.0),
@@ -584,7 +578,7 @@ def test_gsplat_misses_the_rules_by_at_most_its_cap_bound_on_opaque_gaussians():
 @pytest.mark.slow
 def test_cli_encode_and_decode_on_cuda(tmp_path):
     src, enc, dec = tmp_path / "scene.ply", tmp_path / "s.gspc", tmp_path / "out.ply"
-    write_ply(scene(), src)
+    write_ply(coarse_residual_scene(), src)
     args = ["--lambda", 40, "--views", 5, "--max-side", 40, "--check-iterations", 2]
     res = run("encode", src, "-o", enc, "--device", "cuda", *args)
     assert res.exit_code == 0, res.output
@@ -597,11 +591,11 @@ def test_cli_encode_and_decode_on_cuda(tmp_path):
 
 @needs_cuda
 def test_attribute_decode_is_bit_identical_on_gpu(tmp_path):
-    enc = encode_attributes(scene(), QUALITY["low"].attributes)
+    enc = encode_attributes(coarse_residual_scene(), QUALITY["low"].attributes)
     cpu = decode_attributes(enc.chunks, enc.section)
     assert scene_equal(cpu.to("cuda").to("cpu"), cpu)
 
-    data, _ = encode_scene(scene(), opts=small_encode(check_iterations=0))
+    data, _ = encode_scene(coarse_residual_scene(), opts=small_encode(check_iterations=0))
     on_cpu, _ = decode_bytes(data, DecodeOptions(refine=False))
     on_gpu, rep = decode_bytes(data, DecodeOptions(refine=False, device="cuda"))
     assert on_gpu.means.is_cuda and "cuda" in str(rep.info["renderer"])
@@ -615,8 +609,10 @@ def test_attribute_decode_is_bit_identical_on_gpu(tmp_path):
 @needs_cuda
 def test_encode_on_gpu_codes_the_same_attribute_bytes_and_decodes_on_cpu():
     # No check: with one, the choice between side information and attributes may tip on render round-off.
-    cpu_data, _ = encode_scene(scene(), opts=small_encode(check_iterations=0))
-    gpu_data, rep = encode_scene(scene(), opts=small_encode(check_iterations=0, device="cuda"))
+    cpu_data, _ = encode_scene(coarse_residual_scene(), opts=small_encode(check_iterations=0))
+    gpu_data, rep = encode_scene(
+        coarse_residual_scene(), opts=small_encode(check_iterations=0, device="cuda")
+    )
     assert "cuda" in str(rep.info["renderer"])
     cpu_c, gpu_c = container.unpack(cpu_data), container.unpack(gpu_data)
     assert attribute_chunks(gpu_c.chunks) == attribute_chunks(cpu_c.chunks)
@@ -635,8 +631,8 @@ def test_encode_on_gpu_codes_the_same_attribute_bytes_and_decodes_on_cpu():
 def test_encode_without_side_info_tunes_to_the_cpu_bytes():
     # A file without side information has its coded values tuned (gspc/encoder/tuning.py), which renders
     # on the CPU whatever the run's device: a GPU encode tunes to the CPU's bytes.
-    cpu_data, _ = encode_scene(scene(), opts=small_encode(side_info=False))
-    gpu_data, rep = encode_scene(scene(), opts=small_encode(side_info=False, device="cuda"))
+    cpu_data, _ = encode_scene(coarse_residual_scene(), opts=small_encode(side_info=False))
+    gpu_data, rep = encode_scene(coarse_residual_scene(), opts=small_encode(side_info=False, device="cuda"))
     assert "cuda" in str(rep.info["renderer"]) and "iterations" in rep.info["tuning"]
     cpu_c, gpu_c = container.unpack(cpu_data), container.unpack(gpu_data)
     assert attribute_chunks(gpu_c.chunks) == attribute_chunks(cpu_c.chunks)
@@ -650,7 +646,7 @@ def test_check_restorer_and_refinement_run_on_gpu():
     img = torch.rand(40, 30, 3, device="cuda")
     assert restorer.restore(img, torch.zeros_like(img)).is_cuda
 
-    data, rep = encode_scene(scene(), opts=small_encode(check_iterations=3, device="cuda"))
+    data, rep = encode_scene(coarse_residual_scene(), opts=small_encode(check_iterations=3, device="cuda"))
     assert rep.side_info is not None  # the check ran on the GPU
     out, rep = decode_bytes(data, DecodeOptions(iterations=3, device="cuda"))
     assert out.means.is_cuda and all(torch.isfinite(t).all() for t in out.tensors().values())

@@ -10,10 +10,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_runs import run
+from input_files import COLMAP_CAMS, COLMAP_IMGS, write_colmap_txt
 from scenes import random_scene
-from test_cameras import _COLMAP_CAMS, _COLMAP_IMGS, _write_colmap_txt
-from test_cli import run
-from test_io import make_sog
+from sog_files import make_sog
 
 from gspc.errors import InputError
 from gspc.io import read_scene, write_ply
@@ -24,8 +24,8 @@ REPO = Path(__file__).resolve().parents[1]
 
 
 def _with_quaternion(tmp_path, q):
-    imgs = [(3, q, [0.5, -1.0, 4.0], 1, "a.jpg"), *_COLMAP_IMGS[1:]]
-    _write_colmap_txt(tmp_path / "m", _COLMAP_CAMS, imgs)
+    imgs = [(3, q, [0.5, -1.0, 4.0], 1, "a.jpg"), *COLMAP_IMGS[1:]]
+    write_colmap_txt(tmp_path / "m", COLMAP_CAMS, imgs)
     return tmp_path / "m"
 
 
@@ -52,8 +52,8 @@ def test_non_finite_and_zero_quaternions_are_refused(tmp_path, q):
 
 
 def test_lens_distortion_warning_is_one_line_in_the_cli(tmp_path):
-    cams = [(1, "OPENCV", 64, 48, [50.0, 55.0, 31.0, 23.0, 0.1, 0, 0, 0]), _COLMAP_CAMS[1]]
-    _write_colmap_txt(tmp_path / "m", cams)
+    cams = [(1, "OPENCV", 64, 48, [50.0, 55.0, 31.0, 23.0, 0.1, 0, 0, 0]), COLMAP_CAMS[1]]
+    write_colmap_txt(tmp_path / "m", cams)
     scene = tmp_path / "s.ply"
     write_ply(random_scene(100, sh_degree=0, seed=0), scene)
     res = run("render", scene, "-o", tmp_path / "imgs", "--cameras", tmp_path / "m", "--max-side", 16)
@@ -115,7 +115,7 @@ def _fit(source: Path, out: Path) -> subprocess.CompletedProcess:
 @pytest.mark.slow
 def test_fit_scene_reports_bad_photos_and_points_in_one_line(tmp_path):
     cap = tmp_path / "cap"
-    _write_colmap_txt(cap / "sparse" / "0")
+    write_colmap_txt(cap / "sparse" / "0")
     (cap / "sparse" / "0" / "points3D.bin").write_bytes(struct.pack("<Q", 1000) + b"\0" * 40)
     (cap / "images").mkdir()
     for name in ("DSC_9.JPG", "DSC_10.JPG"):

@@ -1,5 +1,4 @@
 import io
-import math
 import warnings
 import zipfile
 from pathlib import Path
@@ -7,37 +6,22 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from input_files import SH_C0, make_compressed_ply
 from plyfile import PlyData, PlyElement
+from scenes import random_scene
 from sog_files import make_sog
 
 from gspc.errors import InputError
 from gspc.io import read_compressed_ply, read_ply, read_scene, read_sog, write_ply
 from gspc.io.ply import inria_bytes_per_gaussian
-from gspc.scene import GaussianScene, num_sh_rest, scene_equal
-
-SH_C0 = 0.28209479177387814
-
-
-def random_scene(degree: int, n: int = 7, seed: int = 0) -> GaussianScene:
-    g = torch.Generator().manual_seed(seed)
-    k = num_sh_rest(degree)
-    return GaussianScene(
-        means=torch.randn(n, 3, generator=g),
-        quats=torch.randn(n, 4, generator=g),
-        log_scales=torch.randn(n, 3, generator=g) - 4,
-        opacities=torch.randn(n, generator=g),
-        sh_dc=torch.randn(n, 3, generator=g),
-        sh_rest=torch.randn(n, k, 3, generator=g) * 0.1,
-        sh_degree=degree,
-    )
-
+from gspc.scene import scene_equal
 
 # ---------------------------------------------------------------- INRIA PLY
 
 
 @pytest.mark.parametrize("degree", [0, 1, 2, 3])
 def test_ply_round_trip_is_bit_exact(tmp_path, degree):
-    scene = random_scene(degree)
+    scene = random_scene(7, sh_degree=degree)
     write_ply(scene, tmp_path / "s.ply")
     back = read_ply(tmp_path / "s.ply")
     assert back.sh_degree == degree
@@ -46,7 +30,7 @@ def test_ply_round_trip_is_bit_exact(tmp_path, degree):
 
 
 def test_ply_layout_is_inria_channel_major(tmp_path):
-    scene = random_scene(2)
+    scene = random_scene(7, sh_degree=2)
     write_ply(scene, tmp_path / "s.ply")
     ply = PlyData.read(str(tmp_path / "s.ply"))
     assert not ply.text and ply.byte_order == "<"
@@ -64,7 +48,7 @@ def test_ply_layout_is_inria_channel_major(tmp_path):
 
 
 def test_ply_extras_and_normals_are_kept(tmp_path):
-    scene = random_scene(1)
+    scene = random_scene(7, sh_degree=1)
     normals = np.arange(7, dtype=np.float32)
     scene.extra = {
         "red": np.arange(7, dtype=np.uint8),
@@ -84,7 +68,7 @@ def test_ply_extras_and_normals_are_kept(tmp_path):
 
 @pytest.mark.parametrize("text,order", [(True, "="), (False, ">")])
 def test_ply_reads_ascii_and_big_endian(tmp_path, text, order):
-    scene = random_scene(3, n=4)
+    scene = random_scene(4, sh_degree=3)
     write_ply(scene, tmp_path / "le.ply")
     ply = PlyData.read(str(tmp_path / "le.ply"))
     PlyData([PlyElement.describe(ply["vertex"].data, "vertex")], text=text, byte_order=order).write(
@@ -94,10 +78,10 @@ def test_ply_reads_ascii_and_big_endian(tmp_path, text, order):
 
 
 def test_ply_write_is_atomic(tmp_path):
-    good = random_scene(0)
+    good = random_scene(7, sh_degree=0)
     write_ply(good, tmp_path / "s.ply")
     before = (tmp_path / "s.ply").read_bytes()
-    bad = random_scene(0)
+    bad = random_scene(7, sh_degree=0)
     bad.means[0, 0] = float("nan")
     with pytest.raises(InputError):
         write_ply(bad, tmp_path / "s.ply")
@@ -134,7 +118,7 @@ def test_ply_errors(tmp_path):
 
 
 def test_ply_truncated(tmp_path):
-    write_ply(random_scene(1, n=50), tmp_path / "s.ply")
+    write_ply(random_scene(50, sh_degree=1), tmp_path / "s.ply")
     data = (tmp_path / "s.ply").read_bytes()
     (tmp_path / "cut.ply").write_bytes(data[: len(data) - 100])
     with pytest.raises(InputError, match="truncated"):
@@ -320,82 +304,6 @@ def test_sog_errors(tmp_path):
 # ---------------------------------------------------------------- PlayCanvas compressed PLY
 
 
-def _pack(fields: list[tuple[np.ndarray, int]]) -> np.ndarray:
-    """Pack unsigned integer fields MSB first."""
-    out = np.zeros(len(fields[0][0]), np.uint64)
-    for values, bits in fields:
-        out = (out << np.uint64(bits)) | values.astype(np.uint64)
-    return out.astype(np.uint32)
-
-
-def make_compressed_ply(path: Path, n: int = 300, colour_bounds: bool = False, sh_bands: int = 0, seed=0):
-    """A compressed PLY with random content packed per the layout; returns the expected decode."""
-    rng = np.random.default_rng(seed)
-    chunks = -(-n // 256)
-    ci = np.arange(n) // 256
-    geo = [f"{b}_{a}" for b in ("min", "max") for a in "xyz"] + [
-        f"{b}_scale_{a}" for b in ("min", "max") for a in "xyz"
-    ]
-    names = geo + ([f"{b}_{c}" for b in ("min", "max") for c in "rgb"] if colour_bounds else [])
-    chunk = np.empty(chunks, dtype=[(k, "<f4") for k in names])
-    lo, hi = (
-        rng.uniform(-2, 0, (chunks, 3)).astype(np.float32),
-        rng.uniform(0.1, 2, (chunks, 3)).astype(np.float32),
-    )
-    slo, shi = (
-        rng.uniform(-9, -5, (chunks, 3)).astype(np.float32),
-        rng.uniform(-4, 0, (chunks, 3)).astype(np.float32),
-    )
-    for i, a in enumerate("xyz"):
-        chunk[f"min_{a}"], chunk[f"max_{a}"] = lo[:, i], hi[:, i]
-        chunk[f"min_scale_{a}"], chunk[f"max_scale_{a}"] = slo[:, i], shi[:, i]
-    clo, chi = np.zeros((chunks, 3), np.float32), np.ones((chunks, 3), np.float32)
-    if colour_bounds:
-        clo, chi = (
-            rng.uniform(-0.2, 0.3, (chunks, 3)).astype(np.float32),
-            rng.uniform(0.6, 1.3, (chunks, 3)).astype(np.float32),
-        )
-        for i, c in enumerate("rgb"):
-            chunk[f"min_{c}"], chunk[f"max_{c}"] = clo[:, i], chi[:, i]
-
-    p = np.stack([rng.integers(0, 2048, n), rng.integers(0, 1024, n), rng.integers(0, 2048, n)], 1)
-    s = np.stack([rng.integers(0, 2048, n), rng.integers(0, 1024, n), rng.integers(0, 2048, n)], 1)
-    c = rng.integers(0, 256, (n, 4))
-    q = rng.normal(size=(n, 4))
-    q /= np.linalg.norm(q, axis=1, keepdims=True)
-    mode = np.abs(q).argmax(1)
-    q *= np.sign(q[np.arange(n), mode])[:, None]
-    kept = np.stack([np.delete(row, m) for row, m in zip(q, mode, strict=True)])
-    k10 = np.round((kept / math.sqrt(2) + 0.5) * 1023).astype(np.int64)
-    vertex = np.empty(
-        n, dtype=[(k, "<u4") for k in ("packed_position", "packed_rotation", "packed_scale", "packed_color")]
-    )
-    vertex["packed_position"] = _pack([(p[:, 0], 11), (p[:, 1], 10), (p[:, 2], 11)])
-    vertex["packed_scale"] = _pack([(s[:, 0], 11), (s[:, 1], 10), (s[:, 2], 11)])
-    vertex["packed_color"] = _pack([(c[:, 0], 8), (c[:, 1], 8), (c[:, 2], 8), (c[:, 3], 8)])
-    vertex["packed_rotation"] = _pack([(mode, 2), (k10[:, 0], 10), (k10[:, 1], 10), (k10[:, 2], 10)])
-    elements = [PlyElement.describe(chunk, "chunk"), PlyElement.describe(vertex, "vertex")]
-    k = num_sh_rest(sh_bands)
-    sh_bytes = rng.integers(0, 256, (n, 3 * k))
-    if sh_bands:
-        sh = np.empty(n, dtype=[(f"f_rest_{i}", "u1") for i in range(3 * k)])
-        for i in range(3 * k):
-            sh[f"f_rest_{i}"] = sh_bytes[:, i]
-        elements.append(PlyElement.describe(sh, "sh"))
-    PlyData(elements).write(str(path))
-    steps = np.array([2047, 1023, 2047])
-    rgb = clo[ci] + (chi[ci] - clo[ci]) * c[:, :3] / 255
-    t = np.where(sh_bytes == 0, 0.0, np.where(sh_bytes == 255, 1.0, (sh_bytes + 0.5) / 256))
-    return {
-        "means": lo[ci] + (hi[ci] - lo[ci]) * p / steps,
-        "log_scales": slo[ci] + (shi[ci] - slo[ci]) * s / steps,
-        "sh_dc": (rgb - 0.5) / SH_C0,
-        "alpha": c[:, 3] / 255,
-        "quats": q,
-        "sh_rest": ((t - 0.5) * 8).reshape(n, 3, k).transpose(0, 2, 1),
-    }
-
-
 @pytest.mark.parametrize("colour_bounds,sh_bands", [(False, 0), (True, 0), (True, 2)])
 def test_compressed_ply_decodes_known_values(tmp_path, colour_bounds, sh_bands):
     exp = make_compressed_ply(tmp_path / "c.ply", colour_bounds=colour_bounds, sh_bands=sh_bands)
@@ -430,7 +338,7 @@ def test_compressed_ply_errors(tmp_path):
     with pytest.raises(InputError, match="missing chunk properties: max_scale_y"):
         read_scene(tmp_path / "miss.ply")
 
-    write_ply(random_scene(0), tmp_path / "inria.ply")
+    write_ply(random_scene(7, sh_degree=0), tmp_path / "inria.ply")
     with pytest.raises(InputError, match="not a compressed PLY"):
         read_compressed_ply(tmp_path / "inria.ply")
 

@@ -4,7 +4,7 @@ import numpy as np
 import plyfile
 import pytest
 import torch
-from scenes import random_scene
+from scenes import coarse_residual_scene, random_scene
 
 from gspc.encoder.policy import CheckPolicy, Outcome, trial_settles
 from gspc.errors import CodecError, InputError
@@ -22,17 +22,11 @@ def side_of(c: container.Container) -> tuple:
     return side.views, side.images
 
 
-def scene(seed=1):
-    return random_scene(
-        200, sh_degree=2, seed=seed, log_scale=-2.8, opacity_logit=1.5, dc_std=0.6, rest_std=0.2
-    )
-
-
 @pytest.fixture(scope="module")
 def encoded(tmp_path_factory):
     d = tmp_path_factory.mktemp("pipe")
     src = d / "in.ply"
-    write_ply(scene(), src)
+    write_ply(coarse_residual_scene(), src)
     out = d / "s.gspc"
     # A coarse rate so the residuals are clearly above the skip threshold.
     rep = encode(src, out, opts=EncodeOptions(lam=40, synth_views=5, max_side=40, check_iterations=0))
@@ -121,7 +115,7 @@ def test_residual_without_record_is_refused(encoded, tmp_path):
 @pytest.mark.slow
 def test_encoder_check_keeps_side_info_only_if_refinement_pays(tmp_path):
     src = tmp_path / "in.ply"
-    write_ply(scene(seed=4), src)
+    write_ply(coarse_residual_scene(seed=4), src)
     out = tmp_path / "c.gspc"
     rep = encode(src, out, opts=EncodeOptions(lam=40, synth_views=6, max_side=40, check_iterations=20))
     d = rep.side_info
@@ -142,7 +136,7 @@ def test_encoder_check_keeps_side_info_only_if_refinement_pays(tmp_path):
 @pytest.mark.slow
 def test_long_check_scores_a_trial_first(tmp_path):
     src = tmp_path / "in.ply"
-    write_ply(scene(seed=5), src)
+    write_ply(coarse_residual_scene(seed=5), src)
     out = tmp_path / "c.gspc"
     opts = EncodeOptions(lam=40, synth_views=5, max_side=32, check_iterations=400)
     rep = encode(src, out, opts=opts)
@@ -226,7 +220,7 @@ def test_bad_time_budgets_are_refused(encoded, tmp_path, value):
 @pytest.mark.slow
 def test_encode_time_budget_writes_the_iterations_it_checked(tmp_path):
     src = tmp_path / "in.ply"
-    write_ply(scene(seed=4), src)
+    write_ply(coarse_residual_scene(seed=4), src)
     out = tmp_path / "c.gspc"
     opts = EncodeOptions(lam=40, synth_views=6, max_side=40, check_iterations=400, time_budget=1e-6)
     rep = encode(src, out, opts=opts)
@@ -240,7 +234,7 @@ def test_encode_time_budget_bounds_the_search_for_a_file_without_side_informatio
     """A file without side information re-codes its attributes for decoding as they are (a search of up to
     12 encodes); with the budget spent it keeps the coding it has instead."""
     src = tmp_path / "in.ply"
-    write_ply(scene(seed=4), src)
+    write_ply(coarse_residual_scene(seed=4), src)
     base = dict(lam=40, synth_views=6, max_side=40, side_info=False)
     free = encode(src, tmp_path / "a.gspc", opts=EncodeOptions(**base))
     assert "attributes for no side information" in free.seconds
@@ -255,7 +249,7 @@ def test_bytes_spent_on_attributes_are_the_rivals(tmp_path):
     from gspc.format.attribute_section import attribute_chunks
 
     src = tmp_path / "in.ply"
-    write_ply(scene(seed=2), src)
+    write_ply(coarse_residual_scene(seed=2), src)
     out = tmp_path / "c.gspc"
     opts = EncodeOptions(lam=40, synth_views=5, max_side=32, check_iterations=20, check_margin_db=90.0)
     rep = encode(src, out, opts=opts)
@@ -271,7 +265,7 @@ def test_bytes_spent_on_attributes_are_the_rivals(tmp_path):
 def test_target_size_bounds_the_whole_file(tmp_path, side_info):
     # --target-size is the file's size at most, side information included (counted inside the target).
     src = tmp_path / "in.ply"
-    write_ply(scene(seed=3), src)
+    write_ply(coarse_residual_scene(seed=3), src)
     out = tmp_path / "c.gspc"
     small = dict(synth_views=5, max_side=40, check_iterations=0)
     opts = EncodeOptions(target_size=6000, side_info=side_info, **small)
@@ -295,7 +289,7 @@ def test_the_encoder_reports_the_removal_it_chose_and_can_be_told_to_keep_the_pr
     # gspc/encoder/removal.py: at the low preset's lambda the encoder's cameras weigh stronger removals and
     # the report says what they found; --no-removal-search codes the preset's removal without weighing.
     src = tmp_path / "in.ply"
-    write_ply(scene(seed=5), src)
+    write_ply(coarse_residual_scene(seed=5), src)
     base = dict(synth_views=4, max_side=40, side_info=False)
     searched = encode(src, tmp_path / "a.gspc", opts=EncodeOptions(**base))
     said = searched.info["removal"]
@@ -310,7 +304,7 @@ def test_the_encoder_reports_the_removal_it_chose_and_can_be_told_to_keep_the_pr
 def test_the_high_preset_weighs_a_finer_position_grid_and_no_removal(tmp_path):
     # gspc/presets.py: the high preset removes nothing, so its search is the grid alone, a bit finer.
     src = tmp_path / "in.ply"
-    write_ply(scene(seed=5), src)
+    write_ply(coarse_residual_scene(seed=5), src)
     rep = encode(src, tmp_path / "h.gspc", opts=EncodeOptions(quality="high", synth_views=4, max_side=40))
     said = rep.info["removal"]
     assert "positions +1 bit at lambda" in said and " x2 " not in said, said
@@ -322,7 +316,7 @@ def test_the_encoder_tunes_its_coded_values_unless_told_not_to(encoded, tmp_path
     # the decoder refines against is not tuned.
     assert "tuning" not in encoded[2].info
     src = tmp_path / "in.ply"
-    write_ply(scene(seed=6), src)
+    write_ply(coarse_residual_scene(seed=6), src)
     base = dict(synth_views=4, max_side=40, side_info=False)
     tuned = encode(src, tmp_path / "a.gspc", opts=EncodeOptions(**base))
     assert "4 iterations at" in tuned.info["tuning"], tuned.info["tuning"]

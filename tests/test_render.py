@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from scenes import random_scene
 
 from gspc.cameras import Camera
 from gspc.errors import DeviceError, InputError
@@ -21,7 +22,7 @@ from gspc.render import rasterize as rast
 from gspc.render.kernels import pick_kernel
 from gspc.render.reference import render_reference
 from gspc.render.sh import sh_basis
-from gspc.scene import ATTRIBUTE_NAMES, make_scene, num_sh_rest
+from gspc.scene import ATTRIBUTE_NAMES, make_scene
 
 F64 = torch.float64
 W, H = 32, 24
@@ -45,22 +46,18 @@ def axis_camera():
     return Camera(w2c, np.array([[30.0, 0, W / 2], [0, 30.0, H / 2], [0, 0, 1.0]]), W, H)
 
 
-def random_scene(n: int, deg: int, seed: int, spread=0.6, log_scale=-2.0, dtype=F64, **override):
-    g = torch.Generator().manual_seed(seed)
-
-    def r(*s):
-        return torch.randn(*s, generator=g, dtype=F64)
-
-    attrs = {
-        "means": r(n, 3) * spread,
-        "quats": r(n, 4),
-        "log_scales": r(n, 3) * 0.6 + log_scale,
-        "opacities": r(n) * 2.0,
-        "sh_dc": r(n, 3) * 0.6,
-        "sh_rest": r(n, num_sh_rest(deg), 3) * 0.3,
-    }
-    attrs.update(override)
-    return make_scene(**attrs, sh_degree=deg, dtype=dtype)
+# random_scene with wide spreads of size, opacity and colour, in float64 (the reference's precision).
+wide_scene = partial(
+    random_scene,
+    spread=0.6,
+    log_scale=-2.0,
+    scale_std=0.6,
+    opacity_logit=0.0,
+    opacity_std=2.0,
+    dc_std=0.6,
+    rest_std=0.3,
+    dtype=F64,
+)
 
 
 def loss_weights(h: int, w: int, seed: int = 7):
@@ -115,23 +112,25 @@ def check_against_reference(scene, cam, tol=1e-10, **kw):
 
 @pytest.mark.parametrize("deg", [0, 1, 2, 3])
 def test_random_scenes_match_reference(deg, kernel):
-    out, _ = check_against_reference(random_scene(120, deg, seed=deg), camera(), background=[0.2, 0.5, 0.9])
+    out, _ = check_against_reference(
+        wide_scene(120, sh_degree=deg, seed=deg), camera(), background=[0.2, 0.5, 0.9]
+    )
     assert 0.2 < float(out.alpha.detach().mean()) < 0.95  # the scene really covers the image
 
 
 def test_image_size_not_a_multiple_of_the_tile(kernel):
     cam = camera().scaled(0.9)  # 29 x 22: partial tiles on the right and bottom edges
     assert cam.width % 8 and cam.height % 8
-    check_against_reference(random_scene(80, 1, seed=12), cam)
+    check_against_reference(wide_scene(80, sh_degree=1, seed=12), cam)
 
 
 def test_lower_sh_degree_matches_reference(kernel):
-    check_against_reference(random_scene(60, 3, seed=11), camera(), sh_degree=1)
+    check_against_reference(wide_scene(60, sh_degree=3, seed=11), camera(), sh_degree=1)
 
 
 def test_dense_opaque_scene_hits_transmittance_stop(kernel):
-    scene = random_scene(
-        200, 1, seed=3, spread=0.3, log_scale=-1.5, opacities=torch.full((200,), 3.0, dtype=F64)
+    scene = wide_scene(
+        200, sh_degree=1, seed=3, spread=0.3, log_scale=-1.5, opacities=torch.full((200,), 3.0, dtype=F64)
     )
     out, ref = check_against_reference(scene, camera())
     assert float(ref.alpha.detach().max()) > 1 - 2e-4  # some pixels stopped at T < 1e-4
@@ -142,7 +141,7 @@ def test_walk_in_small_blocks_and_chunks(monkeypatch):
     # Many steps and chunks, tiles leaving the walk at different times: same result.
     monkeypatch.setattr(rast, "BLOCK", 3)
     monkeypatch.setattr(rast, "CPU_WALK", rast.WalkSizes(64 * 3 * 2, rast.CPU_WALK.scan_loop_from))
-    scene = random_scene(150, 2, seed=5, spread=0.4, opacities=torch.full((150,), 2.5, dtype=F64))
+    scene = wide_scene(150, sh_degree=2, seed=5, spread=0.4, opacities=torch.full((150,), 2.5, dtype=F64))
     check_against_reference(scene, camera())
 
 
@@ -150,7 +149,9 @@ def test_walk_with_looped_scans(monkeypatch):
     monkeypatch.setattr(api, "composite", partial(rast.composite, kernel="torch"))
     # The slice-loop transmittance and remaining-sum scans (taken on large steps) give the same result.
     monkeypatch.setattr(rast, "CPU_WALK", rast.WalkSizes(rast.CPU_WALK.step_budget, 0))
-    scene = random_scene(150, 2, seed=6, spread=0.4, opacities=torch.randn(150, dtype=F64) * 3.0 + 2.0)
+    scene = wide_scene(
+        150, sh_degree=2, seed=6, spread=0.4, opacities=torch.randn(150, dtype=F64) * 3.0 + 2.0
+    )
     check_against_reference(scene, camera())
 
 
@@ -163,7 +164,9 @@ def test_the_gpu_walk_sizes_give_the_same_result(monkeypatch):
     monkeypatch.setattr(api, "composite", partial(rast.composite, kernel="torch"))
     monkeypatch.setattr(rast, "BLOCK", 3)  # many steps: tiles leave the one chunk at different times
     monkeypatch.setattr(rast, "CPU_WALK", rast.GPU_WALK)
-    scene = random_scene(150, 2, seed=7, spread=0.4, opacities=torch.randn(150, dtype=F64) * 3.0 + 2.0)
+    scene = wide_scene(
+        150, sh_degree=2, seed=7, spread=0.4, opacities=torch.randn(150, dtype=F64) * 3.0 + 2.0
+    )
     check_against_reference(scene, camera())
 
 
@@ -228,7 +231,7 @@ def _hard_cases() -> dict[str, tuple]:
 def test_hard_cases_match_reference(case, kernel):
     override = _hard_cases()[case]
     n = 24 if "means" not in override else len(override["means"])
-    scene = random_scene(n, 3, seed=2, **override)
+    scene = wide_scene(n, sh_degree=3, seed=2, **override)
     axis = case in ("equal_depths", "near_plane", "camera_inside", "tile_borders")
     cam = axis_camera() if axis else camera()
     check_against_reference(scene, cam, background=[0.1, 0.2, 0.3])
@@ -247,7 +250,7 @@ def test_point_at_pixel_centre_is_drawn_in_float32(kernel):
 
 
 def test_float32_agrees_with_reference(kernel):
-    scene = random_scene(150, 3, seed=4, dtype=torch.float32)
+    scene = wide_scene(150, sh_degree=3, seed=4, dtype=torch.float32)
     out, grads = run(render, scene, camera(), backend="torch", background=[0.3, 0.3, 0.3])
     ref, ref_grads = run(render_reference, scene, camera(), background=[0.3, 0.3, 0.3])
     assert out.image.dtype == torch.float32
@@ -263,7 +266,9 @@ def test_background_alpha_and_depth(kernel):
     cam = axis_camera()
     bg = torch.tensor([0.25, 0.5, 0.75])
     # Nothing visible (all behind the camera): background everywhere, alpha and depth zero.
-    empty = random_scene(10, 0, seed=0, dtype=torch.float32, means=torch.tensor([[0.0, 0.0, -5.0]] * 10))
+    empty = wide_scene(
+        10, sh_degree=0, seed=0, dtype=torch.float32, means=torch.tensor([[0.0, 0.0, -5.0]] * 10)
+    )
     out = render(empty, cam, background=bg)
     assert torch.equal(out.image, bg.expand(H, W, 3)) and not out.alpha.any() and not out.depth.any()
     # One opaque wall-sized Gaussian at camera depth 2: alpha 0.99, depth = alpha * 2, colour blended.
@@ -279,7 +284,7 @@ def test_background_alpha_and_depth(kernel):
 
 
 def test_sh_degree_argument_truncates_bands():
-    scene = random_scene(40, 3, seed=8, dtype=torch.float32)
+    scene = wide_scene(40, sh_degree=3, seed=8, dtype=torch.float32)
     low = make_scene(
         scene.means, scene.quats, scene.log_scales, scene.opacities, scene.sh_dc, scene.sh_rest[:, :3]
     )
@@ -289,7 +294,7 @@ def test_sh_degree_argument_truncates_bands():
 
 
 def test_backend_choice_and_errors():
-    scene = random_scene(5, 0, seed=0, dtype=torch.float32)
+    scene = wide_scene(5, sh_degree=0, seed=0, dtype=torch.float32)
     assert torch.equal(render(scene, camera()).image, render(scene, camera(), backend="torch").image)
     with pytest.raises(DeviceError, match="CUDA"):
         render(scene, camera(), backend="gsplat")
@@ -322,7 +327,7 @@ def test_compiled_kernel_on_several_threads_matches_one(monkeypatch, log_scale):
     # sum in the same order). Small blocks, so that 300 Gaussians make several; log scale -0.8: large
     # Gaussians, each in many tiles, whose later pairs' rows are added after the walk.
     monkeypatch.setattr(kernels, "ROWS_PER_TASK", 16)
-    scene = random_scene(300, 2, seed=9, spread=0.5, log_scale=log_scale)
+    scene = wide_scene(300, sh_degree=2, seed=9, spread=0.5, log_scale=log_scale)
     before = torch.get_num_threads()
     try:
         torch.set_num_threads(1)
@@ -437,7 +442,7 @@ def test_compiled_projection_matches_pytorch(behind, dtype):
     # round-off in float64, to float32's in float32 (the kernels compute in float64 from float32 inputs).
     # Degree 1 of a degree-3 scene: the unused coefficients get zero gradients. Some Gaussians lie behind
     # the camera, some off-screen, some below 1/255 opaque.
-    scene = random_scene(200, 3, seed=11, spread=1.2, dtype=dtype)
+    scene = wide_scene(200, sh_degree=3, seed=11, spread=1.2, dtype=dtype)
     scene.means[:behind, 2] = -4.0  # camera() sits 3 units away along -z
     scene.opacities[-5:] = -8.0
     tol = 1e-12 if dtype == F64 else 2e-5
@@ -480,7 +485,7 @@ def test_only_gaussians_with_a_gradient_are_differentiated(monkeypatch, threads)
     assert grad_out[2, 2] == 0.25 and np.isnan(grad_out[2, 8])
     assert kern.output_gradients(*[np.zeros((n, k)) for k in (2, 3, 1, 3, 1)], threads)[0].size == 0
     # Through the projection: a loss on one drawn Gaussian's colour moves that Gaussian alone.
-    scene = random_scene(50, 2, seed=4, spread=0.6)
+    scene = wide_scene(50, sh_degree=2, seed=4, spread=0.6)
     params = [scene.tensors()[name].requires_grad_(True) for name in ATTRIBUTE_NAMES]
     p = proj.project(*params, camera(), 2, kernel="compiled")
     k = int(torch.nonzero(p.drawn)[0])
@@ -596,7 +601,7 @@ def test_row_walk_values_stay_exact_over_whole_tile_rows():
 def test_colour_only_loss_on_black_matches_reference():
     # A loss of the colour image alone on a black background (refinement's, on most scenes) leaves depth's
     # and alpha's gradients all zero, and the compiled backward then leaves their terms out of its walk.
-    scene = random_scene(150, 2, seed=21, spread=0.6)
+    scene = wide_scene(150, sh_degree=2, seed=21, spread=0.6)
     grads = {}
     for name, fn in (("compiled", partial(render, backend="torch")), ("reference", render_reference)):
         s = scene.detach()

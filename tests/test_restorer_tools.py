@@ -12,35 +12,24 @@ import numpy as np
 import pytest
 import torch
 from make_restorer_data import make_data, parse_rates, parse_scene, side_info_symbols
+from scenes import random_scene
 
 from gspc.codec import residuals
 from gspc.io import write_ply
 from gspc.restore.data import side_info_from_npz
 from gspc.restore.restorer import load_restorer
-from gspc.scene import make_scene
 
 TOOLS = Path(__file__).resolve().parents[1] / "tools"
-
-
-def _tiny_scene(path: Path, seed: int) -> None:
-    rng = np.random.default_rng(seed)
-    n = 300
-    scene = make_scene(
-        means=rng.uniform(-1, 1, (n, 3)),
-        quats=rng.normal(size=(n, 4)),
-        log_scales=rng.uniform(-3.5, -2.0, (n, 3)),
-        opacities=rng.uniform(-1, 3, n),
-        sh_dc=rng.normal(0, 1, (n, 3)),
-        sh_rest=rng.normal(0, 0.3, (n, 3, 3)),
-    )
-    write_ply(scene, path)
 
 
 @pytest.fixture(scope="module")
 def data_dir(tmp_path_factory) -> Path:
     root = tmp_path_factory.mktemp("restorer")
     for i in range(2):
-        _tiny_scene(root / f"s{i}.ply", i)
+        scene = random_scene(
+            300, sh_degree=1, seed=i, spread=0.6, log_scale=-2.75, scale_std=0.45, dc_std=1.0, rest_std=0.3
+        )
+        write_ply(scene, root / f"s{i}.ply")
     specs = [
         parse_scene(f"{root / 's0.ply'},views=4"),
         parse_scene(f"{root / 's1.ply'},views=5,split=val,bg=1,fraction=0.6"),

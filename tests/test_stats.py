@@ -3,31 +3,15 @@ import warnings
 
 import numpy as np
 import pytest
-import torch
+from scenes import box_scene
 
 from gspc.io import read_scene
-from gspc.scene import GaussianScene, num_sh_rest
 from gspc.stats import scene_stats
 from gspc.views import robust_bounds
 
 
-def _scene(n: int = 1000, degree: int = 3) -> GaussianScene:
-    g = torch.Generator().manual_seed(1)
-    k = num_sh_rest(degree)
-    means = torch.rand(n, 3, generator=g) * torch.tensor([2.0, 4.0, 6.0]) - 1.0
-    return GaussianScene(
-        means=means,
-        quats=torch.randn(n, 4, generator=g),
-        log_scales=torch.full((n, 3), math.log(0.01)),
-        opacities=torch.cat([torch.full((n // 4,), -10.0), torch.full((n - n // 4,), 0.0)]),
-        sh_dc=torch.zeros(n, 3),
-        sh_rest=torch.full((n, k, 3), 0.1),
-        sh_degree=degree,
-    )
-
-
 def test_stats_values():
-    st = scene_stats(_scene())
+    st = scene_stats(box_scene())
     assert st["count"] == 1000 and st["sh_degree"] == 3
     assert st["ply_bytes_per_gaussian"] == 248
     assert st["bounds_min_x"] >= -1.0 and st["bounds_max_z"] <= 5.0
@@ -43,7 +27,7 @@ def test_stats_values():
 
 
 def test_stats_are_plain_numbers_and_degree_zero():
-    st = scene_stats(_scene(n=10, degree=0))
+    st = scene_stats(box_scene(n=10, degree=0))
     assert st["ply_bytes_per_gaussian"] == 68 and st["sh_rest_energy_max"] == 0.0
     assert all(type(v) in (int, float) for v in st.values())
     assert all(np.isfinite(v) for v in st.values())
@@ -58,7 +42,7 @@ def test_stats_on_real_scene(shared_data):
 
 def test_extreme_values_give_statistics_without_numpy_warnings():
     # Finite float32 values a hostile PLY may hold: a huge log scale, a hugely negative opacity logit.
-    scene = _scene(200, degree=1)
+    scene = box_scene(200, degree=1)
     scene.log_scales[4, 0] = 1e30
     scene.opacities[3] = -3e38
     with warnings.catch_warnings():

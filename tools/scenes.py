@@ -1,8 +1,11 @@
-"""Small random scenes for tests and tools/fuzz_inputs.py: a plausible object (a blob of Gaussians around
-the origin), and unbounded scenes (an object with a background shell and far floaters) for the contracted
-grid and its far set; :func:`with_shells` surrounds a real object with shells of large Gaussians
-(tools/bench_precision.py); :func:`spz_range_scene` stays inside what SPZ represents."""
+"""Small scenes for tests and tools/fuzz_inputs.py: a plausible object (a blob of Gaussians around the
+origin, :func:`random_scene`, every distribution a keyword), unbounded scenes (an object with a background
+shell and far floaters) for the contracted grid and its far set, a cloud with far faint floaters for framing
+views, a box whose statistics are known in closed form; :func:`with_shells` surrounds a real object with
+shells of large Gaussians (tools/bench_precision.py); :func:`spz_range_scene` stays inside what SPZ
+represents."""
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -21,17 +24,70 @@ def random_scene(
     opacity_logit: float = 1.0,
     dc_std: float = 0.5,
     rest_std: float = 0.1,
+    spread: float = 0.3,
+    scale_std: float = 0.3,
+    opacity_std: float = 1.0,
+    far: float = 1.0,
+    dtype: torch.dtype = torch.float32,
+    **over,
 ) -> GaussianScene:
+    """``n`` Gaussians about the origin, every attribute normal: positions of std ``spread``, log scales
+    ``log_scale`` +- ``scale_std``, opacity logits ``opacity_logit`` +- ``opacity_std``, colours (DC) of std
+    ``dc_std``, SH rest of std ``rest_std``. ``far`` moves the first tenth that many times further out (a
+    background far away: a contracted grid). ``over`` replaces any of make_scene's arrays; every array is
+    drawn all the same, so the others do not depend on what is replaced."""
     g = np.random.default_rng(seed)
     k = (sh_degree + 1) ** 2 - 1
+    attrs = dict(
+        means=g.normal(0, spread, (n, 3)),
+        quats=g.normal(0, 1, (n, 4)),
+        log_scales=g.normal(log_scale, scale_std, (n, 3)),
+        opacities=g.normal(opacity_logit, opacity_std, n),
+        sh_dc=g.normal(0, dc_std, (n, 3)),
+        sh_rest=g.normal(0, rest_std, (n, k, 3)),
+    )
+    attrs.update(over)
+    scene = make_scene(**attrs, sh_degree=sh_degree, dtype=dtype)
+    if far != 1.0:
+        scene.means[: n // 10] *= far
+    return scene
+
+
+def coarse_residual_scene(seed: int = 1) -> GaussianScene:
+    """200 Gaussians of SH degree 2, larger, more opaque and more colourful than :func:`random_scene`'s: at a
+    coarse rate (lam 40) their residuals are clearly above the skip threshold, so side information is sent."""
+    return random_scene(
+        200, sh_degree=2, seed=seed, log_scale=-2.8, opacity_logit=1.5, dc_std=0.6, rest_std=0.2
+    )
+
+
+def floater_scene(n: int = 3000, seed: int = 0, floaters: int = 30) -> GaussianScene:
+    """A normal cloud (std 2, 1, 0.5 about (5, -3, 1)) whose first ``floaters`` Gaussians are far (std 500)
+    and faint: bounds and synthesised views must frame the cloud, not them."""
+    g = torch.Generator().manual_seed(seed)
+    means = torch.randn(n, 3, generator=g) * torch.tensor([2.0, 1.0, 0.5]) + torch.tensor([5.0, -3.0, 1.0])
+    opac = torch.full((n,), 2.0)
+    means[:floaters] = torch.randn(floaters, 3, generator=g) * 500
+    opac[:floaters] = -4.0
     return make_scene(
-        g.normal(0, 0.3, (n, 3)),
-        g.normal(0, 1, (n, 4)),
-        g.normal(log_scale, 0.3, (n, 3)),
-        g.normal(opacity_logit, 1.0, n),
-        g.normal(0, dc_std, (n, 3)),
-        g.normal(0, rest_std, (n, k, 3)),
-        sh_degree,
+        means, torch.randn(n, 4, generator=g), torch.full((n, 3), -3.0), opac, torch.zeros(n, 3)
+    )
+
+
+def box_scene(n: int = 1000, degree: int = 3, seed: int = 1) -> GaussianScene:
+    """Gaussians uniform in the box [-1, 1] x [-1, 3] x [-1, 5], all of size 0.01, DC 0 (grey) and SH rest
+    0.1; the first quarter transparent (logit -10), the rest half opaque: statistics known in closed form."""
+    g = torch.Generator().manual_seed(seed)
+    k = (degree + 1) ** 2 - 1
+    means = torch.rand(n, 3, generator=g) * torch.tensor([2.0, 4.0, 6.0]) - 1.0
+    return GaussianScene(
+        means=means,
+        quats=torch.randn(n, 4, generator=g),
+        log_scales=torch.full((n, 3), math.log(0.01)),
+        opacities=torch.cat([torch.full((n // 4,), -10.0), torch.full((n - n // 4,), 0.0)]),
+        sh_dc=torch.zeros(n, 3),
+        sh_rest=torch.full((n, k, 3), 0.1),
+        sh_degree=degree,
     )
 
 
