@@ -26,6 +26,8 @@ _LAZY = {
     "decode_bytes": "gspc.pipeline",
     "encode": "gspc.pipeline",
     "encode_scene": "gspc.pipeline",
+    "decode_tiles": "gspc.pipeline",
+    "DecodedTile": "gspc.pipeline",
     # Not "render": importing the subpackage gspc.render binds that name to the module.
     "render_view": "gspc.render:render",
     "GaussianScene": "gspc.scene",
@@ -41,8 +43,10 @@ if TYPE_CHECKING:  # static checkers see the names directly (``as``: re-exported
     from gspc.io.camera_files import load_cameras as load_cameras
     from gspc.options import DecodeOptions as DecodeOptions
     from gspc.options import EncodeOptions as EncodeOptions
+    from gspc.pipeline import DecodedTile as DecodedTile
     from gspc.pipeline import decode as decode
     from gspc.pipeline import decode_bytes as decode_bytes
+    from gspc.pipeline import decode_tiles as decode_tiles
     from gspc.pipeline import encode as encode
     from gspc.pipeline import encode_scene as encode_scene
     from gspc.render import render as render_view  # noqa: F401  (re-exported under another name)

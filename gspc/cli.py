@@ -179,6 +179,11 @@ def _summary(title: str, rep, output: str) -> None:
         console.print(f"{k}: {v}", markup=False, highlight=False, soft_wrap=True)
 
 
+def _help(cls: type, name: str) -> str:
+    """The help text of field ``name`` of an options dataclass (gspc/options.py)."""
+    return next(f for f in dataclasses.fields(cls) if f.name == name).metadata["help"]
+
+
 def _option(cls: type, name: str, *flags: str):
     """A typer option for field ``name`` of an options dataclass (gspc/options.py): the field's default and
     help, and its flag when it names one (else typer's ``--name``, ``--name/--no-name`` for switches)."""
@@ -211,6 +216,8 @@ def encode(
     background: tuple[float, float, float] = _option(EncodeOptions, "background"),
     device: str = _option(EncodeOptions, "device"),
     time_budget: float | None = _option(EncodeOptions, "time_budget"),
+    tile_size: int = _option(EncodeOptions, "tile_size"),
+    workers: int | None = _option(EncodeOptions, "workers"),
 ) -> None:
     """Compress a 3DGS scene into a .gspc file."""
     check_output_path(output)  # the text as typed: a Path would drop a trailing slash
@@ -235,6 +242,8 @@ def encode(
         restorer=restorer,
         device=device,
         time_budget=time_budget,
+        tile_size=tile_size,
+        workers=workers,
     )
     with _progress_bars() as cb:
         rep = run(scene, output, cameras, opts, progress=cb)
@@ -253,6 +262,10 @@ def decode(
     in_cells: bool = _option(DecodeOptions, "in_cells"),
     device: str = _option(DecodeOptions, "device"),
     time_budget: float | None = _option(DecodeOptions, "time_budget"),
+    region: str | None = typer.Option(
+        None, help=_help(DecodeOptions, "region"), metavar="XMIN,YMIN,ZMIN,XMAX,YMAX,ZMAX"
+    ),
+    workers: int | None = _option(DecodeOptions, "workers"),
 ) -> None:
     """Decode a .gspc file into a 3DGS scene: PLY, SPZ or glb, as the output's extension names."""
     check_output_path(output)
@@ -268,6 +281,8 @@ def decode(
         device=device,
         in_cells=in_cells,
         time_budget=time_budget,
+        region=region,
+        workers=workers,
     )
     with _progress_bars() as cb:
         rep = run(source, output, opts, progress=cb)
@@ -313,8 +328,12 @@ def info(
         raise GspcError(f"{path}: no such file")
     if _is_gspc(path):
         from gspc.format.container import read_bytes
-        from gspc.format.file import read_file
+        from gspc.format.file import FileReader, read_file
 
+        with FileReader(path) as reader:  # a tiled file's head and index: its tiles are not read
+            if reader.tiles is not None:
+                _tiled_info(path, reader)
+                return
         f = read_file(read_bytes(path))  # parsed and checked once, as a decode reads it
         summary, fields = f.header.scene, f.header
         n = max(fields.attributes.n, 1)
@@ -330,22 +349,12 @@ def info(
             f"{len(f.side.views)} side-information views ({len(f.side.images)} with a residual)",
             markup=False,
         )
-        if summary.coordinates is not None:
+        if summary is not None and summary.coordinates is not None:
             out.print(f"coordinates: {summary.coordinates} (as the source stated them)")
         out.print(_position_grid_line(fields.attributes.position))
         if fields.attributes.precision:
             out.print(_precision_line(fields.attributes))
-        t = Table(show_header=True)
-        for col in ("part", "chunks", "bytes", "B/Gaussian", "share"):
-            t.add_column(col, justify="left" if col == "part" else "right")
-        for part, size in f.budget.items():
-            if part == "file":
-                continue
-            cnt = sum(1 for c in f.chunks if c.type == part)
-            t.add_row(
-                part, str(cnt) if cnt else "", f"{size:,}", f"{size / n:.2f}", f"{size / f.file_size:.1%}"
-            )
-        out.print(t)
+        _budget_table(f.budget, f.chunks, n)
         return
     from gspc.io import read_scene
     from gspc.stats import scene_stats
@@ -359,6 +368,59 @@ def info(
     for k, v in _flatten(st):
         t.add_row(k, _fmt(v))
     out.print(t)
+
+
+def _budget_table(budget: dict[str, int], chunks, n: int) -> None:
+    """A .gspc file's bytes per part (chunks or chunk-table entries: anything with a ``type``)."""
+    t = Table(show_header=True)
+    for col in ("part", "chunks", "bytes", "B/Gaussian", "share"):
+        t.add_column(col, justify="left" if col == "part" else "right")
+    size = budget["file"]
+    for part, b in budget.items():
+        if part == "file":
+            continue
+        cnt = sum(1 for c in chunks if c.type == part)
+        t.add_row(part, str(cnt) if cnt else "", f"{b:,}", f"{b / n:.2f}", f"{b / size:.1%}")
+    out.print(t)
+
+
+# Tiles ``gspc info`` lists one by one; a file of more is summed up after them.
+INFO_TILES = 32
+
+
+def _tiled_info(path: Path, reader) -> None:
+    """``gspc info`` of a tiled file, from its head and tile index alone (spec 10.14)."""
+    tiles, head = reader.tiles, reader.head
+    summary = reader.header.scene
+    n = tiles.num_gaussians
+    source = (
+        f", {summary.source_gaussians:,} given to the encoder" if summary and summary.source_gaussians else ""
+    )
+    out.print(
+        f"{path}: gspc format {head.version[0]}.{head.version[1]}, {head.file_size:,} bytes, {n:,} Gaussians"
+        f"{source} in {len(tiles.tiles)} tiles, SH degree {tiles.sh_degree}, "
+        f"{len(reader.side.views)} side-information views",
+        markup=False,
+    )
+    if summary is not None and summary.coordinates is not None:
+        out.print(f"coordinates: {summary.coordinates} (as the source stated them)")
+    _budget_table(reader.budget, head.entries, max(n, 1))
+    sizes = reader.tile_bytes()
+    t = Table(show_header=True)
+    for col in ("tile", "Gaussians", "bytes", "B/Gaussian", "box (x, y, z from .. to)", "grid", "classes"):
+        t.add_column(col, justify="left" if col.startswith("box") else "right")
+    for k, tile in enumerate(tiles.tiles[:INFO_TILES]):
+        b = tile.box
+        box = ", ".join(f"{b[a]:.3g}..{b[a + 3]:.3g}" for a in range(3))
+        grid = f"{tile.section.position.bits} bits" + (", far set" if tile.section.position.far else "")
+        t.add_row(
+            str(k), f"{tile.n:,}", f"{sizes[k]:,}", f"{sizes[k] / tile.n:.2f}", box, grid,
+            str(len(tile.section.all_classes)),
+        )  # fmt: skip
+    out.print(t)
+    if len(tiles.tiles) > INFO_TILES:
+        rest = tiles.tiles[INFO_TILES:]
+        out.print(f"... and {len(rest)} more tiles of {sum(t.n for t in rest):,} Gaussians")
 
 
 def _flatten(d, prefix=""):

@@ -129,14 +129,14 @@ def check_region(value: Any) -> tuple[float, ...] | None:
     """``--region XMIN,YMIN,ZMIN,XMAX,YMAX,ZMAX``: six finite numbers, each minimum at most its maximum."""
     if value is None:
         return None
-    if isinstance(value, str):
-        value = value.split(",")
+    shown = value if isinstance(value, str) else ",".join(str(v) for v in value)
+    parts = value.split(",") if isinstance(value, str) else value
     try:
-        box = tuple(float(v) for v in value)
+        box = tuple(float(v) for v in parts)
     except (TypeError, ValueError):
-        raise InputError(f"--region {value!r}: give six numbers XMIN,YMIN,ZMIN,XMAX,YMAX,ZMAX") from None
+        raise InputError(f"--region {shown}: give six numbers XMIN,YMIN,ZMIN,XMAX,YMAX,ZMAX") from None
     if len(box) != 6 or not all(math.isfinite(v) for v in box):
-        raise InputError(f"--region {value!r}: give six finite numbers XMIN,YMIN,ZMIN,XMAX,YMAX,ZMAX")
+        raise InputError(f"--region {shown}: give six finite numbers XMIN,YMIN,ZMIN,XMAX,YMAX,ZMAX")
     if any(box[a] > box[a + 3] for a in range(3)):
         raise InputError(f"--region {','.join(f'{v:g}' for v in box)}: a minimum is above its maximum")
     return box

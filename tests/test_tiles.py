@@ -1,0 +1,224 @@
+"""Spatial tiles (format 1.5, spec 10.14): a scene larger than a tile coded as tiles a decoder reads one at a
+time, with the same bytes for any number of workers; a region decoded alone; hostile tile indexes refused."""
+
+from dataclasses import replace
+
+import msgpack
+import numpy as np
+import pytest
+from cli_runs import assert_one_line_error, run
+from scenes import random_scene, unbounded
+
+import gspc.format.container as container
+from gspc.encoder.tiles import _octree_runs, plan_tiles
+from gspc.errors import CodecError, InputError
+from gspc.format.file import FileReader, read_file
+from gspc.format.tiles import TIDX, Tile, pack_tile_index
+from gspc.io import read_scene, write_ply
+from gspc.limits import MIN_TILE_SIZE, DecodeBudget
+from gspc.options import DecodeOptions, EncodeOptions, check_region
+from gspc.pipeline import decode, decode_bytes, decode_tiles, encode, encode_scene
+
+# Small and quick: two or three tiles, few small views, the searches off (the slow test runs the method).
+QUICK = dict(tile_size=MIN_TILE_SIZE, synth_views=4, max_side=32, removal_search=False, tune_iterations=0)
+
+
+def scene(n=2500, seed=3):
+    return random_scene(n, sh_degree=1, seed=seed, opacity_logit=2.0)
+
+
+@pytest.fixture(scope="module")
+def tiled(tmp_path_factory):
+    d = tmp_path_factory.mktemp("tiles")
+    src, out = d / "in.ply", d / "t.gspc"
+    write_ply(scene(), src)
+    rep = encode(src, out, opts=EncodeOptions(**QUICK, workers=1))
+    return src, out, rep
+
+
+def test_octree_runs_cover_the_curve_in_cells_of_at_most_a_tile():
+    codes = np.sort(np.random.default_rng(0).integers(0, 1 << 30, 5000))
+    runs = _octree_runs(codes, 10, 700)
+    assert runs[0][0] == 0 and runs[-1][1] == 5000
+    assert all(a < b and b - a <= 700 for a, b in runs)
+    assert all(b == c for (_, b), (c, _) in zip(runs, runs[1:]))
+    same = np.zeros(3000, np.int64)  # one voxel holding more than a tile is cut in pieces
+    assert [b - a for a, b in _octree_runs(same, 10, 1024)] == [1024, 1024, 952]
+
+
+def test_plan_tiles_is_a_partition_in_curve_order():
+    s = scene(5000)
+    plan = plan_tiles(s.means.numpy(), s.log_scales.numpy(), 12.0, 1500)
+    rows = np.concatenate(plan.rows)
+    assert sorted(rows.tolist()) == list(range(5000)) and all(len(r) <= 1500 for r in plan.rows)
+    far = plan_tiles(unbounded(n=3000), np.full((3305, 3), -3.0), 12.0, 1024)
+    assert far.shared.frame.contraction is not None and far.shared.inside_size > 0
+
+
+def test_a_scene_larger_than_a_tile_is_a_tiled_file(tiled):
+    _, out, rep = tiled
+    f = read_file(out.read_bytes())
+    assert f.version == (1, 5) and f.tiles is not None and len(f.tiles.tiles) >= 2
+    assert f.header.attributes is None and rep.num_gaussians_out == f.num_gaussians
+    assert all(t.n <= MIN_TILE_SIZE for t in f.tiles.tiles)
+    assert "tiles" in rep.info and rep.info["side info"].startswith("none (a tiled file")
+    small = random_scene(300, sh_degree=1, seed=1)  # no larger than a tile: the untiled format, as before
+    data, _ = encode_scene(small, opts=EncodeOptions(**QUICK))
+    assert read_file(data).version == (1, 4) and read_file(data).tiles is None
+
+
+def test_workers_write_the_same_bytes_and_decode_the_same_bits(tiled, tmp_path):
+    src, out, _ = tiled
+    two = tmp_path / "two.gspc"
+    encode(src, two, opts=EncodeOptions(**QUICK, workers=2))
+    assert two.read_bytes() == out.read_bytes()
+    a, b = tmp_path / "a.ply", tmp_path / "b.ply"
+    decode(out, a, DecodeOptions(workers=1))
+    decode(out, b, DecodeOptions(workers=2))
+    assert a.read_bytes() == b.read_bytes()
+    whole, _ = decode_bytes(out.read_bytes())
+    assert np.array_equal(read_scene(a).means.numpy(), whole.means.numpy())
+
+
+def test_a_region_decodes_only_the_tiles_that_meet_it(tiled, tmp_path, monkeypatch):
+    _, out, _ = tiled
+    tiles = list(decode_tiles(out))
+    first = tiles[0].box
+    corner = (first[0], first[1], first[2], first[0], first[1], first[2])
+    read = []
+    real = container.read_chunk
+    monkeypatch.setattr(container, "read_chunk", lambda f, h, i: read.append(h.entries[i]) or real(f, h, i))
+    part = tmp_path / "part.ply"
+    rep = decode(out, part, DecodeOptions(region=corner, workers=1))
+    meeting = [t for t in tiles if all(t.box[a] <= corner[a] <= t.box[a + 3] for a in range(3))]
+    assert (
+        read_scene(part).num_gaussians == sum(t.scene.num_gaussians for t in meeting) == rep.num_gaussians_out
+    )
+    assert {e.index for e in read if e.type != TIDX} == {t.number for t in meeting} and len(meeting) < len(
+        tiles
+    )
+    with pytest.raises(InputError, match="meets none"):
+        decode(out, tmp_path / "none.ply", DecodeOptions(region=(1e6, 1e6, 1e6, 2e6, 2e6, 2e6)))
+
+
+def test_info_lists_the_tiles(tiled):
+    _, out, _ = tiled
+    res = run("info", out)
+    assert res.exit_code == 0 and "tiles" in res.output and "box" in res.output, res.output
+
+
+@pytest.mark.parametrize(
+    ("value", "needle"),
+    [("1,2,3", "six"), ("0,0,0,1,1,nan", "finite"), ("2,0,0,1,1,1", "minimum is above"), ("a,b", "six")],
+)
+def test_bad_regions_are_refused_in_one_line(value, needle):
+    with pytest.raises(InputError, match=needle):
+        check_region(value)
+
+
+def test_bad_worker_counts_are_refused_in_one_line(tiled, tmp_path):
+    src, out, _ = tiled
+    assert_one_line_error(run("decode", out, "-o", tmp_path / "o.ply", "--workers", 0), "--workers")
+    assert_one_line_error(run("encode", src, "-o", tmp_path / "o.gspc", "--tile-size", 10), "--tile-size")
+    assert not (tmp_path / "o.ply").exists()
+
+
+def _rewritten(path, tiles=None, order=None, index_of=None):
+    """The tiled file at ``path`` with its tile index replaced, its chunks reordered or renumbered."""
+    c = container.read(path)
+    chunks = list(c.chunks)
+    if tiles is not None:
+        chunks = [container.Chunk(TIDX, pack_tile_index(tiles)) if ch.type == TIDX else ch for ch in chunks]
+    if order is not None:
+        chunks = order(chunks)
+    if index_of is not None:
+        chunks = [replace(ch, index=index_of(ch)) for ch in chunks]
+    return container.pack(c.header, chunks, c.version)
+
+
+def test_hostile_tile_indexes_are_refused(tiled):
+    _, out, _ = tiled
+    f = read_file(out.read_bytes())
+    tiles = list(f.tiles.tiles)
+    box = tiles[0].box
+    cases = {
+        # a box that misses its tile's Gaussians: their positions lie outside it
+        "outside its box": _rewritten(out, [Tile((*box[:3], *box[:3]), tiles[0].section), *tiles[1:]]),
+        # a count that disagrees with its chunks' rows
+        "entropy-coded matrix": _rewritten(
+            out, [Tile(box, replace(tiles[0].section, n=tiles[0].n - 1)), *tiles[1:]]
+        ),
+        # a chunk naming a tile the index does not hold
+        "names no tile": _rewritten(
+            out, index_of=lambda ch: 99 if ch.type == "OPAC" and ch.index == 1 else ch.index
+        ),
+        # tile 1's chunks before tile 0's
+        "comes after": _rewritten(
+            out, order=lambda chs: [chs[0], *sorted(chs[1:], key=lambda ch: -ch.index)]
+        ),
+        # the index after the tiles
+        "before the tile index": _rewritten(out, order=lambda chs: [*chs[1:], chs[0]]),
+        # one tile alone is not a tiled file
+        "2..": _rewritten(out, [tiles[0]]),
+    }
+    for needle, data in cases.items():
+        with pytest.raises(CodecError, match=needle):
+            decode_bytes(data)
+
+
+def test_a_tile_index_that_is_not_msgpack_or_mixes_sh_degrees_is_refused(tiled):
+    _, out, _ = tiled
+    f = read_file(out.read_bytes())
+    t0, t1, *rest = f.tiles.tiles
+    c = container.read(out)
+    garbage = [container.Chunk(TIDX, b"\xc1") if ch.type == TIDX else ch for ch in c.chunks]
+    with pytest.raises(CodecError, match="msgpack"):
+        read_file(container.pack(c.header, garbage, c.version))
+    classes = tuple(replace(k, sh_steps=()) for k in t1.section.classes)
+    degree0 = replace(t1.section, sh_degree=0, sh_steps=(), classes=classes)
+    mixed = pack_tile_index([t0, Tile(t1.box, degree0), *rest])
+    raw = msgpack.unpackb(mixed)
+    assert raw[1]["attributes"]["sh_degree"] == 0
+    chunks = [container.Chunk(TIDX, mixed) if ch.type == TIDX else ch for ch in c.chunks]
+    with pytest.raises(CodecError, match="SH degrees"):
+        read_file(container.pack(c.header, chunks, c.version))
+
+
+def test_each_tile_spends_its_share_of_the_files_floors():
+    # spec 10.14: the file's floors are shared among its tiles by bytes, so many tiny tiles get no more
+    # than one file's floors in all
+    budgets = [DecodeBudget(1000, 100_000) for _ in range(100)]
+    one = DecodeBudget(100_000, 100_000)
+    assert sum(b.table_entries for b in budgets) <= one.table_entries + 100
+    assert sum(b.model_bytes for b in budgets) <= one.model_bytes + 100
+    assert one.spend_tables(one.table_entries) and not one.spend_tables(1)
+
+
+def test_a_partial_reader_checks_the_chunks_it_reads(tiled, tmp_path):
+    _, out, _ = tiled
+    data = bytearray(out.read_bytes())
+    with FileReader(out) as r:
+        last = max(i for i, e in enumerate(r.head.entries) if e.index == len(r.tiles.tiles) - 1)
+        at = r.head.entries[last].offset
+    data[at] ^= 0xFF  # a byte of the last tile's last chunk
+    bad = tmp_path / "bad.gspc"
+    bad.write_bytes(bytes(data))
+    first = next(decode_tiles(bad))  # the first tile reads clean; the damaged one is refused when read
+    assert first.number == 0
+    with pytest.raises(container.ChecksumMismatch):
+        list(decode_tiles(bad))
+    with pytest.raises(container.ChecksumMismatch):
+        decode(bad, tmp_path / "o.ply", DecodeOptions(workers=1))
+    assert not (tmp_path / "o.ply").exists()
+
+
+@pytest.mark.slow
+def test_the_whole_method_runs_per_tile_and_the_target_holds(tmp_path):
+    src, out = tmp_path / "in.ply", tmp_path / "t.gspc"
+    write_ply(scene(3000, seed=4), src)
+    opts = EncodeOptions(tile_size=MIN_TILE_SIZE, synth_views=6, max_side=48, workers=2)
+    rep = encode(src, out, opts=opts)
+    assert "removal" in rep.info and "tuning" in rep.info, rep.info
+    target = int(0.8 * out.stat().st_size)
+    encode(src, out, opts=replace(opts, target_size=target))
+    assert out.stat().st_size <= target
