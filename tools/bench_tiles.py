@@ -1,0 +1,221 @@
+"""Spatial tiles at scale: bytes, PSNR, seconds and peak memory of tiled files against one block, by size,
+tile size and workers (bench/tiles.md).
+
+    python tools/bench_tiles.py --scenes /work/district --sizes 1000000 --plan compare -o bench/tiles.md
+    python tools/bench_tiles.py --scenes /work/district --sizes 1000000,3000000,10000000 --plan scale
+
+Every run is a fresh ``gspc`` process (its own wall and CPU seconds, its peak resident memory, and the
+largest of its worker processes'), on the district scenes tools/make_district.py builds (real scans laid out
+as a district, with its cameras). PSNR is of the decoded attributes (``decode``: tiled files carry no side
+information) against the original's renders at every eighth of the scene's cameras, in float (8-bit
+rounding hides sub-level differences at these rates), by gspc's renderer on one thread. ``--plan compare``:
+one block and tiles of several sizes at three lambdas each (bytes at equal PSNR off each one's own curve);
+``--plan scale``: the default tiles at the preset's lambda, on 1 and 2 workers. Results are appended as
+JSON lines to ``--log`` as they come (a long run can be read while it runs) and the report is written from
+all of them at the end.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import platform
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+def _tree(root: int) -> list[int]:
+    """``root`` and every process below it (from /proc)."""
+    parents: dict[int, list[int]] = {}
+    for d in os.listdir("/proc"):
+        if d.isdigit():
+            try:
+                with open(f"/proc/{d}/stat") as f:
+                    ppid = int(f.read().rsplit(")", 1)[1].split()[1])
+            except (OSError, IndexError, ValueError):
+                continue
+            parents.setdefault(ppid, []).append(int(d))
+    out, todo = [], [root]
+    while todo:
+        pid = todo.pop()
+        out.append(pid)
+        todo += parents.get(pid, [])
+    return out
+
+
+def _sample(pid: int) -> tuple[int, float] | None:
+    """(resident kB, CPU seconds) of one process, None once it is gone."""
+    try:
+        with open(f"/proc/{pid}/status") as f:
+            rss = int(next(line for line in f if line.startswith("VmRSS")).split()[1])
+        with open(f"/proc/{pid}/stat") as f:
+            fields = f.read().rsplit(")", 1)[1].split()
+        return rss, (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    except (OSError, StopIteration, IndexError, ValueError):
+        return None
+
+
+def run_gspc(args: list[str], log: Path, threads: int = 1) -> dict:
+    """``gspc ARGS`` in a fresh process, sampled with its worker processes every fifth of a second: wall
+    and CPU seconds (all its processes), the peak resident memory of all of them together and of the
+    largest one (MB)."""
+    with open(log, "ab") as out:
+        env = dict(os.environ, GSPC_THREADS=str(threads), COLUMNS="300")
+        env["PYTHONPATH"] = os.pathsep.join([str(REPO), *filter(None, [os.environ.get("PYTHONPATH")])])
+        t0 = time.perf_counter()
+        proc = subprocess.Popen([sys.executable, "-m", "gspc.cli", *args], env=env, stdout=out, stderr=out)
+        cpu: dict[int, float] = {}
+        total = largest = 0
+        while proc.poll() is None:
+            samples = {p: _sample(p) for p in _tree(proc.pid)}
+            samples = {p: s for p, s in samples.items() if s is not None}
+            total = max(total, sum(s[0] for s in samples.values()))
+            largest = max([largest, *(s[0] for s in samples.values())])
+            cpu.update({p: s[1] for p, s in samples.items()})
+            time.sleep(0.2)
+        wall = time.perf_counter() - t0
+        if proc.returncode:
+            raise SystemExit(f"gspc {' '.join(args)} failed; see {log}")
+    return {"wall": wall, "cpu": sum(cpu.values()), "rss_mb": total / 1024, "largest_mb": largest / 1024}
+
+
+def psnr(original: Path, decoded: Path, cameras: Path, every: int = 8) -> float:
+    """Mean PSNR (float renders) of ``decoded`` against ``original`` at every ``every``-th camera."""
+    import torch
+
+    from gspc.io import read_scene
+    from gspc.io.camera_files import load_cameras
+    from gspc.metrics import mse
+    from gspc.reconstruct import render_images
+    from gspc.views import limit_size
+
+    torch.set_num_threads(1)
+    cams = limit_size(load_cameras(cameras), 400)[::every]
+    a = render_images(read_scene(original), cams, (0.0, 0.0, 0.0))
+    b = render_images(read_scene(decoded), cams, (0.0, 0.0, 0.0))
+    return float(np.mean([-10 * math.log10(max(float(mse(x, y)), 1e-12)) for x, y in zip(a, b)]))
+
+
+def one(
+    scene_dir: Path, work: Path, log: Path, variant: str, lam: float, tile_size: int, workers: int
+) -> dict:
+    """Encode, decode and score one variant; its row."""
+    ply, cams = scene_dir / "point_cloud.ply", scene_dir / "cameras.json"
+    out = work / f"{scene_dir.name}-{variant}-{lam:g}-{workers}.gspc"
+    dec = out.with_suffix(".ply")
+    common = ["--cameras", str(cams), "--no-side-info", "--lambda", str(lam), "--workers", str(workers)]
+    enc = run_gspc(["encode", str(ply), "-o", str(out), "--tile-size", str(tile_size), *common], log)
+    dcd = run_gspc(["decode", str(out), "-o", str(dec), "--workers", str(workers)], log)
+    row = {
+        "scene": scene_dir.name,
+        "gaussians": int(json.loads((scene_dir / "scene.json").read_text())["gaussians"]),
+        "variant": variant,
+        "tile_size": tile_size,
+        "lambda": lam,
+        "workers": workers,
+        "bytes": out.stat().st_size,
+        "psnr": psnr(ply, dec, cams),
+        "encode": enc,
+        "decode": dcd,
+    }
+    dec.unlink()
+    return row
+
+
+def plan_rows(plan: str, sizes: list[int]) -> list[tuple[int, str, float, int, int]]:
+    """(size, variant, lambda, tile size, workers) of every run of a plan."""
+    rows = []
+    if plan == "compare":
+        for n in sizes:
+            for lam in (6.0, 8.0, 11.0):
+                rows.append((n, "one block", lam, 0, 1))
+                for tile in (1 << 16, 1 << 18):
+                    rows.append((n, f"tiles of {tile:,}", lam, tile, 2))
+    else:
+        for n in sizes:
+            for workers in (1, 2):
+                rows.append((n, f"tiles of {1 << 18:,}", 8.0, 1 << 18, workers))
+    return rows
+
+
+def equal_psnr_ratio(rows: list[dict], variant: str, base: str = "one block") -> float | None:
+    """Bytes of ``variant`` over ``base``'s at ``variant``'s middle PSNR, off ``base``'s curve (log bytes
+    linear in PSNR between its points); None where the PSNR lies outside it."""
+    own = sorted((r["psnr"], r["bytes"]) for r in rows if r["variant"] == variant)
+    ref = sorted((r["psnr"], r["bytes"]) for r in rows if r["variant"] == base)
+    if len(own) < 2 or len(ref) < 2:
+        return None
+    p, b = own[len(own) // 2]
+    for (p0, b0), (p1, b1) in zip(ref, ref[1:]):
+        if p0 <= p <= p1 and p1 > p0:
+            f = (p - p0) / (p1 - p0)
+            return b / math.exp(math.log(b0) + f * (math.log(b1) - math.log(b0)))
+    return None
+
+
+def report(rows: list[dict], machine: str) -> str:
+    lines = [
+        "## Measured",
+        "",
+        f"Machine: {machine}. Every run a fresh process; workers as named, each on one thread.",
+        "",
+        "| scene | Gaussians | variant | lambda | workers | bytes | B/G | PSNR dB | encode wall s "
+        "| encode CPU s | encode peak MB, all processes (largest) | decode wall s "
+        "| decode peak MB, all processes (largest) |",
+        "|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for r in rows:
+        e, d = r["encode"], r["decode"]
+        lines.append(
+            f"| {r['scene']} | {r['gaussians']:,} | {r['variant']} | {r['lambda']:g} | {r['workers']} | "
+            f"{r['bytes']:,} | {r['bytes'] / r['gaussians']:.2f} | {r['psnr']:.2f} | {e['wall']:.0f} | "
+            f"{e['cpu']:.0f} | {e['rss_mb']:.0f} ({e['largest_mb']:.0f}) | {d['wall']:.1f} | "
+            f"{d['rss_mb']:.0f} ({d['largest_mb']:.0f}) |"
+        )
+    variants = sorted({r["variant"] for r in rows if r["variant"] != "one block"})
+    ratios = [(v, equal_psnr_ratio(rows, v)) for v in variants]
+    if any(x is not None for _, x in ratios):
+        lines += ["", "Bytes at equal PSNR against one block (each variant's middle point, off its curve):"]
+        lines += [f"- {v}: {x:.4f}" for v, x in ratios if x is not None]
+    return "\n".join(lines) + "\n"
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--scenes", type=Path, default=Path("/work/district"))
+    ap.add_argument("--sizes", default="1000000")
+    ap.add_argument("--plan", choices=("compare", "scale"), default="compare")
+    ap.add_argument("--work", type=Path, default=Path("/work/bench_tiles"))
+    ap.add_argument("--log", type=Path, default=None, help="rows as JSON lines (default: WORK/rows.jsonl)")
+    ap.add_argument("-o", "--out", type=Path, default=None, help="the report (default: print it)")
+    args = ap.parse_args()
+    args.work.mkdir(parents=True, exist_ok=True)
+    log = args.log or args.work / "rows.jsonl"
+    machine = f"{platform.node()}, {os.cpu_count()} CPUs, load {os.getloadavg()[0]:.1f} at start"
+    rows = [json.loads(x) for x in log.read_text().splitlines()] if log.exists() else []
+    done = {(r["scene"], r["variant"], r["lambda"], r["workers"]) for r in rows}
+    for n, variant, lam, tile, workers in plan_rows(args.plan, [int(s) for s in args.sizes.split(",")]):
+        scene_dir = args.scenes / f"district_{n}"
+        if (scene_dir.name, variant, lam, workers) in done:
+            continue
+        row = one(scene_dir, args.work, args.work / "gspc.log", variant, lam, tile, workers)
+        rows.append(row)
+        with open(log, "a") as f:
+            f.write(json.dumps(row) + "\n")
+        print(json.dumps(row), flush=True)
+    text = report(rows, machine)
+    if args.out:
+        args.out.write_text(text)
+    print(text)
+
+
+if __name__ == "__main__":
+    main()
