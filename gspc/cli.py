@@ -25,6 +25,7 @@ from gspc.atomic import check_output_path
 from gspc.errors import GspcError
 from gspc.options import DecodeOptions, EncodeOptions
 from gspc.progress import ProgressLines
+from gspc.workers import default_workers
 
 app = typer.Typer(
     add_completion=False, no_args_is_help=True, help="gspc: a codec for 3D Gaussian Splatting scenes."
@@ -76,25 +77,19 @@ def _one_line_errors(fn):
     return wrapper
 
 
-def default_threads() -> int:
-    """The cores this process may run on (its CPU affinity, else the machine's count): GSPC_THREADS's default.
-
-    On a 2-vCPU machine whose other core was busy two threads measured slower than one (quiet, slightly
-    faster: bench/render.md); users of shared machines set GSPC_THREADS=1, and the benchmarks pin one thread.
-    """
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except (AttributeError, OSError):  # no sched_getaffinity (macOS, Windows)
-        return max(1, os.cpu_count() or 1)
+# Threads inside one render or kernel when GSPC_THREADS is unset: one. Threads that wait for each other make a
+# run on a busy machine slower than one thread (bench/threads.md); gspc's parallel work is its tiles, on
+# worker processes (--workers), which do not wait for each other.
+DEFAULT_THREADS = 1
 
 
 def thread_count(value: str | None) -> int:
-    """The torch threads GSPC_THREADS=``value`` asks for: unset or empty means default_threads(); a whole
-    number from 1 up, clamped to default_threads() (more threads than cores only contend, and 10000 once
-    crashed libgomp); anything else is a GspcError naming the variable."""
-    cores = default_threads()
+    """The torch threads GSPC_THREADS=``value`` asks for: unset or empty means DEFAULT_THREADS; a whole
+    number from 1 up, clamped to the cores this process may use (more threads than cores only contend, and
+    10000 once crashed libgomp); anything else is a GspcError naming the variable."""
+    cores = default_workers()
     if value is None or not value.strip():
-        return cores
+        return DEFAULT_THREADS
     text = value.strip()
     if not (text.isascii() and text.isdigit()) or not text.lstrip("0"):
         raise GspcError(f"GSPC_THREADS={value!r}: give a whole number of threads, 1 or more, or unset it")
@@ -103,8 +98,7 @@ def thread_count(value: str | None) -> int:
 
 
 def _use_threads() -> None:
-    """Set torch's thread count (GSPC_THREADS, default the cores this process has): called by the
-    commands that compute."""
+    """Set torch's thread count (GSPC_THREADS, default one): called by the commands that compute."""
     import torch
 
     torch.set_num_threads(thread_count(os.environ.get("GSPC_THREADS")))

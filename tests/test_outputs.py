@@ -14,6 +14,7 @@ from gspc import cli
 from gspc.atomic import atomic_write_bytes, check_output_path
 from gspc.errors import GspcError, InputError
 from gspc.io import read_scene
+from gspc.workers import default_workers
 
 pytestmark = pytest.mark.skipif(os.name != "posix", reason="device nodes and named pipes are POSIX")
 
@@ -103,7 +104,7 @@ def test_cli_refuses_a_trailing_slash_before_any_work(tmp_path, scene_file, comm
 @pytest.mark.parametrize("value", ["0", "-1", "text", "1.5", " ", "1e3", "٣"])
 def test_bad_thread_counts_are_one_line(value):
     if not value.strip():
-        assert cli.thread_count(value) == cli.default_threads()
+        assert cli.thread_count(value) == cli.DEFAULT_THREADS
         return
     with pytest.raises(GspcError, match="GSPC_THREADS"):
         cli.thread_count(value)
@@ -111,7 +112,7 @@ def test_bad_thread_counts_are_one_line(value):
 
 @pytest.mark.parametrize("value", [str(2**40), "10000", "9" * 5000])
 def test_huge_thread_counts_are_clamped_to_the_cores(value):
-    assert cli.thread_count(value) == cli.default_threads()
+    assert cli.thread_count(value) == default_workers()
 
 
 @pytest.mark.parametrize("value", ["0", "-1", "text", "1.5"])
@@ -126,7 +127,7 @@ def test_cli_runs_with_a_huge_thread_count(monkeypatch, scene_file):
     try:
         res = run("info", scene_file)
         assert res.exit_code == 0, res.output
-        assert torch.get_num_threads() == cli.default_threads()
+        assert torch.get_num_threads() == default_workers()
     finally:
         torch.set_num_threads(before)
 
