@@ -3,8 +3,8 @@
 
     python tools/bench_threads.py [--busy 2] [--scene examples/lego] [--tiled /work/district/district_1000000]
 
-Each row is a fresh ``gspc`` process; ``--busy`` processes spin on the CPU throughout (at the same nice level),
-as other users' jobs would. The example's encode and decode (one block: threads inside its renders and
+Each row is a fresh ``gspc`` process; ``--busy`` processes spin on the CPU throughout (at the same nice
+level), as other users' jobs would. The example's encode and decode (one block: threads inside its renders and
 kernels) and a tiled scene's attribute path (``--no-side-info``: its tiles on worker processes) are timed.
 """
 
@@ -69,7 +69,7 @@ def main() -> None:
         for p in spinners:
             p.kill()
     text = [
-        f"Machine: {platform.node()}, {os.cpu_count()} CPUs, {args.busy} other processes spinning throughout.",
+        f"Machine: {platform.node()}, {os.cpu_count()} CPUs, {args.busy} other processes spinning.",
         "",
         "| scene | setting | encode wall s | decode wall s |",
         "|---|---|---:|---:|",
