@@ -36,6 +36,10 @@ class Preset:
     # bit finer (bench/precision.md, "Position precision chosen per scene" and "The high preset's positions
     # chosen per scene too").
     position_offsets: tuple[float, ...] = (-1.0,)
+    # Then, where the scene has view-dependent colour, every SH band kept without a dead zone, in the same
+    # bytes, kept where the same views show it closer (gspc/encoder/removal.py; bench/precision.md, "SH
+    # choices checked per scene").
+    sh_options: tuple[tuple[float, float], ...] = ((0.0, 0.0),)
 
 
 # The low preset's per-Gaussian precision (gspc/encoder/precision_plan.py), chosen codec alone on the

@@ -51,7 +51,8 @@ def removal_params(opts: EncodeOptions) -> RemovalParams | None:
     turn it off."""
     if not opts.removal_search:
         return None
-    return RemovalParams(position_offsets=quality_preset(opts.quality).position_offsets)
+    preset = quality_preset(opts.quality)
+    return RemovalParams(position_offsets=preset.position_offsets, sh_options=preset.sh_options)
 
 
 def tuning_params(opts: EncodeOptions) -> TuningParams | None:

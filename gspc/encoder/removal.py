@@ -71,6 +71,11 @@ class RemovalParams:
     # inverse for a finer grid). The preset names them (gspc/presets.py, gspc/encoder/prepare.py
     # removal_params); none by default.
     position_offsets: tuple[float, ...] = ()
+    # Then, in a scene with view-dependent colour, these (sh_keep, SH dead zone) pairs in place of the
+    # parameters' own (PrecisionParams.sh_keep, CodecParams.sh_deadzone), each kept where it gains as a
+    # removal step must: the SH choices drop information whose worth differs by scene as the removal's does
+    # (bench/precision.md, "SH choices checked per scene"). None by default.
+    sh_options: tuple[tuple[float, float], ...] = ()
 
 
 @dataclass(frozen=True)
@@ -80,6 +85,20 @@ class Trial:
     bytes: int
     psnr: float  # mean over the scoring views, dB against the original's renders
     position_offset: float = 0.0
+    sh: tuple[float, float] | None = None  # (sh_keep, SH dead zone) tried; None: the parameters' own
+
+    def label(self, base: Trial) -> str:
+        if self.sh is not None:
+            return _sh_words(self.sh)
+        if self.position_offset:
+            return f"positions {self.position_offset:+g} bit"
+        return f"x{self.prune / base.prune:g}"
+
+
+def _sh_words(sh: tuple[float, float]) -> str:
+    keep, deadzone = sh
+    bands = "every SH band kept" if keep == 0 else f"SH bands kept from {keep:g} steps"
+    return f"{bands}, {'no' if deadzone == 0 else f'a {deadzone:g}'} dead zone"
 
 
 @dataclass(frozen=True)
@@ -99,8 +118,13 @@ class RemovalChoice:
         """The trial whose coding was kept (``base``: the preset's)."""
         lam, offset = self.encoded.lam, self.params.position_offset
         prune = self.params.precision.prune if self.params.precision is not None else 0.0
-        match = (t for t in self.trials if (t.lam, t.prune, t.position_offset) == (lam, prune, offset))
-        return next(match, self.base)
+
+        def made(t: Trial) -> bool:
+            sh_ok = t.sh is None or t.sh == (self.params.precision.sh_keep, self.params.sh_deadzone)
+            return (t.lam, t.prune, t.position_offset) == (lam, prune, offset) and sh_ok
+
+        match = [t for t in self.trials if made(t)]
+        return match[-1] if match else self.base
 
     def chosen(self) -> str:
         """The removal and grid kept, in words."""
@@ -110,6 +134,8 @@ class RemovalChoice:
         parts = [f"x{t.prune / b.prune:g} the preset's removal"] if t.prune != b.prune else []
         if t.position_offset:
             parts.append(f"positions {t.position_offset:+g} bit")
+        if t.sh is not None:
+            parts.append(_sh_words(t.sh))
         return ", ".join(parts)
 
     def summary(self) -> str:
@@ -119,10 +145,7 @@ class RemovalChoice:
             return "the preset's (no search)"
 
         def trial(t: Trial) -> str:
-            tried = (
-                f"positions {t.position_offset:+g} bit" if t.position_offset else f"x{t.prune / b.prune:g}"
-            )
-            return f"{tried} at lambda {t.lam:.3g} {t.psnr - b.psnr:+.2f} dB"
+            return f"{t.label(b)} at lambda {t.lam:.3g} {t.psnr - b.psnr:+.2f} dB"
 
         t = self.kept
         verdict = (
@@ -170,22 +193,23 @@ def choose_removal(
     ``deadline``."""
     precision = params.precision
     steps = rp.steps if precision is not None and precision.prune > 0 else ()
+    sh_options = rp.sh_options if scene.sh_degree > 0 else ()
     if (
         precision is None
-        or not (steps or rp.position_offsets)
+        or not (steps or rp.position_offsets or sh_options)
         or (deadline is not None and time.perf_counter() >= deadline)
     ):
         return RemovalChoice(first, params)
     t0 = time.perf_counter()
     views = scoring_views(cameras, scene.num_gaussians, rp)
     score = _scorer(scene, views, background)
-    stages = len(steps) + len(rp.position_offsets)
+    stages = len(steps) + len(rp.position_offsets) + len(sh_options)
     _tick(progress, 0, stages)
     base = Trial(precision.prune, first.lam, first.num_bytes, score(first))
     best, kept = base, (first, params)
     trials: list[Trial] = []
 
-    def attempt(p: CodecParams, offset: float = 0.0) -> bool:
+    def attempt(p: CodecParams, offset: float = 0.0, sh: tuple[float, float] | None = None) -> bool:
         """Code ``p`` in ``first``'s bytes and keep it where it beats the best; whether it did."""
         nonlocal best, kept
         enc = search_lambda(
@@ -199,7 +223,7 @@ def choose_removal(
             deadline=deadline,
             grid=grid,
         )
-        trials.append(Trial(p.precision.prune, enc.lam, enc.num_bytes, score(enc), offset))
+        trials.append(Trial(p.precision.prune, enc.lam, enc.num_bytes, score(enc), offset, sh))
         _tick(progress, len(trials), stages)
         if not better(best, trials[-1], first.num_bytes, rp.min_gain_db):
             return False
@@ -223,7 +247,16 @@ def choose_removal(
         ratio = rp.first_lambda_ratio if offset < 0 else 1.0 / rp.first_lambda_ratio
         if not attempt(replace(p, lam=p.lam * ratio, position_offset=offset), offset):
             break
-    _tick(progress, stages, stages)  # ended early or not, the stage is done
+    for keep, deadzone in sh_options:
+        if deadline is not None and time.perf_counter() >= deadline:
+            break
+        p = kept[1]
+        # Keeping more of the view-dependent colour takes bytes from the rest: a higher lambda.
+        moved = replace(p, lam=p.lam / rp.first_lambda_ratio, sh_deadzone=deadzone)
+        moved = replace(moved, precision=replace(p.precision, sh_keep=keep))
+        attempt(moved, p.position_offset, (keep, deadzone))
+    if len(trials) < stages:  # ended early: the stage is done all the same
+        _tick(progress, stages, stages)
     seconds = time.perf_counter() - t0
     return RemovalChoice(kept[0], kept[1], base, tuple(trials), len(views), seconds, rp.min_gain_db)
 
