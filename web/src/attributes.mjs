@@ -10,7 +10,7 @@ import { largestComponent, opacityDecoder, rotationComponent, rotationStep } fro
 import { maxCodedGaussians, maxModelEntries } from './limits.mjs';
 import { TableBudget } from './models.mjs';
 import { decodePositions } from './positions.mjs';
-import { decodePrecision, rowsOf } from './precision.mjs';
+import { decodePrecision, rowsByClass } from './precision.mjs';
 
 /** Chunk types of the attribute section (spec 6). */
 export const ATTRIBUTE_TYPES = ['POSN', 'PREC', 'OPAC', 'SCAL', 'ROTN', 'SHDC', 'SHRS'];
@@ -61,15 +61,13 @@ function decodeParts(type, parts, classRows, visit) {
   parts.forEach((ecm, k) => decodeEcm(ecm, (j, q) => visit(k, classRows[k], j, q), parts.length > 1 ? `${type} class ${k}` : type));
 }
 
-const rowAt = (rows, i) => (rows === null ? i : rows[i]);
-
 function decodeOpacities(payload, section, classRows) {
   const out = new Float32Array(section.n);
   const parts = readParts('OPAC', payload, section, 1, classRows);
   decodeParts('OPAC', parts, classRows, (k, rows, _, q) => {
     const logit = opacityDecoder(section.classes[k].opacityLevels);
     const count = parts[k].rows;
-    for (let i = 0; i < count; i++) out[rowAt(rows, i)] = logit(q[i]);
+    for (let i = 0; i < count; i++) out[rows[i]] = logit(q[i]);
   });
   return out;
 }
@@ -81,7 +79,7 @@ function decodeScaled(type, payload, section, classRows, stepOf) {
   decodeParts(type, parts, classRows, (k, rows, j, q) => {
     const step = stepOf(section.classes[k]);
     const count = parts[k].rows;
-    for (let i = 0; i < count; i++) out[3 * rowAt(rows, i) + j] = q[i] * step;
+    for (let i = 0; i < count; i++) out[3 * rows[i] + j] = q[i] * step;
   });
   return out;
 }
@@ -118,7 +116,7 @@ function decodeRotations(payload, section, classRows) {
       const r2 = others[3 * i + 1];
       const r3 = others[3 * i + 2];
       const big = largest[i];
-      const base = 4 * rowAt(rows, i);
+      const base = 4 * rows[i];
       // The three stored components fill the other indices in increasing order.
       let c = 0;
       for (let a = 0; a < 4; a++) {
@@ -170,9 +168,10 @@ function decodeRestBanded(payload, section, precision, out) {
   const bins = readBinArray(payload, numClasses * shDegree, 'SHRS');
   const budget = new TableBudget(maxModelEntries(payload.length), "SHRS's matrices together");
   const parts = [];
+  const bands = Array.from({ length: shDegree }, (_, b) => rowsByClass(precision, numClasses, b + 1));
   for (let k = 0; k < numClasses; k++) {
     for (let b = 1; b <= shDegree; b++) {
-      const rows = rowsOf(precision, k, b);
+      const rows = bands[b - 1][k];
       const what = `SHRS class ${k} band ${b}`;
       parts.push({ k, b, rows, what, ecm: readEcm(bins[k * shDegree + b - 1], rows.length, 3 * (2 * b + 1), what, budget) });
     }
@@ -205,7 +204,8 @@ export function decodeAttributes(section, payloads) {
   const precision = section.precision
     ? decodePrecision(payloads.PREC, n, section.classes.length, shDegree)
     : null;
-  const classRows = precision ? section.classes.map((_, k) => rowsOf(precision, k)) : [null];
+  // Below version 4 every row is in class 0.
+  const classRows = precision ? rowsByClass(precision, section.classes.length) : [Int32Array.from({ length: n }, (_, i) => i)];
   const means = decodePositions(payloads.POSN, section.grid, n);
   const opacities = decodeOpacities(payloads.OPAC, section, classRows);
   const logScales = decodeScaled('SCAL', payloads.SCAL, section, classRows, (c) => c.scaleStep);

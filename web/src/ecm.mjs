@@ -64,11 +64,78 @@ export function readBinArray(payload, count, what) {
   return bins;
 }
 
-function bitlenCapped(x, cap) {
-  // min(bitlen(|x|), cap) for cap <= 3: 0 for 0, 1 for 1, 2 for 2..3, 3 for 4 and up.
+/** min(bitlen(|x|), 3): 0 for 0, 1 for 1, 2 for 2..3, 3 from 4 on. */
+function spatialClass(x) {
   const a = x < 0 ? -x : x;
-  const bits = a === 0 ? 0 : a === 1 ? 1 : a < 4 ? 2 : 3;
-  return bits < cap ? bits : cap;
+  return a === 0 ? 0 : a === 1 ? 1 : a < 4 ? 2 : 3;
+}
+
+/** min(bitlen(|x|), 2). */
+function intraClass(x) {
+  const a = x < 0 ? -x : x;
+  return a === 0 ? 0 : a === 1 ? 1 : 2;
+}
+
+/**
+ * One level's context (spec 10.0, "Coding order"): each row's neighbour prediction nb and bucket, and the
+ * rows sorted by bucket (stable) into `order`; `ends[k]` is where bucket k's rows end.
+ */
+function levelContext(q, prevRes, nb, bucketOf, order, ends, m, h, first) {
+  const top = h === LEVEL0_STRIDE;
+  const start = top ? 0 : h;
+  const step = top ? LEVEL0_STRIDE : 2 * h;
+  ends.fill(0);
+  if (top) {
+    // Level 0: no neighbours, nb = 0 and spatial class 4.
+    for (let r = 0; r < m; r += step) {
+      nb[r] = 0;
+      const bucket = 12 + (first ? 0 : intraClass(prevRes[r]));
+      bucketOf[r] = bucket;
+      ends[bucket + 1]++;
+    }
+  } else {
+    const last = m - h; // rows r >= last have no r + h: b = r - h
+    for (let r = start; r < m; r += step) {
+      const qa = q[r - h];
+      const qb = r < last ? q[r + h] : qa;
+      nb[r] = Math.floor((qa + qb) * 0.5);
+      const bucket = 3 * spatialClass(qa - qb) + (first ? 0 : intraClass(prevRes[r]));
+      bucketOf[r] = bucket;
+      ends[bucket + 1]++;
+    }
+  }
+  for (let k = 0; k < NUM_BUCKETS; k++) ends[k + 1] += ends[k];
+  for (let r = start; r < m; r += step) order[ends[bucketOf[r]]++] = r;
+}
+
+/** The residuals of rows order[from..to) from one table (a kind-2 or kind-3 model). */
+function decodeRun(dec, cum, size, lo, order, from, to, res) {
+  for (let i = from; i < to; i++) res[order[i]] = lo + dec.decode(cum, size);
+}
+
+/** q = residual + prediction by `mode` for one level's rows; false when a value leaves -2^48..2^48. */
+function predictLevel(mode, q, res, nb, prevQ, prevNb, m, h) {
+  const top = h === LEVEL0_STRIDE;
+  const start = top ? 0 : h;
+  const step = top ? LEVEL0_STRIDE : 2 * h;
+  let low = 0;
+  let high = 0;
+  // One loop per mode: each stays monomorphic.
+  if (mode === 0) {
+    for (let r = start; r < m; r += step) q[r] = res[r];
+  } else if (mode === 1) {
+    for (let r = start; r < m; r += step) q[r] = res[r] + nb[r];
+  } else if (mode === 2) {
+    for (let r = start; r < m; r += step) q[r] = res[r] + prevQ[r];
+  } else {
+    for (let r = start; r < m; r += step) q[r] = res[r] + (nb[r] + prevQ[r] - prevNb[r]);
+  }
+  for (let r = start; r < m; r += step) {
+    const v = q[r];
+    if (v < low) low = v;
+    if (v > high) high = v;
+  }
+  return low >= -MAX_CODEC_INT && high <= MAX_CODEC_INT;
 }
 
 /**
@@ -90,73 +157,28 @@ export function decodeEcm(ecm, visit, what) {
   let prevNb = new Float64Array(m);
   const bucketOf = new Uint8Array(m);
   const order = new Int32Array(m);
-  const counts = new Int32Array(NUM_BUCKETS + 1);
-  const kinds = new Int32Array(NUM_BUCKETS);
-  const values = new Float64Array(NUM_BUCKETS);
-  const tables = new Array(NUM_BUCKETS);
-  const sizes = new Int32Array(NUM_BUCKETS);
-  const los = new Float64Array(NUM_BUCKETS);
-
+  const ends = new Int32Array(NUM_BUCKETS + 1);
   for (let j = 0; j < columns; j++) {
     const { mode, specs } = models[j];
-    for (let k = 0; k < NUM_BUCKETS; k++) {
-      const s = specs[k];
-      kinds[k] = s.kind;
-      values[k] = s.kind === KIND_CONSTANT ? s.value : 0;
-      tables[k] = null;
-      sizes[k] = s.size || 0;
-      los[k] = s.lo || 0;
-    }
-    const first = j === 0;
-    // Level 0 (stride 64, no neighbours), then h = 32, 16, ..., 1.
+    // Level 0 (every 64th row, no neighbours), then h = 32, 16, ..., 1.
     for (let h = LEVEL0_STRIDE; h >= 1; h >>= 1) {
-      const start = h === LEVEL0_STRIDE ? 0 : h;
-      const step = h === LEVEL0_STRIDE ? LEVEL0_STRIDE : 2 * h;
-      const top = h === LEVEL0_STRIDE;
-      counts.fill(0);
-      for (let r = start; r < m; r += step) {
-        let s = 4;
-        let n = 0;
-        if (!top) {
-          const qa = q[r - h];
-          const qb = r + h < m ? q[r + h] : qa;
-          n = Math.floor((qa + qb) / 2);
-          s = bitlenCapped(qa - qb, 3);
-        }
-        nb[r] = n;
-        const t = first ? 0 : bitlenCapped(prevRes[r], 2);
-        const bucket = 3 * s + t;
-        bucketOf[r] = bucket;
-        counts[bucket + 1]++;
-      }
-      for (let k = 0; k < NUM_BUCKETS; k++) counts[k + 1] += counts[k];
-      for (let r = start; r < m; r += step) order[counts[bucketOf[r]]++] = r;
-      // counts[k] now ends bucket k; decode in bucket order, rows ascending within a bucket.
-      const total = counts[NUM_BUCKETS - 1];
-      for (let i = 0; i < total; i++) {
-        const r = order[i];
-        const k = bucketOf[r];
-        let e;
-        const kind = kinds[k];
-        if (kind === KIND_CONSTANT) e = values[k];
-        else if (kind === KIND_EMPTY) {
-          throw new CodecError(`${what}: row ${r} of column ${j} needs a symbol from an empty model (spec [0])`);
+      levelContext(q, prevRes, nb, bucketOf, order, ends, m, h, j === 0);
+      // ends[k] is now where bucket k ends: its rows are order[ends[k - 1] .. ends[k]).
+      for (let k = 0; k < NUM_BUCKETS; k++) {
+        const from = k === 0 ? 0 : ends[k - 1];
+        const to = ends[k];
+        if (from === to) continue;
+        const spec = specs[k];
+        if (spec.kind === KIND_CONSTANT) {
+          for (let i = from; i < to; i++) res[order[i]] = spec.value;
+        } else if (spec.kind === KIND_EMPTY) {
+          throw new CodecError(`${what}: row ${order[from]} of column ${j} needs a symbol from an empty model (spec [0])`);
         } else {
-          let cum = tables[k];
-          if (cum === null) cum = tables[k] = tableOf(specs[k]);
-          e = los[k] + dec.decode(cum, sizes[k]);
+          decodeRun(dec, tableOf(spec), spec.size, spec.lo, order, from, to, res);
         }
-        let p;
-        if (mode === 0) p = 0;
-        else if (mode === 1) p = nb[r];
-        else if (mode === 2) p = prevQ[r];
-        else p = nb[r] + prevQ[r] - prevNb[r];
-        const v = e + p;
-        if (!(v >= -MAX_CODEC_INT && v <= MAX_CODEC_INT)) {
-          throw new CodecError(`${what}: column ${j} decodes to a value outside -2^48..2^48`);
-        }
-        q[r] = v;
-        res[r] = e;
+      }
+      if (!predictLevel(mode, q, res, nb, prevQ, prevNb, m, h)) {
+        throw new CodecError(`${what}: column ${j} decodes to a value outside -2^48..2^48`);
       }
     }
     visit(j, q);

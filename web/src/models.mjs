@@ -172,12 +172,43 @@ function scaledFloor(w, k, total) {
   return Number((BigInt(w) * BigInt(k)) / BigInt(total));
 }
 
+// A table also holds, per 1/256 of the probability range, the symbol at the slot's start, so that the range
+// decoder searches only the symbols of one slot (a probable symbol is found at once).
+export const SLOT_BITS = 8;
+const SLOTS = 2 ** SLOT_BITS;
+const SLOT_SHIFT = PROBABILITY_BITS - SLOT_BITS;
+
+/** A table of S symbols: S + 1 starts, then SLOTS + 1 slot symbols (the last is S - 1). */
+function newTable(size) {
+  return new Uint32Array(size + 1 + SLOTS + 1);
+}
+
+/** Fill the slots of `table` (whose starts are final): slot j holds the symbol containing j 2^16. */
+function fillSlots(table, size) {
+  let symbol = 0;
+  for (let j = 0; j < SLOTS; j++) {
+    const q = j << SLOT_SHIFT;
+    while (table[symbol + 1] <= q) symbol++;
+    table[size + 1 + j] = symbol;
+  }
+  table[size + 1 + SLOTS] = size - 1;
+  return table;
+}
+
+/** The table of the starts `starts` (S + 1 numbers, 0 first, 2^24 last), for tests and tools. */
+export function tableFromStarts(starts) {
+  const size = starts.length - 1;
+  const table = newTable(size);
+  table.set(starts);
+  return fillSlots(table, size);
+}
+
 /**
- * The table starts (Uint32Array of S + 1) of weights `weight(i)` (i = 0..S-1) summing to `total`: f_i = 1 +
- * floor(w_i (2^24 - S) / W), the shortfall to 2^24 added to the first largest weight (spec 10.0).
+ * The table (see newTable) of weights `weight(i)` (i = 0..S-1) summing to `total`: f_i = 1 + floor(w_i
+ * (2^24 - S) / W), the shortfall to 2^24 added to the first largest weight (spec 10.0), as starts F.
  */
 function buildStarts(size, weight, total) {
-  const cum = new Uint32Array(size + 1);
+  const cum = newTable(size);
   const k = TOTAL - size;
   let sum = 0;
   let best = 0;
@@ -199,7 +230,7 @@ function buildStarts(size, weight, total) {
   }
   cum[best + 1] += TOTAL - sum;
   for (let i = 1; i <= size; i++) cum[i] += cum[i - 1];
-  return cum;
+  return fillSlots(cum, size);
 }
 
 function geometricStarts(spec) {
@@ -246,7 +277,7 @@ function explicitStarts(spec) {
 function explicitStartsBig(weights, total) {
   const size = weights.length;
   const k = BigInt(TOTAL - size);
-  const cum = new Uint32Array(size + 1);
+  const cum = newTable(size);
   let sum = 0;
   let best = 0;
   for (let i = 0; i < size; i++) {
@@ -257,10 +288,10 @@ function explicitStartsBig(weights, total) {
   }
   cum[best + 1] += TOTAL - sum;
   for (let i = 1; i <= size; i++) cum[i] += cum[i - 1];
-  return cum;
+  return fillSlots(cum, size);
 }
 
-/** The table starts of a kind-2 or kind-3 spec, built on first use and kept on the spec. */
+/** The table of a kind-2 or kind-3 spec (starts, then slots), built on first use and kept on the spec. */
 export function tableOf(spec) {
   if (spec.cum === null) spec.cum = spec.kind === KIND_GEOMETRIC ? geometricStarts(spec) : explicitStarts(spec);
   return spec.cum;

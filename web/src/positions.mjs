@@ -38,35 +38,23 @@ function gather(t0, t1, t2, t3, t4, t5, t6, s) {
   );
 }
 
-/** MSB-first reader of the raw bits (spec 10.0 "Raw bits"). */
-class BitReader {
-  constructor(bytes) {
-    this.bytes = bytes;
-    this.bit = 0;
-  }
+// 2^0 .. 2^40, exact.
+const POW2 = Float64Array.from({ length: 41 }, (_, k) => 2 ** k);
 
-  /** The next k bits (k <= 32) as an unsigned number. */
-  read(k) {
-    let v = 0;
-    const bytes = this.bytes;
-    while (k > 0) {
-      const byte = bytes[this.bit >>> 3];
-      const used = this.bit & 7;
-      const take = Math.min(k, 8 - used);
-      const bits = (byte >>> (8 - used - take)) & ((1 << take) - 1);
-      v = v * (1 << take) + bits;
-      this.bit += take;
-      k -= take;
-    }
-    return v;
-  }
+/** `k` (0..32) bits of the MSB-first bit string `raw` (spec 10.0 "Raw bits") from bit `pos`, as a number;
+ * `raw` is padded with at least 5 zero bytes past its end. */
+function bitsAt(raw, pos, k) {
+  const i = pos >>> 3;
+  const window = raw[i] * TWO32 + (((raw[i + 1] << 24) | (raw[i + 2] << 16) | (raw[i + 3] << 8) | raw[i + 4]) >>> 0);
+  const bits = Math.floor(window / POW2[40 - (pos & 7) - k]);
+  return bits - Math.floor(bits / POW2[k]) * POW2[k];
 }
 
 /**
- * Decode one curve of `count` codes on `bits` bits per axis from its `classes` ECM and `raw` bits, calling
- * `emit(i, vx, vy, vz)` with each voxel in curve order.
+ * The voxels (Uint32Array count x 3, curve order) of one curve of `count` codes on `bits` bits per axis,
+ * from its `classes` ECM and `raw` bits.
  */
-function decodeCurve(classesBin, raw, count, bits, what, emit) {
+function decodeCurve(classesBin, raw, count, bits, what) {
   const ecm = readEcm(classesBin, count, 1, `POSN ${what} classes`);
   const maxLength = 3 * bits;
   const lengths = new Uint8Array(count);
@@ -90,27 +78,31 @@ function decodeCurve(classesBin, raw, count, bits, what, emit) {
   if (total % 8 && (raw[bytes - 1] & ((1 << (8 - (total % 8))) - 1)) !== 0) {
     throw new CodecError(`POSN ${what} raw-bit string has non-zero padding bits`);
   }
+  const padded = new Uint8Array(bytes + 8);
+  padded.set(raw);
   // Codes must stay below 2^(3 bits): with 3 bits >= 32, the high half below 2^(3 bits - 32).
-  const hiLimit = maxLength >= 32 ? 2 ** (maxLength - 32) : 0;
-  const loLimit = maxLength >= 32 ? 0 : 2 ** maxLength;
-  const reader = new BitReader(raw);
+  const hiLimit = maxLength >= 32 ? POW2[maxLength - 32] : 0;
+  const loLimit = maxLength >= 32 ? 0 : POW2[maxLength];
+  const voxels = new Uint32Array(3 * count);
+  let pos = 0;
   let hi = 0;
   let lo = 0;
   for (let i = 0; i < count; i++) {
     const l = lengths[i];
     if (l > 0) {
-      // d = 2^(l - 1) + the l - 1 bits below the leading one.
+      // d = 2^(l - 1) + the l - 1 bits below the leading one, as halves dHi 2^32 + dLo.
       const k = l - 1;
       let dHi = 0;
       let dLo;
       if (k <= 32) {
-        dLo = reader.read(k);
+        dLo = bitsAt(padded, pos, k);
       } else {
-        dHi = reader.read(k - 32);
-        dLo = reader.read(32);
+        dHi = bitsAt(padded, pos, k - 32);
+        dLo = bitsAt(padded, pos + k - 32, 32);
       }
-      if (k < 32) dLo += 2 ** k;
-      else dHi += 2 ** (k - 32);
+      pos += k;
+      if (k < 32) dLo += POW2[k];
+      else dHi += POW2[k - 32];
       lo += dLo;
       hi += dHi;
       if (lo >= TWO32) {
@@ -121,16 +113,18 @@ function decodeCurve(classesBin, raw, count, bits, what, emit) {
         throw new CodecError(`POSN ${what} code ${i} runs past 2^${maxLength} (${bits} bits per axis)`);
       }
     }
-    const c3 = (lo >>> 27) | ((hi & 15) << 5);
     const t0 = DEINTERLEAVE9[lo & 511];
     const t1 = DEINTERLEAVE9[(lo >>> 9) & 511];
     const t2 = DEINTERLEAVE9[(lo >>> 18) & 511];
-    const t3 = DEINTERLEAVE9[c3];
+    const t3 = DEINTERLEAVE9[(lo >>> 27) | ((hi & 15) << 5)];
     const t4 = DEINTERLEAVE9[(hi >>> 4) & 511];
     const t5 = DEINTERLEAVE9[(hi >>> 13) & 511];
     const t6 = DEINTERLEAVE9[(hi >>> 22) & 511];
-    emit(i, gather(t0, t1, t2, t3, t4, t5, t6, 0), gather(t0, t1, t2, t3, t4, t5, t6, 3), gather(t0, t1, t2, t3, t4, t5, t6, 6));
+    voxels[3 * i] = gather(t0, t1, t2, t3, t4, t5, t6, 0);
+    voxels[3 * i + 1] = gather(t0, t1, t2, t3, t4, t5, t6, 3);
+    voxels[3 * i + 2] = gather(t0, t1, t2, t3, t4, t5, t6, 6);
   }
+  return voxels;
 }
 
 /**
@@ -141,37 +135,39 @@ export function decodePositions(payload, grid, n) {
   const far = grid.far;
   const bins = readBinArray(payload, far ? 4 : 2, 'POSN');
   const means = new Float32Array(3 * n);
-  const place = grid.contraction ? contractedPlacer(grid, means) : plainPlacer(grid, means);
   const near = far ? n - far.count : n;
-  decodeCurve(bins[0], bins[1], near, grid.bits, 'curve', (i, x, y, z) => place(i, x, y, z));
+  const place = grid.contraction ? placeContracted : placePlain;
+  place(grid, decodeCurve(bins[0], bins[1], near, grid.bits, 'curve'), 1, means, 0);
   if (far) {
-    const scale = pow2(far.shift);
-    decodeCurve(bins[2], bins[3], far.count, grid.bits - far.shift, 'far set', (i, x, y, z) =>
-      place(near + i, x * scale, y * scale, z * scale),
-    );
+    // A far voxel w stands for the grid voxel w 2^s (exact).
+    place(grid, decodeCurve(bins[2], bins[3], far.count, grid.bits - far.shift, 'far set'), pow2(far.shift), means, near);
   }
   return means;
 }
 
-function plainPlacer(grid, means) {
+/** Plain grid (version 1): x_a = float32(lo_a + v_a step_a), voxels v = w scale from row `first` on. */
+function placePlain(grid, voxels, scale, means, first) {
   const [l0, l1, l2] = grid.lo;
   const [s0, s1, s2] = grid.step;
-  return (i, x, y, z) => {
-    means[3 * i] = l0 + x * s0;
-    means[3 * i + 1] = l1 + y * s1;
-    means[3 * i + 2] = l2 + z * s2;
-  };
+  const out = means.subarray(3 * first);
+  for (let i = 0; i < voxels.length; i += 3) {
+    out[i] = l0 + voxels[i] * scale * s0;
+    out[i + 1] = l1 + voxels[i + 1] * scale * s1;
+    out[i + 2] = l2 + voxels[i + 2] * scale * s2;
+  }
 }
 
-function contractedPlacer(grid, means) {
+/** Contracted grid (versions 2, 3): the grid point y expanded to world space (spec 10.1, steps 1-3). */
+function placeContracted(grid, voxels, scale, means, first) {
   const [l0, l1, l2] = grid.lo;
   const [s0, s1, s2] = grid.step;
   const [c0, c1, c2] = grid.contraction.centre;
   const radius = grid.contraction.radius;
-  return (i, x, y, z) => {
-    const y0 = l0 + x * s0;
-    const y1 = l1 + y * s1;
-    const y2 = l2 + z * s2;
+  const out = means.subarray(3 * first);
+  for (let i = 0; i < voxels.length; i += 3) {
+    const y0 = l0 + voxels[i] * scale * s0;
+    const y1 = l1 + voxels[i + 1] * scale * s1;
+    const y2 = l2 + voxels[i + 2] * scale * s2;
     const rho = Math.sqrt(y0 * y0 + y1 * y1 + y2 * y2);
     let u0 = y0;
     let u1 = y1;
@@ -185,8 +181,8 @@ function contractedPlacer(grid, means) {
       u1 = y1 * s;
       u2 = y2 * s;
     }
-    means[3 * i] = c0 + radius * u0;
-    means[3 * i + 1] = c1 + radius * u1;
-    means[3 * i + 2] = c2 + radius * u2;
-  };
+    out[i] = c0 + radius * u0;
+    out[i + 1] = c1 + radius * u1;
+    out[i + 2] = c2 + radius * u2;
+  }
 }

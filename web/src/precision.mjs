@@ -28,13 +28,18 @@ export function decodePrecision(payload, n, numClasses, shDegree) {
   return { classOf, degreeOf };
 }
 
-/** The rows (Int32Array, decoded order) of class `k` whose SH degree is at least `minDegree`. */
-export function rowsOf(precision, k, minDegree = 0) {
+/**
+ * The rows (Int32Array each, decoded order) of every class 0..numClasses-1 whose SH degree is at least
+ * `minDegree`.
+ */
+export function rowsByClass(precision, numClasses, minDegree = 0) {
   const { classOf, degreeOf } = precision;
-  let count = 0;
-  for (let i = 0; i < classOf.length; i++) if (classOf[i] === k && degreeOf[i] >= minDegree) count++;
-  const rows = new Int32Array(count);
-  let at = 0;
-  for (let i = 0; i < classOf.length; i++) if (classOf[i] === k && degreeOf[i] >= minDegree) rows[at++] = i;
+  const counts = new Int32Array(numClasses);
+  for (let i = 0; i < classOf.length; i++) if (degreeOf[i] >= minDegree) counts[classOf[i]]++;
+  const rows = Array.from(counts, (c) => new Int32Array(c));
+  counts.fill(0);
+  for (let i = 0; i < classOf.length; i++) {
+    if (degreeOf[i] >= minDegree) rows[classOf[i]][counts[classOf[i]]++] = i;
+  }
   return rows;
 }

@@ -9,9 +9,13 @@
 // check is hi(d) < scale, and every product below stays under 2^53, exact in binary64.
 
 import { CodecError } from './errors.mjs';
+import { PROBABILITY_BITS } from './limits.mjs';
+import { SLOT_BITS } from './models.mjs';
+
+const SLOT_SHIFT = PROBABILITY_BITS - SLOT_BITS;
 
 const TWO24 = 2 ** 24;
-const TWO12 = 2 ** 12;
+const INV24 = 2 ** -24;
 
 export class RangeDecoder {
   /** `words`: the bytes of the ECM's `words` (a multiple of 4 long, u32 little-endian). */
@@ -37,8 +41,10 @@ export class RangeDecoder {
   }
 
   /**
-   * Decode one symbol of the table `cum` (Uint32Array of S + 1 starts: cum[0] = 0, cum[S] = 2^24) and
-   * return its index i (cum[i] <= quantile < cum[i + 1]). CodecError when the quantile is 2^24 or more.
+   * Decode one symbol of the table `cum` of `size` (S) symbols and return its index i (cum[i] <= quantile <
+   * cum[i + 1]). CodecError when the quantile is 2^24 or more. `cum` holds S + 1 starts (cum[0] = 0, cum[S]
+   * = 2^24), then 2^SLOT_BITS + 1 slots: slot j is the symbol containing the quantile j 2^(24 - SLOT_BITS),
+   * the last S - 1 (models.mjs).
    */
   decode(cum, size) {
     const scale = this.rHi;
@@ -46,25 +52,25 @@ export class RangeDecoder {
     const dLo = this.dLo;
     // quantile >= 2^24 exactly when d >= scale 2^24, that is hi(d) >= scale.
     if (dHi >= scale) throw new CodecError('range decoder: quantile of 2^24 or more (corrupt words)');
-    // quantile = floor((dHi 2^24 + dLo) / scale) by long division in two 12-bit digits.
-    const n1 = dHi * TWO12 + (dLo >>> 12);
-    let q1 = Math.floor(n1 / scale);
-    let r1 = n1 - q1 * scale;
-    if (r1 < 0) {
-      q1 -= 1;
-      r1 += scale;
-    }
-    const n2 = r1 * TWO12 + (dLo & 0xfff);
-    let q2 = Math.floor(n2 / scale);
-    let rem = n2 - q2 * scale;
+    // scale = sA 2^24 + sB.
+    const sA = Math.floor(scale * INV24);
+    const sB = scale - sA * TWO24;
+    // quantile = floor(d / scale): the binary64 quotient is within 2^-28 of d / scale (d rounds to 53 bits,
+    // the quotient is below 2^24), so its floor is off by at most one; the remainder d - quantile scale,
+    // an integer below 2^41 in magnitude, is exact and corrects it.
+    let quantile = Math.floor((dHi * TWO24 + dLo) / scale);
+    let rem = (dHi - quantile * sA) * TWO24 + (dLo - quantile * sB);
     if (rem < 0) {
-      q2 -= 1;
+      quantile -= 1;
       rem += scale;
+    } else if (rem >= scale) {
+      quantile += 1;
+      rem -= scale;
     }
-    const quantile = q1 * TWO12 + q2;
-    // The symbol: the largest i with cum[i] <= quantile.
-    let lo = 0;
-    let hi = size;
+    // The symbol: the largest i with cum[i] <= quantile, among the symbols of the quantile's slot.
+    const slot = size + 1 + (quantile >>> SLOT_SHIFT);
+    let lo = cum[slot];
+    let hi = cum[slot + 1] + 1;
     while (hi - lo > 1) {
       const mid = (lo + hi) >>> 1;
       if (cum[mid] <= quantile) lo = mid;
@@ -72,16 +78,14 @@ export class RangeDecoder {
     }
     const start = cum[lo];
     const freq = cum[lo + 1] - start;
-    // d' = (quantile - start) scale + rem, range' = freq scale; scale = sA 2^24 + sB.
-    const sA = Math.floor(scale / TWO24);
-    const sB = scale - sA * TWO24;
+    // d' = (quantile - start) scale + rem and range' = freq scale, as high and low parts.
     const t = quantile - start;
     const x = t * sB + rem;
-    const xHi = Math.floor(x / TWO24);
+    const xHi = Math.floor(x * INV24);
     let nHi = t * sA + xHi;
     let nLo = x - xHi * TWO24;
     const y = freq * sB;
-    const yHi = Math.floor(y / TWO24);
+    const yHi = Math.floor(y * INV24);
     let rHi = freq * sA + yHi;
     let rLo = y - yHi * TWO24;
     if (rHi < 256) {
