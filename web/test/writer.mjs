@@ -39,7 +39,8 @@ function encodeInto(out, v) {
     const s = new TextEncoder().encode(v);
     if (s.length < 32) bytes(0xa0 | s.length);
     else bytes(0xdb), be(s.length, 4);
-    return out.push(...s);
+    for (const b of s) out.push(b);
+    return undefined;
   }
   if (v instanceof Uint8Array) {
     bytes(0xc6);
@@ -97,4 +98,74 @@ export function gspcFile(meta, chunks = [], { major = 1, minor = 4 } = {}) {
   out.set([0x47, 0x45, 0x4e, 0x44], size);
   view.setUint32(size + 4, crc32(out.subarray(0, size + 4)), true);
   return out;
+}
+
+/** `content` as a zstd frame of raw blocks (RFC 8878), declaring its size when `declare` is set. */
+export function zstdRaw(content, { declare = true } = {}) {
+  const out = [0x28, 0xb5, 0x2f, 0xfd];
+  if (declare) {
+    // Single segment, a 4-byte Frame_Content_Size.
+    out.push(0xa0, ...[0, 8, 16, 24].map((s) => (content.length >>> s) & 0xff));
+  } else {
+    out.push(0x00, 0x70); // no size, a window of 2^24
+  }
+  const block = 2 ** 17;
+  let at = 0;
+  do {
+    const size = Math.min(block, content.length - at);
+    const last = at + size >= content.length ? 1 : 0;
+    const head = (size << 3) | last; // type 0: raw
+    out.push(head & 0xff, (head >> 8) & 0xff, (head >> 16) & 0xff);
+    for (const b of content.subarray(at, at + size)) out.push(b);
+    at += size;
+  } while (at < content.length);
+  return Uint8Array.from(out);
+}
+
+/** A zstd frame of `blocks` RLE blocks of 128 KiB each (4 bytes apiece), with no declared size. */
+export function zstdRleBomb(blocks) {
+  const out = [0x28, 0xb5, 0x2f, 0xfd, 0x00, 0x70];
+  for (let i = 0; i < blocks; i++) {
+    const head = (2 ** 17 << 3) | (1 << 1) | (i === blocks - 1 ? 1 : 0);
+    out.push(head & 0xff, (head >> 8) & 0xff, (head >> 16) & 0xff, 0x90);
+  }
+  return Uint8Array.from(out);
+}
+
+/** An ECM payload [m, c, models, words] (spec 10.0) with the model list `models` ([mode, specs] per column). */
+export function ecm(m, c, models, words = new Uint8Array(0)) {
+  return msgpack([m, c, m === 0 ? new Uint8Array(0) : zstdRaw(msgpack(models)), words]);
+}
+
+/** An ECM of m x c whose every column decodes to `value` (15 constant models, no words). */
+export const constantEcm = (m, c, value = 0) => ecm(m, c, Array.from({ length: c }, () => [0, Array(15).fill([1, value])]));
+
+/**
+ * meta and chunks of a scene of `n` identical Gaussians at SH degree 0 (attribute codec version 1), every
+ * matrix constant: the smallest file of n Gaussians. `attributes` overrides keys of meta.attributes.
+ */
+export function constantScene(n, attributes = {}) {
+  const meta = {
+    attributes: {
+      version: 1,
+      n,
+      sh_degree: 0,
+      position: { bits: 12, lo: [new F64(0), new F64(0), new F64(0)], step: [new F64(0.01), new F64(0.01), new F64(0.01)] },
+      opacity_levels: 20,
+      scale_step: new F64(0.5),
+      rotation_levels: 36,
+      dc_step: new F64(0.25),
+      sh_steps: [],
+      ...attributes,
+    },
+    side_info: { background: [1, 1, 1] },
+  };
+  const chunks = [
+    { type: 'POSN', payload: msgpack([constantEcm(n, 1), new Uint8Array(0)]) },
+    { type: 'OPAC', payload: constantEcm(n, 1, 10) },
+    { type: 'SCAL', payload: constantEcm(n, 3, -4) },
+    { type: 'ROTN', payload: constantEcm(n, 4, 0) },
+    { type: 'SHDC', payload: constantEcm(n, 3, 1) },
+  ];
+  return { meta, chunks };
 }
