@@ -16,7 +16,7 @@ const TABLES = (() => {
 
 /** The CRC-32 of `bytes` (a Uint8Array), continuing from `crc` (the CRC of the bytes before them). */
 export function crc32(bytes, crc = 0) {
-  let c = ~crc >>> 0;
+  let c = ~crc; // an int32 throughout: the table lookups and XORs never leave 32 bits
   let i = 0;
   const n = bytes.length;
   const end4 = n - (n % 4);

@@ -67,20 +67,21 @@ export function readBinArray(payload, count, what) {
 /** min(bitlen(|x|), 3): 0 for 0, 1 for 1, 2 for 2..3, 3 from 4 on. */
 function spatialClass(x) {
   const a = x < 0 ? -x : x;
-  return a === 0 ? 0 : a === 1 ? 1 : a < 4 ? 2 : 3;
+  return a >= 4 ? 3 : a >= 2 ? 2 : a;
 }
 
 /** min(bitlen(|x|), 2). */
 function intraClass(x) {
   const a = x < 0 ? -x : x;
-  return a === 0 ? 0 : a === 1 ? 1 : 2;
+  return a >= 2 ? 2 : a;
 }
 
 /**
  * One level's context (spec 10.0, "Coding order"): each row's neighbour prediction nb and bucket, and the
- * rows sorted by bucket (stable) into `order`; `ends[k]` is where bucket k's rows end.
+ * rows sorted by bucket (stable) into `order`; `ends[k]` is where bucket k's rows end. `prevRes` holds the
+ * previous column's residuals (zeros for column 0: e' = 0 there).
  */
-function levelContext(q, prevRes, nb, bucketOf, order, ends, m, h, first) {
+function levelContext(q, prevRes, nb, bucketOf, order, ends, m, h) {
   const top = h === LEVEL0_STRIDE;
   const start = top ? 0 : h;
   const step = top ? LEVEL0_STRIDE : 2 * h;
@@ -89,7 +90,7 @@ function levelContext(q, prevRes, nb, bucketOf, order, ends, m, h, first) {
     // Level 0: no neighbours, nb = 0 and spatial class 4.
     for (let r = 0; r < m; r += step) {
       nb[r] = 0;
-      const bucket = 12 + (first ? 0 : intraClass(prevRes[r]));
+      const bucket = 12 + intraClass(prevRes[r]);
       bucketOf[r] = bucket;
       ends[bucket + 1]++;
     }
@@ -99,7 +100,7 @@ function levelContext(q, prevRes, nb, bucketOf, order, ends, m, h, first) {
       const qa = q[r - h];
       const qb = r < last ? q[r + h] : qa;
       nb[r] = Math.floor((qa + qb) * 0.5);
-      const bucket = 3 * spatialClass(qa - qb) + (first ? 0 : intraClass(prevRes[r]));
+      const bucket = 3 * spatialClass(qa - qb) + intraClass(prevRes[r]);
       bucketOf[r] = bucket;
       ends[bucket + 1]++;
     }
@@ -162,7 +163,7 @@ export function decodeEcm(ecm, visit, what) {
     const { mode, specs } = models[j];
     // Level 0 (every 64th row, no neighbours), then h = 32, 16, ..., 1.
     for (let h = LEVEL0_STRIDE; h >= 1; h >>= 1) {
-      levelContext(q, prevRes, nb, bucketOf, order, ends, m, h, j === 0);
+      levelContext(q, prevRes, nb, bucketOf, order, ends, m, h);
       // ends[k] is now where bucket k ends: its rows are order[ends[k - 1] .. ends[k]).
       for (let k = 0; k < NUM_BUCKETS; k++) {
         const from = k === 0 ? 0 : ends[k - 1];

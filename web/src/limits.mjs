@@ -5,10 +5,10 @@
 
 // --- container (spec section 7) ---------------------------------------------------------------------------
 
-// header_length: a header holds the chunk table and meta (a few KB with 1.0-layout cameras); 2^24 keeps a
-// reader from buffering more than 16 MiB on the word of 4 bytes.
+// header_length: the header holds the chunk table and meta; 2^24 keeps a reader from buffering more than
+// 16 MiB on the word of 4 bytes.
 export const MAX_HEADER_LENGTH = 2 ** 24;
-// Chunks in the table: 65,535 is every view of the largest capture plus the attribute chunks.
+// Chunks in the table: a 16-bit count, room for a 1.0-layout RESI chunk per view of any capture.
 export const MAX_CHUNKS = 65535;
 // One chunk's length: 2^48 - 1 keeps every offset exact in binary64 and in 64-bit integers.
 export const MAX_CHUNK_LENGTH = 2 ** 48 - 1;

@@ -22,6 +22,12 @@ export class RangeDecoder {
   constructor(words) {
     this.words = words;
     this.pos = 0;
+    // Every state field holds a binary64 from the start (never a small integer first), so the object keeps
+    // one shape and optimised code is not thrown away when a field's first double arrives.
+    this.dHi = 0.5;
+    this.dLo = 0.5;
+    this.rHi = 0.5;
+    this.rLo = 0.5;
     const w1 = this.nextWord();
     const w2 = this.nextWord();
     // d = point - lower = w1 2^32 + w2; range = 2^64 - 1.
