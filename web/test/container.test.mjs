@@ -4,6 +4,7 @@
 import test from 'node:test';
 import assert from 'node:assert/strict';
 import { readContainer } from '../src/container.mjs';
+import { crc32 } from '../src/crc32.mjs';
 import { MANIFEST, asManifestJson, readVector, sha256 } from './vectors.mjs';
 
 const chunkRecord = (c) => ({ type: c.type, index: c.index, required: c.required, length: c.length, sha256: sha256(c.payload) });
@@ -40,4 +41,12 @@ test('container: the smallest valid file, byte by byte as spec section 12 reads 
   assert.deepEqual(c.version, [1, 0]);
   assert.deepEqual(c.meta, {});
   assert.deepEqual(c.chunks, []);
+});
+
+test('crc32: the check values of spec section 1, and continuation', () => {
+  const ascii = (text) => new TextEncoder().encode(text);
+  assert.equal(crc32(ascii('123456789')), 0xcbf43926);
+  assert.equal(crc32(new Uint8Array(0)), 0);
+  assert.equal(crc32(ascii('56789'), crc32(ascii('1234'))), 0xcbf43926);
+  assert.equal(crc32(ascii('The quick brown fox jumps over the lazy dog')), 0x414fa339);
 });
