@@ -1,7 +1,8 @@
 // Decoding speed in node: gspc-web's decodeGspc on .gspc files and, side by side, splat-transform's SPZ
 // reader on the same scenes. Each measurement runs in a fresh node process: "cold" is the first decode
 // (the JIT compiling as it goes, what a one-shot CLI or a new Web Worker pays), "warm" the median of the
-// next ones. Times are wall clock and CPU (user + system, all of the process's threads).
+// next ones. Times are wall clock and CPU (user + system, all of the process's threads); peak RSS is the
+// process's, runtime and imports included.
 //
 // usage: node web/tools/bench-decode.mjs [--spz NPM_DIR] [--python PYTHON] [--runs N] SCENE.gspc[:SCENE.spz] ...
 //   NPM_DIR: a folder where `npm install @playcanvas/splat-transform@3.7.0` ran (its reader is imported
@@ -36,7 +37,7 @@ async function decoderFor(kind, npmDir) {
 
 // The same measurement of gspc's Python decoder, run by PYTHON with the file and the run count.
 const PYTHON_MEASURE = `
-import json, sys, time
+import json, resource, sys, time
 from gspc.options import DecodeOptions
 from gspc.pipeline import decode_bytes
 data = open(sys.argv[1], "rb").read()
@@ -47,6 +48,7 @@ for _ in range(int(sys.argv[2])):
     scene, _ = decode_bytes(data, DecodeOptions(restore=False, refine=False))
     out.append({"count": scene.num_gaussians, "wall": 1e3 * (time.perf_counter() - t0),
                 "cpu": 1e3 * (time.process_time() - cpu0)})
+out[-1]["rss"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 print(json.dumps(out))
 `;
 
@@ -63,6 +65,7 @@ async function measure(kind, path, runs, npmDir) {
     const cpu = process.cpuUsage(cpu0);
     out.push({ count, wall, cpu: (cpu.user + cpu.system) / 1000 });
   }
+  out[out.length - 1].rss = process.resourceUsage().maxRSS / 1024;
   console.log(JSON.stringify(out));
 }
 
@@ -74,7 +77,13 @@ function run(kind, path, runs, npmDir, python) {
   if (res.status !== 0) throw new Error(`${kind} ${path}: ${res.stderr}`);
   const rows = JSON.parse(res.stdout);
   const median = (key) => rows.slice(1).map((r) => r[key]).sort((a, b) => a - b)[(rows.length - 2) >> 1];
-  return { count: rows[0].count, bytes: statSync(path).size, cold: rows[0], warm: { wall: median('wall'), cpu: median('cpu') } };
+  return {
+    count: rows[0].count,
+    bytes: statSync(path).size,
+    cold: rows[0],
+    warm: { wall: median('wall'), cpu: median('cpu') },
+    rss: rows[rows.length - 1].rss,
+  };
 }
 
 const FORMATS = { gspc: 'gspc (gspc-web, node)', python: 'gspc (gspc, Python)', spz: 'SPZ (splat-transform 3.7.0, node)' };
@@ -93,8 +102,8 @@ async function main(argv) {
     else if (argv[i] === '--runs') runs = Number(argv[++i]);
     else scenes.push(argv[i]);
   }
-  console.log('| scene | format | Gaussians | bytes | cold ms (CPU ms) | warm ms (CPU ms) | cold M G/s (CPU) | warm M G/s (CPU) |');
-  console.log('|---|---|---:|---:|---:|---:|---:|---:|');
+  console.log('| scene | format | Gaussians | bytes | cold ms (CPU ms) | warm ms (CPU ms) | cold M G/s (CPU) | warm M G/s (CPU) | peak RSS MB |');
+  console.log('|---|---|---:|---:|---:|---:|---:|---:|---:|');
   for (const scene of scenes) {
     const [gspc, spz] = scene.split(':');
     const cases = [['gspc', gspc], ...(python ? [['python', gspc]] : []), ...(spz && npmDir ? [['spz', spz]] : [])];
@@ -103,7 +112,8 @@ async function main(argv) {
       console.log(
         `| ${basename(gspc, '.gspc')} | ${FORMATS[kind]} | ${r.count} | ${r.bytes} | ` +
           `${r.cold.wall.toFixed(0)} (${r.cold.cpu.toFixed(0)}) | ${r.warm.wall.toFixed(0)} (${r.warm.cpu.toFixed(0)}) | ` +
-          `${rate(r.count, r.cold.wall)} (${rate(r.count, r.cold.cpu)}) | ${rate(r.count, r.warm.wall)} (${rate(r.count, r.warm.cpu)}) |`,
+          `${rate(r.count, r.cold.wall)} (${rate(r.count, r.cold.cpu)}) | ${rate(r.count, r.warm.wall)} (${rate(r.count, r.warm.cpu)}) | ` +
+          `${r.rss.toFixed(0)} |`,
       );
     }
   }
