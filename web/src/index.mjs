@@ -13,7 +13,8 @@ export { plyHeader, plyParts, writePly } from './ply.mjs';
 export * from './errors.mjs';
 
 /**
- * Decode a .gspc file (`bytes`: Uint8Array) to its Gaussians, without restoration or refinement.
+ * Decode a .gspc file (`bytes`: Uint8Array or ArrayBuffer) to its Gaussians, without restoration or
+ * refinement.
  *
  * Returns {header, views, count, shDegree, means, quats, logScales, opacities, shDc, shRest}: `header` holds
  * the container's version, its meta as plain JavaScript (integers beyond 2^53 as BigInt, bins as
@@ -24,6 +25,7 @@ export * from './errors.mjs';
  * container's problem) or CodecError.
  */
 export function decodeGspc(bytes) {
+  if (bytes instanceof ArrayBuffer) bytes = new Uint8Array(bytes);
   const container = readContainer(bytes);
   const records = readFileHeader(container.metaTree);
   const views = readSideViews(records.sideInfo, container.chunks, bytes.length);

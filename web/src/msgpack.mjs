@@ -52,12 +52,6 @@ export class MsgReader {
     return v.getUint32(p);
   }
 
-  /** The type byte of the next value, not consumed. */
-  peekType() {
-    this._need(1, 'value');
-    return this.bytes[this.pos];
-  }
-
   /** Length of a str/bin/array/map body starting at the cursor after the type byte `b`, or -1. */
   _count(b) {
     if (b <= 0x7f || b >= 0xe0) return -1;
@@ -123,11 +117,6 @@ export class MsgReader {
         this.pos--;
         throw new MsgpackError(`msgpack ${typeName(b)} where an integer is expected`);
     }
-  }
-
-  /** Skip one value of any allowed type (checked as `readValue` checks it, nothing kept). */
-  skipValue() {
-    this.readValue(1);
   }
 
   /** The next value, `depth` being its nesting level (the outermost value is level 1). */

@@ -208,5 +208,3 @@ function xxh64Low32(data) {
   h ^= h >> 32n;
   return Number(h & 0xffffffffn);
 }
-
-export { xxh64Low32 };
