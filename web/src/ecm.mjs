@@ -1,8 +1,8 @@
 // Entropy-coded matrices (spec 10.0): an m x c integer matrix coded column by column, rows in levels of a
 // binary hierarchy, each row's residual read with the model of its context bucket from one range-decoder
 // stream. `readEcm` checks everything that needs no symbol (shape, models, table budget); `decodeEcm` then
-// decodes the columns one at a time and hands each to the caller, so a matrix never needs more than three
-// columns of scratch memory of its own.
+// decodes the columns one at a time and hands each to the caller, so a matrix holds only its current and
+// previous column (values, residuals, neighbour predictions), never the whole m x c.
 
 import { CodecError } from './errors.mjs';
 import { MAX_CODEC_INT, maxModelEntries, maxModelListBytes } from './limits.mjs';
