@@ -7,6 +7,7 @@ import { RangeDecoder } from '../src/rangeDecoder.mjs';
 import { readModels, ratio, tableFromStarts, tableOf, TableBudget } from '../src/models.mjs';
 import { CodecError } from '../src/errors.mjs';
 import { msgpack } from './writer.mjs';
+import { SpecDecoder } from './specDecoder.mjs';
 
 const hex = (s) => BigInt(`0x${s}`);
 /** The frequencies of a table of `size` symbols (its starts, then its slots). */
@@ -142,4 +143,39 @@ test('model tables: the windows of one matrix are bounded before any table is bu
   assert.throws(() => readModels(msgpack([[0, [wide, [2, 0, 1, 0, 3, 0], ...Array(13).fill([1, 0])]]]), 1, [budget]), /table entries/);
   const ok = readModels(msgpack([[0, [wide, ...Array(14).fill([1, 0])]]]), 1, [new TableBudget(2 ** 22, 'matrix')]);
   assert.equal(ok[0].specs[0].cum, null, 'no table is built before a row needs it');
+});
+
+test('range decoder: the same symbols and states as the spec written in BigInt, over random words', () => {
+  let seed = 12345;
+  const random = () => {
+    seed = (Math.imul(seed, 1103515245) + 12345) >>> 0;
+    return seed / 2 ** 32;
+  };
+  // tables with tiny, huge and uneven frequencies
+  const tables = [[0, 1, 2 ** 24 - 1, 2 ** 24], [0, 2 ** 23, 2 ** 24], [0, 3, 700, 70000, 9000000, 2 ** 24 - 2, 2 ** 24]];
+  for (let s = 0; s < 4; s++) {
+    const size = 2 + Math.floor(random() * 300);
+    const cuts = new Set([0, 2 ** 24]);
+    while (cuts.size < size + 1) cuts.add(1 + Math.floor(random() ** 3 * (2 ** 24 - 1)));
+    tables.push([...cuts].sort((x, y) => x - y));
+  }
+  for (let trial = 0; trial < 20; trial++) {
+    const words = Uint8Array.from({ length: 4 * (2 + Math.floor(random() * 64)) }, () => Math.floor(random() * 256));
+    const ours = new RangeDecoder(words);
+    const spec = new SpecDecoder(words);
+    for (let k = 0; k < 400; k++) {
+      const starts = tables[Math.floor(random() * tables.length)];
+      let want;
+      try {
+        want = spec.decode(starts);
+      } catch {
+        assert.throws(() => ours.decode(tableFromStarts(starts), starts.length - 1), CodecError);
+        break;
+      }
+      assert.equal(ours.decode(tableFromStarts(starts), starts.length - 1), want);
+      const state = ours.state();
+      assert.equal(state.range, spec.range);
+      assert.equal(state.offset, (spec.point - spec.lower) & (2n ** 64n - 1n));
+    }
+  }
 });
