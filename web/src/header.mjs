@@ -1,0 +1,37 @@
+// The codecs' part of the header, meta (spec 10.8): the attribute section (10.0), side_info and the
+// informative scene summary, each checked before any payload is decoded.
+
+import { CodecError, show } from './errors.mjs';
+import { MAX_SH_DEGREE } from './limits.mjs';
+import { readAttributeSection } from './section.mjs';
+import { readSideInfo } from './side.mjs';
+
+/** meta["scene"] (informative, 10.8): checked when present; decoders use attributes.n. */
+function readScene(meta) {
+  if (!meta.has('scene')) return null;
+  const scene = meta.get('scene');
+  if (!(scene instanceof Map)) throw new CodecError(`the .gspc header's scene section is ${show(scene)}, not a map`);
+  const out = {};
+  for (const [key, most] of [['num_gaussians', null], ['sh_degree', MAX_SH_DEGREE]]) {
+    if (!scene.has(key)) continue;
+    const v = scene.get(key);
+    if (!(typeof v === 'bigint' && v >= 0n && (most === null || v <= BigInt(most)))) {
+      throw new CodecError(`the .gspc header's scene.${key} is ${show(v)}, not an integer ${most === null ? '>= 0' : `in 0..${most}`}`);
+    }
+    out[key] = Number(v);
+  }
+  return out;
+}
+
+/**
+ * The checked records of a container's meta tree (Map, BigInt integers): {attributes (readAttributeSection),
+ * sideInfo (readSideInfo), scene (null or its counts), encoder (null or the writer's name)}.
+ */
+export function readFileHeader(meta) {
+  if (!meta.has('attributes')) throw new CodecError('the .gspc header lacks attributes section');
+  const attributes = readAttributeSection(meta.get('attributes'));
+  const sideInfo = readSideInfo(meta);
+  const scene = readScene(meta);
+  const encoder = typeof meta.get('encoder') === 'string' ? meta.get('encoder') : null;
+  return { attributes, sideInfo, scene, encoder };
+}
