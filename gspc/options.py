@@ -97,6 +97,8 @@ def check_encode_options(o: Any) -> None:
         check_real("--lambda", o.lam, MIN_LAMBDA, MAX_LAMBDA)
     if o.target_size is not None:
         check_int("--target-size", o.target_size, MIN_TARGET_SIZE)
+    if o.target_psnr is not None:
+        check_real("--target-psnr", o.target_psnr, 10.0, 120.0)
     check_real("--views-fraction", o.views_fraction, 0.0, 1.0, lo_open=True)
     check_synth_views(o.synth_views)
     check_max_side(o.max_side)
@@ -168,7 +170,14 @@ def _per_preset(attr: str) -> str:
 class EncodeOptions:
     quality: str = knob("low", f"rate preset: {' or '.join(QUALITY)} (gspc/presets.py)")
     lam: float | None = knob(None, "continuous rate knob (overrides the preset's)", "--lambda")
-    target_size: int | None = knob(None, "attribute bitstream size in bytes to aim for (searches lambda)")
+    target_size: int | None = knob(
+        None, "the file's size at most, side information included (searches lambda)"
+    )
+    target_psnr: float | None = knob(
+        None,
+        "the fidelity to aim for, in dB against the original's renders at views between the cameras: the "
+        "fewest bytes that reach it (searches lambda; gspc/encoder/fidelity.py)",
+    )
     views_fraction: float = knob(0.4, "fraction of views that carry side information")
     synth_views: int = knob(60, "views to synthesise when no cameras are given", "--views")
     max_side: int = knob(400, "longest side of the side-information views, in pixels")

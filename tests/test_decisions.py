@@ -176,3 +176,26 @@ def test_a_machine_without_compiled_kernels_is_told_so(tmp_path):
     env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)}
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True)
     assert int(out.stdout) > 0
+
+
+def test_a_target_fidelity_is_reached_in_the_fewest_bytes_and_reported():
+    # gspc/encoder/fidelity.py: --target-psnr searches lambda for the coding that reaches it at views
+    # between the encoder's cameras; the summary and the file's header say what the file reaches there.
+    from gspc.format.file import read_file
+
+    s = scene(seed=3)
+    close, rep = encode_scene(s, opts=small(side_info=False, target_psnr=48.0))
+    far, rep2 = encode_scene(s, opts=small(side_info=False, target_psnr=38.0))
+    assert len(far) < len(close)
+    reached = read_file(close).header.scene.psnr_db
+    assert reached >= 48.0 - 0.05 and rep.info["fidelity"].startswith(f"{reached:.2f} dB"), rep.info
+    assert "searched for the 38 dB target" in rep2.info["lambda"]
+
+
+def test_a_fidelity_no_lambda_reaches_is_refused_in_one_line():
+    from gspc.errors import InputError
+
+    with pytest.raises(InputError, match="--target-psnr 119 dB cannot be reached"):
+        encode_scene(scene(), opts=small(side_info=False, target_psnr=119.0))
+    with pytest.raises(InputError, match="--target-psnr"):
+        EncodeOptions(target_psnr=5.0).validate()

@@ -58,7 +58,7 @@ def test_a_better_removal_is_kept_with_its_own_parameters_in_no_more_bytes(monke
     # The scorer rewards fewer Gaussians (as a capture full of faint ones does): a stronger removal is
     # chosen, coded in at most the preset's bytes, and the coding kept is the one its parameters make.
     scene, cams, params, sig, first = _small()
-    monkeypatch.setattr(removal, "_scorer", lambda *a: lambda enc: 60.0 - 1e-2 * enc.decoded.num_gaussians)
+    monkeypatch.setattr(removal, "scorer", lambda *a: lambda enc: 60.0 - 1e-2 * enc.decoded.num_gaussians)
     choice = choose_removal(scene, first, params, None, sig, cams, (0, 0, 0))
     chosen = choice.params.precision.prune
     assert chosen > params.precision.prune
@@ -73,7 +73,7 @@ def test_a_better_removal_is_kept_with_its_own_parameters_in_no_more_bytes(monke
 def test_a_worse_removal_keeps_the_presets_coding_and_ends_the_search(monkeypatch):
     # The scorer punishes every removed Gaussian: the preset's coding stays, after one step.
     scene, cams, params, sig, first = _small()
-    monkeypatch.setattr(removal, "_scorer", lambda *a: lambda enc: 20.0 + 1e-2 * enc.decoded.num_gaussians)
+    monkeypatch.setattr(removal, "scorer", lambda *a: lambda enc: 20.0 + 1e-2 * enc.decoded.num_gaussians)
     rp = RemovalParams(steps=(2, 4, 8), position_offsets=())
     choice = choose_removal(scene, first, params, None, sig, cams, (0, 0, 0), rp)
     assert choice.encoded is first and choice.params is params
@@ -87,7 +87,7 @@ def _coarser_scores_better(enc) -> float:
 
 def test_coarser_positions_are_kept_where_they_score_better_in_no_more_bytes(monkeypatch):
     scene, cams, params, sig, first = _small()
-    monkeypatch.setattr(removal, "_scorer", lambda *a: _coarser_scores_better)
+    monkeypatch.setattr(removal, "scorer", lambda *a: _coarser_scores_better)
     rp = RemovalParams(steps=(), position_offsets=(-1.0, -2.0))  # positions alone
     choice = choose_removal(scene, first, params, None, sig, cams, (0, 0, 0), rp)
     assert choice.params.position_offset == -2.0 and choice.params.precision.prune == params.precision.prune
@@ -101,7 +101,7 @@ def test_coarser_positions_are_kept_where_they_score_better_in_no_more_bytes(mon
 
 def test_the_rates_grid_stays_where_coarser_positions_score_worse(monkeypatch):
     scene, cams, params, sig, first = _small()
-    monkeypatch.setattr(removal, "_scorer", lambda *a: lambda enc: -_coarser_scores_better(enc))
+    monkeypatch.setattr(removal, "scorer", lambda *a: lambda enc: -_coarser_scores_better(enc))
     rp = RemovalParams(steps=(), position_offsets=(-1.0, -2.0))
     choice = choose_removal(scene, first, params, None, sig, cams, (0, 0, 0), rp)
     assert choice.encoded is first and choice.params is params
@@ -115,7 +115,7 @@ def test_a_preset_that_removes_nothing_searches_only_the_grid(monkeypatch):
     scene, cams, _, sig, _ = _small()
     high = replace(quality_preset("high").attributes, lam=2.0)
     first = encode_attributes(scene, high, significance=sig)
-    monkeypatch.setattr(removal, "_scorer", lambda *a: lambda enc: -_coarser_scores_better(enc))
+    monkeypatch.setattr(removal, "scorer", lambda *a: lambda enc: -_coarser_scores_better(enc))
     rp = RemovalParams(position_offsets=quality_preset("high").position_offsets)
     choice = choose_removal(scene, first, high, None, sig, cams, (0, 0, 0), rp)
     assert [t.position_offset for t in choice.trials] == [1.0]

@@ -18,13 +18,14 @@ user reads, and :func:`file_bytes` packs the file it describes.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from gspc import __version__
 from gspc.cameras import Camera
 from gspc.encoder.coding import EncodedAttributes, prune_mask
+from gspc.encoder.fidelity import Fidelity, FidelityParams, code_to_fidelity
 from gspc.encoder.policy import CheckInputs, Outcome, SideInfoDecision, check_cameras, check_side_info
 from gspc.encoder.prepare import (
     CodedAttributes,
@@ -40,7 +41,7 @@ from gspc.encoder.prepare import (
     tuning_params,
 )
 from gspc.encoder.rate import coded_with, search_lambda
-from gspc.encoder.removal import RemovalChoice
+from gspc.encoder.removal import RemovalChoice, RemovalParams
 from gspc.encoder.side import SideCandidate, view_residuals
 from gspc.encoder.tiles import SceneRows, TileCoding, TileSettings, code_tiles
 from gspc.encoder.tuning import TuningReport, tune_coding
@@ -104,6 +105,8 @@ class EncoderDecisions:
     check: SideInfoDecision | None = None  # the side-information check, where it ran
     tuning: TuningReport | None = None  # the tuning of the coded values, where it ran
     target_size: int | None = None
+    fidelity: Fidelity | None = None  # the fidelity search, where --target-psnr asked for one
+    target_psnr: float | None = None
     tiles: tuple[TileCoding, ...] = ()  # a scene coded as spatial tiles (gspc/encoder/tiles.py), in order
     workers: int = 1  # processes that coded the tiles
     coordinates: str | None = None  # the axes the input stated (spec 10.8)
@@ -113,6 +116,8 @@ class EncoderDecisions:
         if self.tiles:
             return self._tiled_summary()
         out = {"Gaussians": self.counts.summary(), "lambda": self._lambda_line()}
+        if self.fidelity is not None:
+            out["fidelity"] = self.fidelity.summary()
         if self.removal is not None:
             out["removal"] = self.removal.summary()
         out["side info"] = self.side_info
@@ -145,6 +150,10 @@ class EncoderDecisions:
             key = t.removal.chosen() if t.removal is not None else "the preset's removal and grid (no search)"
             chosen[key] = chosen.get(key, 0) + 1
         out["removal"] = "; ".join(f"{k}: {v} tile{'s' if v > 1 else ''}" for k, v in chosen.items())
+        if self.target_psnr is not None:
+            out["fidelity"] = (
+                f"each tile coded to {self.target_psnr:g} dB at views between the cameras that see it"
+            )
         tuned = [t.tuning for t in tiles if t.tuning is not None and t.tuning.kept]
         if any(t.tuning is not None for t in tiles):
             gain = sum(t.after_db - t.before_db for t in tuned) / max(1, len(tuned))
@@ -157,6 +166,8 @@ class EncoderDecisions:
 
     def _lambda_line(self) -> str:
         lam = self.attributes.lam
+        if self.fidelity is not None:
+            return f"{lam:.4g} (searched for the {self.fidelity.target_db:g} dB target)"
         if self.target_size is not None:
             return f"{lam:.4g} (searched for the {self.target_size:,} B target)"
         if not self.lambda_reasons:
@@ -210,7 +221,9 @@ def decide_tiled(
     Tiled files carry no side information: the decoder takes their attributes as they are."""
     cams = encoder_cameras(_camera_sample(source), cameras, opts)
     params = codec_params(opts)
-    settings = TileSettings(tuple(cams), params, opts.background, removal_params(opts), tuning_params(opts))
+    settings = TileSettings(
+        tuple(cams), params, opts.background, removal_params(opts), tuning_params(opts), opts.target_psnr
+    )
     workers = opts.workers or default_workers()
     target = None if opts.target_size is None else opts.target_size
     for _ in range(TARGET_RETRIES + 1):
@@ -236,6 +249,7 @@ def decide_tiled(
             target_size=opts.target_size,
             tiles=tuple(codings),
             workers=workers,
+            target_psnr=opts.target_psnr,
             coordinates=source.coordinates,
         )
         if target is None:
@@ -287,13 +301,36 @@ def _decide_at(
             stages.deadline,
             measure,
         )
-    if attribute_budget is not None:
+    fidelity = None
+    if opts.target_psnr is not None:  # the fewest bytes that reach the fidelity, with the choices kept
+        with stages.stage("fidelity", announce=False):
+            fidelity = code_to_fidelity(
+                scene.to("cpu"),
+                coded.params,
+                coded.visible,
+                coded.significance,
+                cams,
+                opts.background,
+                FidelityParams(opts.target_psnr),
+                removal_params(opts) or RemovalParams(),
+                progress=stages.progress,
+            )
+        reached = fidelity.encoded
+        coded = replace(coded, encoded=reached, params=coded.params.with_lambda(reached.lam))
+        if attribute_budget is not None and reached.num_bytes > attribute_budget:
+            raise InputError(
+                f"--target-psnr {opts.target_psnr:g} dB needs {reached.num_bytes:,} B of attributes, more "
+                f"than --target-size {opts.target_size:,} B allows"
+            )
+    if attribute_budget is not None and fidelity is None:
         _refuse_missed_target(coded.encoded, attribute_budget, opts.target_size)
     side = _side_information(scene, cams, coded, restorer, opts, device, stages, attribute_budget)
     attributes = side.attributes
     tuning = None
     if side.side is None:  # a file the decoder does not refine: its coded values are tuned
         attributes, tuning = _tuned(scene, attributes, coded, cams, opts, stages, attribute_budget)
+    if fidelity is not None:  # what the file itself renders at the fidelity's views
+        fidelity = replace(fidelity, encoded=attributes, psnr_db=fidelity.score(attributes))
     return EncoderDecisions(
         attributes=attributes,
         side=side.side,
@@ -306,6 +343,7 @@ def _decide_at(
         check=side.check,
         tuning=tuning,
         target_size=opts.target_size,
+        fidelity=fidelity,
     )
 
 
@@ -536,7 +574,11 @@ def file_bytes(decisions: EncoderDecisions, scene: GaussianScene | None, opts: E
     header = FileHeader(
         encoder=f"gspc {__version__}",
         scene=SceneSummary(
-            enc.decoded.num_gaussians, enc.decoded.sh_degree, scene.num_gaussians, scene.coordinates
+            enc.decoded.num_gaussians,
+            enc.decoded.sh_degree,
+            scene.num_gaussians,
+            scene.coordinates,
+            decisions.fidelity.psnr_db if decisions.fidelity is not None else None,
         ),
         attributes=enc.section,
         side_info=SideInfoHeader(opts.background, opts.restorer, decisions.refine_iterations),

@@ -202,7 +202,7 @@ def choose_removal(
         return RemovalChoice(first, params)
     t0 = time.perf_counter()
     views = scoring_views(cameras, scene.num_gaussians, rp)
-    score = _scorer(scene, views, background)
+    score = scorer(scene, views, background)
     stages = len(steps) + len(rp.position_offsets) + len(sh_options)
     _tick(progress, 0, stages)
     base = Trial(precision.prune, first.lam, first.num_bytes, score(first))
@@ -261,7 +261,7 @@ def choose_removal(
     return RemovalChoice(kept[0], kept[1], base, tuple(trials), len(views), seconds, rp.min_gain_db)
 
 
-def _scorer(
+def scorer(
     scene: GaussianScene, views: list[Camera], background: Sequence[float]
 ) -> Callable[[EncodedAttributes], float]:
     """Mean PSNR over ``views`` of a coding's renders against the original's, unquantised: at the statues'

@@ -16,13 +16,14 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from gspc.cameras import Camera
 from gspc.codec import positions as pos
 from gspc.encoder.coding import EncodedAttributes, SharedGrid, prune_mask
+from gspc.encoder.fidelity import FidelityParams, code_to_fidelity
 from gspc.encoder.params import CodecParams
 from gspc.encoder.prepare import code_attributes, measure_scene
 from gspc.encoder.removal import RemovalChoice, RemovalParams
@@ -135,6 +136,7 @@ class TileJob:
     removal: RemovalParams | None
     tuning: TuningParams | None
     byte_target: int | None = None  # code in at most this many bytes (None: at the rate)
+    target_psnr: float | None = None  # code to this fidelity (gspc/encoder/fidelity.py; None: at the rate)
 
 
 @dataclass(frozen=True)
@@ -166,6 +168,21 @@ def code_tile(job: TileJob) -> TileCoding:
     coded = code_attributes(
         scene, cams, job.params, job.byte_target, job.background, None, removal, None, measure, job.shared
     )
+    if job.target_psnr is not None:  # the tile's fewest bytes that reach the fidelity, its choices kept
+        fidelity = code_to_fidelity(
+            scene,
+            coded.params,
+            coded.visible,
+            coded.significance,
+            cams,
+            job.background,
+            FidelityParams(job.target_psnr),
+            job.removal or RemovalParams(),
+            grid=job.shared,
+        )
+        coded = replace(
+            coded, encoded=fidelity.encoded, params=coded.params.with_lambda(fidelity.encoded.lam)
+        )
     enc = coded.encoded
     tuning = None
     if job.tuning is not None:
@@ -221,6 +238,7 @@ class TileSettings:
     background: tuple[float, float, float]
     removal: RemovalParams | None
     tuning: TuningParams | None
+    target_psnr: float | None = None
 
 
 def code_tiles(
@@ -250,6 +268,7 @@ def code_tiles(
                 settings.removal,
                 settings.tuning,
                 None if targets is None else targets[k],
+                settings.target_psnr if targets is None else None,
             )
 
     def run(targets: list[int] | None, stage: str) -> list[TileCoding]:

@@ -103,6 +103,7 @@ class SceneSummary:
     sh_degree: int | None = None
     source_gaussians: int | None = None  # the count the encoder received
     coordinates: str | None = None  # the axis convention the source stated (spec 10.8)
+    psnr_db: float | None = None  # the fidelity the encoder measured, where it coded to one (spec 10.8)
 
     def to_dict(self) -> dict:
         out: dict = {"num_gaussians": self.num_gaussians}
@@ -112,6 +113,8 @@ class SceneSummary:
             out["source_gaussians"] = self.source_gaussians
         if self.coordinates is not None:
             out["coordinates"] = self.coordinates
+        if self.psnr_db is not None:
+            out["psnr_db"] = float(self.psnr_db)
         return out
 
     @classmethod
@@ -125,11 +128,13 @@ class SceneSummary:
         degree = _int(scene, "sh_degree", "scene.sh_degree", 0, MAX_SH_DEGREE, -1)
         source = scene.get("source_gaussians")  # informative only: never refused
         coordinates = scene.get("coordinates")  # informative: a value naming no convention is ignored
+        psnr = scene.get("psnr_db")  # informative: a value that is not a finite float is ignored
         return cls(
             n,
             None if degree < 0 else degree,
             source if _is_int(source) and source >= 0 else None,
             coordinates if coordinates in COORDINATE_CONVENTIONS else None,
+            psnr if isinstance(psnr, float) and math.isfinite(psnr) else None,
         )
 
 
