@@ -37,8 +37,8 @@ class Preset:
     # chosen per scene too").
     position_offsets: tuple[float, ...] = (-1.0,)
     # Then, where the scene has view-dependent colour, every SH band kept without a dead zone, in the same
-    # bytes, kept where the same views show it closer (gspc/encoder/removal.py; bench/precision.md, "SH
-    # choices checked per scene").
+    # bytes, kept where the same views show it closer: at the low preset's rate (gspc/encoder/removal.py;
+    # bench/precision.md, "SH choices checked per scene"). The high preset's finer steps keep it off.
     sh_options: tuple[tuple[float, float], ...] = ((0.0, 0.0),)
 
 
@@ -84,6 +84,7 @@ QUALITY: dict[str, Preset] = {
         residual_scale=1,
         refine_iterations=100,
         position_offsets=(1.0,),
+        sh_options=(),
     ),
 }
 
