@@ -827,6 +827,11 @@ def reference_decode(data: bytes) -> tuple[dict[str, np.ndarray], list[dict]]:
     from gspc.format.side_chunk import legacy_views, read_side_views
 
     c = container.unpack(data)
+    if c.find("TIDX", 0) is not None:  # a tiled file (spec 10.14): gspc's whole decode of its tiles
+        from gspc.pipeline import DecodeOptions, decode_bytes
+
+        scene = decode_bytes(data, DecodeOptions(refine=False))[0]
+        return {name: getattr(scene, name).numpy() for name in ATTRS}, []
     if not isinstance(c.header.get("attributes"), dict) or not isinstance(c.header.get("side_info"), dict):
         raise CodecError("meta lacks attributes or side_info")
     side = read_side_views(legacy_views(c.header["side_info"].get("views", [])), c.chunks, len(data))
@@ -1218,6 +1223,7 @@ def codec_vectors() -> list[Vector]:
         "gain",
     )
     precision_vectors(ok, bad_codec, a0, c0)
+    tile_vectors(ok, bad_codec)
     return vs
 
 
@@ -1328,6 +1334,75 @@ def precision_vectors(ok, bad_codec, a0: dict, c0: dict) -> None:
         "bins",
         SCAL=msgpack.packb([*bins, msgpack.packb([0, 3, b"", b""], use_bin_type=True)], use_bin_type=True),
     )
+
+
+def tile_vectors(ok, bad_codec) -> None:
+    """Spatial tiles (format 1.5, spec 10.14): three tiles of SH degree 1 (one on a contracted grid, one of
+    attribute codec version 4) decoded whole, and one refused file for each tile rule marked (v) in 10.11."""
+    from gspc.codec.attributes import decode_attributes
+    from gspc.format.attribute_section import AttributeSection
+
+    sections = [
+        encode_scene(tiny_scene(30, 1, 21)),
+        encode_scene(unbounded_scene(30, 10, 22, 0.5, degree=1)),
+        encode_classed(tiny_scene(40, 1, 23), (-1, 1), 23),
+    ]
+
+    def box(a: dict, c: dict[str, bytes]) -> list[float]:
+        m = decode_attributes(c, AttributeSection.from_dict(a)).means.numpy()
+        return [float(x) for x in (*m.min(0), *m.max(0))]
+
+    tiles = [{"box": box(a, c), "attributes": a} for a, c in sections]
+
+    def tiled(index: list, per_tile: list[dict[str, bytes]] | None = None, order=None, extra_meta=None):
+        """(meta, chunks) of a tiled file: the index, then each tile's chunks with its number."""
+        meta = {
+            "encoder": "gspc make_vectors",
+            "scene": {"num_gaussians": sum(t["attributes"]["n"] for t in index), "sh_degree": 1},
+            "side_info": {"background": BACKGROUND, "restorer": "none"},
+            **(extra_meta or {}),
+        }
+        payload = msgpack.packb(index, use_bin_type=True)
+        chunks = [(entry("TIDX", payload), payload)]
+        for k, c in enumerate(per_tile or [c for _, c in sections]):
+            chunks += attribute_entries(c, **dict.fromkeys(c, k))
+        return meta, order(chunks) if order else chunks
+
+    meta, chunks = tiled(tiles)
+    ok(
+        "codec_tiles",
+        "format 1.5: three tiles of SH degree 1 (a plain grid, a contracted grid, attribute codec version 4 "
+        "with precision classes) in a TIDX index, each tile's chunks indexed by its number",
+        meta,
+        chunks,
+        minor=5,
+    )
+    outside = [dict(tiles[0], box=[*tiles[0]["box"][:3], *tiles[0]["box"][:3]]), *tiles[1:]]
+    cases = [
+        ("codec_invalid_tile_box", "tile 0's box is only its lowest corner", "outside its box", tiled(outside)),
+        (
+            "codec_invalid_tile_count",
+            "tile 0's attributes declare one Gaussian more than its chunks hold",
+            "",
+            tiled([dict(tiles[0], attributes=dict(tiles[0]["attributes"], n=tiles[0]["attributes"]["n"] + 1)),
+                   *tiles[1:]]),
+        ),
+        ("codec_invalid_tile_one", "a tile index of one tile (a tiled file holds 2 or more)", "2..",
+         tiled(tiles[:1], [sections[0][1]])),
+        ("codec_invalid_tile_degrees", "tiles of SH degrees 1 and 0", "SH degrees",
+         tiled([*tiles[:2], dict(tiles[2], attributes=dict(encode_scene(tiny_scene(40, 0, 24))[0]))])),
+        ("codec_invalid_tile_order", "tile 1's chunks before tile 0's", "comes after",
+         tiled(tiles, order=lambda chs: [chs[0], *sorted(chs[1:], key=lambda ch: -ch[0]["index"])])),
+        ("codec_invalid_tile_index_last", "the tile index after the tiles' chunks", "before the tile index",
+         tiled(tiles, order=lambda chs: [*chs[1:], chs[0]])),
+        ("codec_invalid_tile_names_none", "an OPAC chunk naming tile 3 of 3", "names no tile",
+         tiled(tiles, order=lambda chs: [(dict(e, index=3), p) if e["type"] == "OPAC" and e["index"] == 2
+                                         else (e, p) for e, p in chs])),
+        ("codec_invalid_tile_attributes_key", "a tiled file whose meta also has an attributes section",
+         "attributes section", tiled(tiles, extra_meta={"attributes": sections[0][0]})),
+    ]  # fmt: skip
+    for name, desc, needle, (m, chs) in cases:
+        bad_codec(name, desc, m, chs, *([needle] if needle else []), minor=5)
 
 
 def all_vectors() -> list[Vector]:
