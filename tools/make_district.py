@@ -19,10 +19,11 @@ shuffled. Nothing is cut and no two copies are alike:
 The PLY (INRIA layout, SH degree 3) is streamed copy by copy after a header with the final count, so
 memory holds the assets and one copy, never the scene. The same arguments give the same bytes.
 
-Cameras (cameras.json, INRIA layout): two thirds at street level along the streets, looking at the blocks
-on either side, one third aerial (two overviews of the whole district, the rest oblique views of single
+Cameras (cameras.json, INRIA layout): two thirds at street level on the streets, each looking at a house,
+one third aerial (two overviews of the whole district, the rest oblique views of single
 blocks). The share of the Gaussians some camera sees (gspc.visibility.visible_mask, on an even sample of
-rows) is printed and kept in scene.json, which also lists every copy: its asset, its rows and its transform.
+rows; occlusion ignored), and the share of the copies' Gaussians in each view, is printed and kept in
+scene.json, which also lists every copy: its asset, its rows and its transform.
 Outputs stay outside the repository (large files).
 """
 
@@ -47,6 +48,7 @@ from sh_rotation import sphere_directions
 from gspc.cameras import Camera
 from gspc.errors import GspcError
 from gspc.io.cameras_json import save_cameras_json
+from gspc.limits import MAX_CAMERA_SIDE
 from gspc.scene import SH_C0, GaussianScene, make_scene
 from gspc.views import look_at
 from gspc.visibility import visible_mask
@@ -198,24 +200,21 @@ def _camera(eye, target, fov_deg: float, size: tuple[int, int], name: str) -> Ca
 
 
 def street_cameras(d: District, n: int, size, rng: np.random.Generator) -> list[Camera]:
-    """``n`` cameras at eye height on the streets' centre lines, each looking along its street (inwards
-    from the district's outer half) and turned 20-55 degrees towards the blocks on one side (the inner side
-    on an outer street)."""
+    """``n`` cameras at eye height on the streets' centre lines, each looking at a house (a random one)
+    from 3-9 units along the street nearest to it (along x and along y in turn), past it into the
+    district beyond."""
+    at = np.array([c.placement.offset[:2] for c in d.copies])
+    house_of = np.array([c.house for c in d.copies])
+    centres = np.array([at[house_of == h].mean(0) for h in np.unique(house_of)])
     cams = []
     for i in range(n):
+        house = centres[int(rng.integers(len(centres)))]
         axis = i % 2  # 0: a street that runs along x (a line of constant y); 1: along y
         lines = d.streets_y if axis == 0 else d.streets_x
-        k = int(rng.integers(len(lines)))
-        side = 1.0 if k == 0 else -1.0 if k == len(lines) - 1 else float(rng.choice([-1.0, 1.0]))
-        along = float(rng.uniform(d.lo[axis], d.hi[axis]))
-        heading = float(rng.choice([-1.0, 1.0]))
-        if abs(along) > (d.hi[axis] - d.lo[axis]) / 4:
-            heading = -math.copysign(1.0, along)
-        turn = math.radians(rng.uniform(20.0, 55.0))
-        eye2 = np.array([along, lines[k]]) if axis == 0 else np.array([lines[k], along])
-        forward = np.eye(2)[axis] * heading * math.cos(turn) + np.eye(2)[1 - axis] * side * math.sin(turn)
-        eye = np.array([*eye2, EYE_HEIGHT])
-        target = np.array([*(eye2 + 8.0 * forward), EYE_HEIGHT + rng.uniform(0.0, 1.5)])
+        line = lines[int(np.argmin(np.abs(lines - house[1 - axis])))]
+        along = house[axis] + float(rng.choice([-1.0, 1.0])) * rng.uniform(3.0, 9.0)
+        eye = np.array([along, line, EYE_HEIGHT]) if axis == 0 else np.array([line, along, EYE_HEIGHT])
+        target = np.array([house[0], house[1], rng.uniform(0.8, 2.0)])
         cams.append(_camera(eye, target, STREET_FOV, size, f"street_{i:04d}"))
     return cams
 
@@ -258,6 +257,8 @@ def make_district(
     order = [int(i) for i in rng.permutation(plan(assets, target))]
     d = layout(assets, order, rng)
     extras = [("ground", ground(d, rng)), ("sky", sky(d, rng))] if backdrop else []
+    n_street = round(views * 2 / 3)
+    cams = street_cameras(d, n_street, size, rng) + aerial_cameras(d, views - n_street, size, rng)
     count = sum(assets[c.asset].n for c in d.copies) + sum(s.num_gaussians for _, s in extras)
     stride = max(1, count // SAMPLE_ROWS)
     sample_means, sample_scales, sample_copy = [], [], []
@@ -281,13 +282,12 @@ def make_district(
 
     os.makedirs(folder, exist_ok=True)
     write_ply_parts(folder / "point_cloud.ply", count, SH_DEGREE, parts())
-    n_street = round(views * 2 / 3)
-    cams = street_cameras(d, n_street, size, rng) + aerial_cameras(d, views - n_street, size, rng)
     save_cameras_json(cams, folder / "cameras.json")
     means, scales = np.concatenate(sample_means), np.concatenate(sample_scales)
     is_copy = np.concatenate(sample_copy)
     seen = visible_mask(means, scales, cams)
     seen_street = visible_mask(means, scales, cams[:n_street])
+    per_view = [float(visible_mask(means[is_copy], scales[is_copy], [c]).mean()) for c in cams]
     rows, record = 0, []
     for c in d.copies:
         p, a = c.placement, assets[c.asset]
@@ -325,6 +325,8 @@ def make_district(
             "all": float(seen.mean()),
             "copies": float(seen[is_copy].mean()),
             "copies_from_street": float(seen_street[is_copy].mean()),
+            "copies_per_view_min": min(per_view),
+            "copies_per_view_median": float(np.median(per_view)),
             "sampled_rows": int(len(seen)),
         },
         "command": command,
@@ -338,6 +340,8 @@ def parse_size(text: str) -> tuple[int, int]:
         w, h = (int(v) for v in text.lower().split("x"))
     except ValueError:
         raise ValueError(f"--size {text!r} is not WIDTHxHEIGHT (e.g. 400x300)") from None
+    if not (0 < w <= MAX_CAMERA_SIDE and 0 < h <= MAX_CAMERA_SIDE):
+        raise ValueError(f"--size {text}: each side must be in 1..{MAX_CAMERA_SIDE}")
     return w, h
 
 
@@ -376,7 +380,8 @@ def main() -> None:
     print(
         f"{folder}: {s['gaussians']:,} Gaussians in {len(s['copies'])} copies on {blocks} blocks, "
         f"{size_gb:.2f} GB, {time.perf_counter() - t0:.1f} s, peak RSS {rss:.0f} MB; visible share "
-        f"{v['all']:.3f} (copies {v['copies']:.3f}, from the street {v['copies_from_street']:.3f})",
+        f"{v['all']:.3f} (copies {v['copies']:.3f}, from the street {v['copies_from_street']:.3f}; "
+        f"in one view: median {v['copies_per_view_median']:.3f}, least {v['copies_per_view_min']:.3f})",
         flush=True,
     )
 
