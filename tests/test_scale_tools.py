@@ -1,4 +1,5 @@
-"""The scale workload builder (tools/make_scale_scenes.py) and the CLI's thread default (gspc/cli.py)."""
+"""The scale workload builder (tools/make_scale_scenes.py, its assets in tools/scale_assets.py) and the CLI's
+thread default (gspc/cli.py)."""
 
 from __future__ import annotations
 
@@ -6,9 +7,9 @@ import math
 import os
 from pathlib import Path
 
-import make_scale_scenes
 import numpy as np
 import pytest
+import scale_assets
 import torch
 
 from gspc import cli
@@ -20,16 +21,18 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def test_rotating_a_copy_turns_its_gaussians_with_it():
     # Turning means by R must turn every Gaussian's axes by R too: R(q * q0) = R(q) R(q0).
-    R, q = make_scale_scenes.axis_angle((0.0, 0.0, 1.0), 1.1)
+    R, q = scale_assets.axis_angle((0.0, 0.0, 1.0), 1.1)
     quats = np.random.default_rng(0).normal(size=(50, 4))
-    turned = quat_to_rotmat(torch.from_numpy(make_scale_scenes.quat_mul(q, quats)))
+    turned = quat_to_rotmat(torch.from_numpy(scale_assets.quat_mul(q, quats)))
     before = quat_to_rotmat(torch.from_numpy(quats))
     for i in range(3):
         for j in range(3):
             expected = sum(R[i, k] * before[k][j] for k in range(3))
             assert torch.allclose(turned[i][j], expected, atol=1e-12)
-    Rx, _ = make_scale_scenes.axis_angle((1.0, 0.0, 0.0), math.pi / 2)
-    assert np.allclose(Rx @ [0.0, 1.0, 0.0], [0.0, 0.0, 1.0])  # the statues' y-up becomes z-up
+    Rx, _ = scale_assets.axis_angle((1.0, 0.0, 0.0), math.pi / 2)
+    assert np.allclose(
+        Rx @ [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]
+    )  # make_scale_scenes.py's turn of the statues: y onto z
 
 
 def test_plan_keeps_copies_whole_and_lands_just_above_the_size():
@@ -41,7 +44,7 @@ def test_plan_keeps_copies_whole_and_lands_just_above_the_size():
     assets = [Fake(n) for n in (71_359, 83_547, 80_821, 58_649, 89_292, 45_624, 20_000)]
     smallest = min(a.n for a in assets)
     for target in (100_000, 300_000, 1_000_000, 3_000_000):
-        total = sum(assets[i].n for i in make_scale_scenes.plan(assets, target))
+        total = sum(assets[i].n for i in scale_assets.plan(assets, target))
         assert target <= total < target + smallest
 
 
