@@ -1379,7 +1379,7 @@ def tile_vectors(ok, bad_codec) -> None:
     )
     outside = [dict(tiles[0], box=[*tiles[0]["box"][:3], *tiles[0]["box"][:3]]), *tiles[1:]]
     cases = [
-        ("codec_invalid_tile_box", "tile 0's box is only its lowest corner", "outside its box", tiled(outside)),
+        ("codec_invalid_tile_box", "tile 0's box is its lowest corner", "outside its box", tiled(outside)),
         (
             "codec_invalid_tile_count",
             "tile 0's attributes declare one Gaussian more than its chunks hold",
