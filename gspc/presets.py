@@ -40,6 +40,9 @@ class Preset:
     # bytes, kept where the same views show it closer: at the low preset's rate (gspc/encoder/removal.py;
     # bench/precision.md, "SH choices checked per scene"). The high preset's finer steps keep it off.
     sh_options: tuple[tuple[float, float], ...] = ((0.0, 0.0),)
+    # Whether the encoder weighs side information at all: a file for viewers, which draw the attributes as
+    # they decode (no restorer, no refinement), carries none and has its coded values tuned instead.
+    side_info: bool = True
 
 
 # The low preset's per-Gaussian precision (gspc/encoder/precision_plan.py), chosen codec alone on the
@@ -86,6 +89,10 @@ QUALITY: dict[str, Preset] = {
         position_offsets=(1.0,),
         sh_options=(),
     ),
+    # The low preset's rate for viewers (web/, SPZ and glb outputs): what a viewer shows is the attributes
+    # as they decode, so no side information and the values tuned for that (bench/web.md, "What a viewer
+    # shows").
+    "web": Preset(attributes=CodecParams(lam=8.0, precision=LOW_PRECISION), side_info=False),
 }
 
 

@@ -50,6 +50,7 @@ from gspc.format.file import pack_file, pack_tiled_file
 from gspc.format.header import FileHeader, SceneSummary, SideInfoHeader
 from gspc.format.view_records import check_view_pixels
 from gspc.options import EncodeOptions
+from gspc.presets import quality_preset
 from gspc.reconstruct import render_images
 from gspc.restore.restorer import load_restorer
 from gspc.scene import GaussianScene
@@ -403,7 +404,12 @@ def _side_information(
     runs = iteration_counts(opts, enc.decoded.num_gaussians)
     view_indices, view_cams = sample_side_views(cams, opts)
     if not view_indices:
-        reason = "none (--no-side-info)" if not opts.side_info else "none (no view sampled)"
+        if not opts.side_info:
+            reason = "none (--no-side-info)"
+        elif not quality_preset(opts.quality).side_info:
+            reason = f"none (the {opts.quality} preset: a file for viewers, which do not refine)"
+        else:
+            reason = "none (no view sampled)"
         return _Side(_unrefined(scene, coded, stages), None, runs.refine, reason)
     original, rendered, candidates = _candidates(scene, enc, view_cams, opts, runs.check, stages, device)
     if attribute_budget is not None and candidates[0].payload is not None:

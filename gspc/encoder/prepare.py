@@ -149,7 +149,8 @@ def iteration_counts(opts: EncodeOptions, num_gaussians: int) -> Iterations:
 def sample_side_views(cameras: list[Camera], opts: EncodeOptions) -> tuple[list[int], list[Camera]]:
     """(indices, cameras) of the views that carry side information. The cameras are round-tripped through
     their stored form, so the encoder renders exactly the cameras the decoder reads."""
-    views = sample_views(cameras, opts.views_fraction) if opts.side_info else []
+    wanted = opts.side_info and quality_preset(opts.quality).side_info
+    views = sample_views(cameras, opts.views_fraction) if wanted else []
     return views, [Camera.from_dict(cameras[i].to_dict()) for i in views]
 
 
