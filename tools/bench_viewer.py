@@ -1,6 +1,6 @@
-"""What a viewer shows: the attributes as they decode (no restorer, no refinement), against gspc's full decode,
-a file made for viewers (``--quality web``) and the formats viewers read today, SPZ v4 and SOG, side by side
-(bench/web.md, "What a viewer shows").
+"""What a viewer shows: the attributes as they decode (no restorer, no refinement), against gspc's full
+decode, a file made for viewers (``--quality web``) and the formats viewers read today, SPZ v4 and SOG, side
+by side (bench/web.md, "What a viewer shows").
 
     GSPC_THREADS=1 python tools/bench_viewer.py --npm-dir /tmp/interop-npm [--scenes lego,massa] [--sog]
 
@@ -70,7 +70,7 @@ def main() -> None:
         refs = render_images(scene, held, bg)
         n = scene.num_gaussians
 
-        def row(what: str, size: int, s, seconds: float) -> None:
+        def row(what: str, size: int, s, seconds: float, held=held, refs=refs, bg=bg, name=name, n=n) -> None:
             fl, b8 = scores(s, held, refs, bg)
             print(
                 f"| {name} | {what} | {size:,} | {size / n:.2f} | {fl:.2f} / {b8:.2f} | {seconds:.0f} |",
