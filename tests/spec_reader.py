@@ -1,4 +1,4 @@
-"""A gspc 1.4 reader written from spec/gspc-format.md alone, as an outside implementer would write one.
+"""A gspc 1.5 reader written from spec/gspc-format.md alone, as an outside implementer would write one.
 
 It imports numpy, msgpack, zstandard and imagecodecs only, never gspc: the range decoder, the probability
 tables, the matrix coder and every payload layout follow the spec's words (section numbers in comments), in
@@ -32,6 +32,8 @@ MIN_CODED_BITS = 12
 MAX_MODELS_BYTES = 1 << 26  # 10.10: models content <= min(2^26, max(2^16, 32 x frame bytes))
 MODELS_FLOOR, MODELS_RATIO = 1 << 16, 32
 TABLE_FLOOR, TABLE_PER_BYTE = 1 << 22, 16  # 10.10: table entries <= max(2^22, 16 x ECM bytes)
+FILE_TABLE_FLOOR, FILE_MODEL_FLOOR = 1 << 25, 1 << 23  # 10.14: the floors a tiled file's tiles share
+MAX_TILES = 8192  # 10.14
 MAX_VIEW_PIXELS = 1 << 24
 MAX_TOTAL_PIXELS = 1 << 28
 PIXEL_FLOOR, PIXELS_PER_BYTE = 1 << 22, 1024  # 10.8: all views <= min(2^28, max(2^22, 1024 x file bytes))
@@ -195,9 +197,20 @@ def levels(m: int) -> list[list[tuple[int, int, int]]]:
     return out
 
 
-def read_ecm(payload: bytes, m_expected: int | None, c_expected: int | None) -> tuple:
+class Budget:
+    """10.14: what one tile of a tiled file may still spend: table entries and decompressed model bytes."""
+
+    def __init__(self, tile_bytes: int, file_bytes: int) -> None:
+        self.entries = max(FILE_TABLE_FLOOR * tile_bytes // max(file_bytes, 1), TABLE_PER_BYTE * tile_bytes)
+        self.model_bytes = max(FILE_MODEL_FLOOR * tile_bytes // max(file_bytes, 1), MODELS_RATIO * tile_bytes)
+
+
+def read_ecm(
+    payload: bytes, m_expected: int | None, c_expected: int | None, budget: Budget | None = None
+) -> tuple:
     """10.0: (m, c, models, words, table entries) of an ECM, every rule checked that needs no symbol decoded
-    (an empty ECM: no models); ``None`` leaves a dimension unchecked."""
+    (an empty ECM: no models); ``None`` leaves a dimension unchecked. ``budget`` (a tile's, 10.14) is spent by
+    this ECM's models."""
     try:
         ecm = msgpack.unpackb(payload, raw=False)
     except Exception as e:
@@ -222,6 +235,9 @@ def read_ecm(payload: bytes, m_expected: int | None, c_expected: int | None) -> 
     except zstandard.ZstdError:
         raise SpecError("models are not a zstd frame") from None
     need(d.eof and not d.unused_data, "models must be exactly one complete zstd frame")
+    if budget is not None:
+        need(len(raw) <= budget.model_bytes, "the tile's models decompress past its budget (10.14)")
+        budget.model_bytes -= len(raw)
     try:
         header = msgpack.unpackb(raw, raw=False)
     except Exception as e:
@@ -236,12 +252,17 @@ def read_ecm(payload: bytes, m_expected: int | None, c_expected: int | None) -> 
         need(isinstance(specs, list) and len(specs) == 15, "15 model specs")
         entries += sum(s[2] - s[1] + 1 for s in map(check_spec, specs) if s[0] >= 2)
     need(entries <= max(TABLE_FLOOR, TABLE_PER_BYTE * len(payload)), "model tables too large for the ECM")
+    if budget is not None:
+        need(entries <= budget.entries, "the tile's model tables pass its budget (10.14)")
+        budget.entries -= entries
     return m, c, header, words, entries
 
 
-def decode_ecm(payload: bytes, m_expected: int, c_expected: int) -> list[list[int]]:
+def decode_ecm(
+    payload: bytes, m_expected: int, c_expected: int, budget: Budget | None = None
+) -> list[list[int]]:
     """The matrix as a list of columns."""
-    m, c, header, words, _ = read_ecm(payload, m_expected, c_expected)
+    m, c, header, words, _ = read_ecm(payload, m_expected, c_expected, budget)
     if m == 0:
         return [[] for _ in range(c)]
     rc = RangeDecoder(list(struct.unpack(f"<{len(words) // 4}I", words)))
@@ -305,9 +326,9 @@ def unpack_bin_pair(payload: bytes, what: str) -> tuple[bytes, bytes]:
     return pair[0], pair[1]
 
 
-def curve_voxels(classes: bytes, raw: bytes, n: int, bits: int) -> list[list[int]]:
+def curve_voxels(classes: bytes, raw: bytes, n: int, bits: int, budget: Budget | None) -> list[list[int]]:
     """10.1: the voxels (x, y, z) of one curve of ``n`` codes of ``bits`` bits per axis."""
-    lengths = decode_ecm(classes, n, 1)[0]
+    lengths = decode_ecm(classes, n, 1, budget)[0]
     need(all(0 <= x <= 3 * bits for x in lengths), "position class")
     total = sum(max(x - 1, 0) for x in lengths)
     need(len(raw) == (total + 7) // 8, "raw bits length")
@@ -330,11 +351,13 @@ def finite_float(x: object) -> bool:
     return isinstance(x, float) and math.isfinite(x)
 
 
-def decode_attributes(meta: dict, chunks: dict[str, bytes]) -> dict[str, np.ndarray]:
+def decode_attributes(
+    meta: dict, chunks: dict[str, bytes], budget: Budget | None = None
+) -> dict[str, np.ndarray]:
     """float32 arrays: means (n,3), quats (n,4), log_scales (n,3), opacities (n,), sh_dc (n,3), sh_rest
-    (n,K,3)."""
+    (n,K,3). ``budget``: a tile's (10.14)."""
     try:
-        return _decode_attributes(meta, chunks)
+        return _decode_attributes(meta, chunks, budget)
     except (KeyError, TypeError, ValueError, AttributeError) as e:  # 10.0: a missing key or another type
         raise SpecError(f"attribute codec parameters malformed ({type(e).__name__})") from None
 
@@ -355,7 +378,7 @@ def class_steps(q: dict, k: int) -> dict:
     return {key: q[key] for key in QUANTISER_KEYS}
 
 
-def unpack_bins(payload: bytes, count: int, what: str) -> list[bytes]:
+def unpack_bins(payload: bytes, count: int, what: str, budget: Budget | None = None) -> list[bytes]:
     """10.13: a msgpack array of exactly ``count`` bins."""
     try:
         parts = msgpack.unpackb(payload, raw=False)
@@ -364,12 +387,12 @@ def unpack_bins(payload: bytes, count: int, what: str) -> list[bytes]:
     need(isinstance(parts, list) and len(parts) == count, f"{what}: {count} bins")
     need(all(isinstance(x, bytes) for x in parts), f"{what}: bins")
     # 10.0: the ECMs of the chunk share one table bound, checked before any of their tables is built.
-    entries = sum(read_ecm(x, None, None)[4] for x in parts)
+    entries = sum(read_ecm(x, None, None, budget)[4] for x in parts)  # each ECM spends once, here
     need(entries <= max(TABLE_FLOOR, TABLE_PER_BYTE * len(payload)), f"{what}: model tables past the chunk's")
     return parts
 
 
-def _decode_attributes(meta: dict, chunks: dict[str, bytes]) -> dict[str, np.ndarray]:
+def _decode_attributes(meta: dict, chunks: dict[str, bytes], budget: Budget | None) -> dict[str, np.ndarray]:
     a = meta["attributes"]
     version = a["version"]
     need(is_int(version) and version in (1, 2, 3, 4), "codec version")
@@ -422,9 +445,10 @@ def _decode_attributes(meta: dict, chunks: dict[str, bytes]) -> dict[str, np.nda
         raise SpecError("POSN is not one msgpack value") from None
     need(isinstance(parts, list) and len(parts) == (4 if gv == 3 else 2), "POSN array length")
     need(all(isinstance(x, bytes) for x in parts), "POSN bins")
-    voxels = curve_voxels(parts[0], parts[1], n - far, bits)
+    voxels = curve_voxels(parts[0], parts[1], n - far, bits, budget)
     if gv == 3:
-        voxels += [[w << shift for w in v] for v in curve_voxels(parts[2], parts[3], far, bits - shift)]
+        far_voxels = curve_voxels(parts[2], parts[3], far, bits - shift, budget)
+        voxels += [[w << shift for w in v] for v in far_voxels]
     means = np.zeros((n, 3), np.float32)
     for i, v in enumerate(voxels):
         y = [lo[ax] + v[ax] * step[ax] for ax in range(3)]
@@ -450,24 +474,24 @@ def _decode_attributes(meta: dict, chunks: dict[str, bytes]) -> dict[str, np.nda
     }
     if version < 4:
         matrices = {t: chunks[t] for t in ("OPAC", "SCAL", "ROTN", "SHDC")}
-        decode_values(out, classes[0], list(range(n)), matrices)
+        decode_values(out, classes[0], list(range(n)), matrices, budget)
         if deg:  # 10.6 SH rest: flags, then the flagged Gaussians' K coefficients
             fl, vals = unpack_bin_pair(chunks["SHRS"], "SHRS")
-            flags = decode_ecm(fl, n, 1)[0]
+            flags = decode_ecm(fl, n, 1, budget)[0]
             need(all(f in (0, 1) for f in flags), "SH rest flag")
             rows = [i for i, f in enumerate(flags) if f]
-            decode_band(out["sh_rest"], classes[0], rows, decode_ecm(vals, len(rows), 3 * k), 0, k)
+            decode_band(out["sh_rest"], classes[0], rows, decode_ecm(vals, len(rows), 3 * k, budget), 0, k)
         return out
 
     # 10.13: each Gaussian's class and SH degree, then each class's rows from bins of their own.
     c = len(classes)
-    prec = decode_ecm(chunks["PREC"], n, 1 if deg == 0 else 2)
+    prec = decode_ecm(chunks["PREC"], n, 1 if deg == 0 else 2, budget)
     cls = prec[0]
     degrees = prec[1] if deg else [0] * n
     need(all(0 <= x < c for x in cls), "PREC class outside 0 .. C - 1")
     need(all(0 <= d <= deg for d in degrees), "PREC SH degree outside 0 .. sh_degree")
-    bins = {t: unpack_bins(chunks[t], c, t) for t in ("OPAC", "SCAL", "ROTN", "SHDC")}
-    rest_bins = unpack_bins(chunks["SHRS"], c * deg, "SHRS") if deg else []
+    bins = {t: unpack_bins(chunks[t], c, t, budget) for t in ("OPAC", "SCAL", "ROTN", "SHDC")}
+    rest_bins = unpack_bins(chunks["SHRS"], c * deg, "SHRS", budget) if deg else []
     for kk in range(c):
         rows = [i for i in range(n) if cls[i] == kk]
         decode_values(out, classes[kk], rows, {t: b[kk] for t, b in bins.items()})
@@ -478,22 +502,24 @@ def _decode_attributes(meta: dict, chunks: dict[str, bytes]) -> dict[str, np.nda
     return out
 
 
-def decode_values(out: dict, q: dict, rows: list[int], matrices: dict[str, bytes]) -> None:
+def decode_values(
+    out: dict, q: dict, rows: list[int], matrices: dict[str, bytes], budget: Budget | None = None
+) -> None:
     """10.2 to 10.5 for the Gaussians ``rows`` (in decoded order), each matrix of len(rows) rows, with the
-    quantisers ``q`` of their class."""
+    quantisers ``q`` of their class; ``budget``: spent by matrices not already counted as bins (10.14)."""
     m = len(rows)
     L, M = q["opacity_levels"], q["rotation_levels"]
     # 10.2 opacity
-    for i, v in zip(rows, decode_ecm(matrices["OPAC"], m, 1)[0]):
+    for i, v in zip(rows, decode_ecm(matrices["OPAC"], m, 1, budget)[0]):
         x = min(max(v / float(L), 0.25 / L), 1.0 - 0.25 / L)
         out["opacities"][i] = np.float32(det_log(x) - det_log(1.0 - x))
     # 10.3, 10.5
     for name, chunk, s in (("log_scales", "SCAL", q["scale_step"]), ("sh_dc", "SHDC", q["dc_step"])):
-        cols = decode_ecm(matrices[chunk], m, 3)
+        cols = decode_ecm(matrices[chunk], m, 3, budget)
         for r, i in enumerate(rows):
             out[name][i] = [np.float32(cols[ch][r] * s) for ch in range(3)]
     # 10.4 rotations
-    rot = decode_ecm(matrices["ROTN"], m, 4)
+    rot = decode_ecm(matrices["ROTN"], m, 4, budget)
     rstep = 2.0 * SQRT_HALF / M
     for r_i, i in enumerate(rows):
         j = rot[0][r_i]
@@ -634,9 +660,10 @@ def finite_number(x: object) -> bool:
     return (is_int(x) or isinstance(x, float)) and math.isfinite(x)
 
 
-def check_meta(meta: dict) -> None:
-    """10.8: the sections of meta a decoder reads, each refused when present and malformed."""
-    need(isinstance(meta.get("attributes"), dict), "attributes section")
+def check_meta(meta: dict, tiled: bool = False) -> None:
+    """10.8: the sections of meta a decoder reads, each refused when present and malformed (a tiled file's
+    attributes are its tiles', 10.14)."""
+    need(tiled or isinstance(meta.get("attributes"), dict), "attributes section")
     side = meta.get("side_info")
     need(isinstance(side, dict), "side_info section")
     need(isinstance(side.get("views", []), list), "side_info.views")
@@ -656,16 +683,73 @@ def check_meta(meta: dict) -> None:
         need(is_int(count) and count >= 0 and is_int(degree) and 0 <= degree <= 3, "scene section")
 
 
+ATTRIBUTE_TYPES = ("POSN", "PREC", "OPAC", "SCAL", "ROTN", "SHDC", "SHRS")
+
+
+def read_tiles(meta: dict, chunks: list[tuple[str, int, bytes]]) -> dict[str, np.ndarray]:
+    """10.14: a tiled file's attributes, its tiles' Gaussians one after another."""
+    need("attributes" not in meta, "a tiled file has no attributes section")
+    index = [(i, p) for t, i, p in chunks if t == "TIDX"]
+    need(len(index) == 1 and index[0][0] == 0, "one TIDX chunk, of index 0")
+    payload = index[0][1]
+    n = len(payload)
+
+    def refuse_ext(code, data):
+        raise SpecError("TIDX holds an extension type")
+
+    try:
+        tiles = msgpack.unpackb(
+            payload, raw=False, ext_hook=refuse_ext, max_str_len=n, max_bin_len=n, max_array_len=n,
+            max_map_len=n, max_ext_len=n,
+        )  # fmt: skip
+    except SpecError:
+        raise
+    except Exception:
+        raise SpecError("TIDX is not one msgpack value") from None
+    need(isinstance(tiles, list) and 2 <= len(tiles) <= MAX_TILES, "TIDX: an array of 2..8192 tiles")
+    for t in tiles:
+        need(isinstance(t, dict) and "box" in t and isinstance(t.get("attributes"), dict), "tile map")
+        box = t["box"]
+        need(isinstance(box, list) and len(box) == 6 and all(finite_float(x) for x in box), "tile box")
+        need(all(box[a] <= box[a + 3] for a in range(3)), "tile box low above high")
+    degrees = {t["attributes"].get("sh_degree") for t in tiles}
+    need(len(degrees) == 1, "tiles of different SH degrees")
+    # The index first; each attribute chunk names a tile; a tile's chunks after the one before's.
+    per_tile: list[dict[str, bytes]] = [{} for _ in tiles]
+    seen_index, last = False, -1
+    for t, i, p in chunks:
+        if t == "TIDX":
+            seen_index = True
+        elif t in ATTRIBUTE_TYPES:
+            need(seen_index, "an attribute chunk before the tile index")
+            need(0 <= i < len(tiles), "an attribute chunk names no tile")
+            need(i >= last, "a tile's chunk comes after a later tile's")
+            last = i
+            per_tile[i][t] = p
+    total = sum(len(p) for c in per_tile for p in c.values())
+    count = sum(t["attributes"].get("n", 0) for t in tiles if is_int(t["attributes"].get("n", 0)))
+    need(count <= max(GAUSSIAN_FLOOR, 8 * total // MIN_CODED_BITS), "Gaussians in all past the tiles' bytes")
+    parts = []
+    for t, c in zip(tiles, per_tile):
+        tile_bytes = sum(len(p) for p in c.values())
+        a = decode_attributes({"attributes": t["attributes"]}, c, Budget(tile_bytes, total))
+        lo, hi = np.array(t["box"][:3], np.float32), np.array(t["box"][3:], np.float32)
+        need(bool(((a["means"] >= lo) & (a["means"] <= hi)).all()), "a tile's position outside its box")
+        parts.append(a)
+    return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+
+
 def read_scene(data: bytes) -> tuple[dict[str, np.ndarray], list[dict]]:
     """A whole file's codec layer: the attributes, and the side-information views with residual R."""
     version, meta, chunks = read_container(data)
-    check_meta(meta)
+    tiled = any(t == "TIDX" for t, _, _ in chunks)
+    check_meta(meta, tiled)
     attr = {}
     for t, index, payload in chunks:
-        if t in ("POSN", "PREC", "OPAC", "SCAL", "ROTN", "SHDC", "SHRS"):
+        if t in ATTRIBUTE_TYPES and not tiled:
             need(index == 0, f"{t} index")
             attr[t] = payload
-    attributes = decode_attributes(meta, attr)
+    attributes = read_tiles(meta, chunks) if tiled else decode_attributes(meta, attr)
     side = [(i, p) for t, i, p in chunks if t == "SIDE"]
     resi = {i: p for t, i, p in chunks if t == "RESI"}
     records = meta["side_info"].get("views", [])

@@ -222,3 +222,17 @@ def test_the_whole_method_runs_per_tile_and_the_target_holds(tmp_path):
     target = int(0.8 * out.stat().st_size)
     encode(src, out, opts=replace(opts, target_size=target))
     assert out.stat().st_size <= target
+
+
+@pytest.mark.slow
+def test_the_spec_reader_decodes_a_tiled_file_to_the_same_bits(tiled):
+    # tests/spec_reader.py, written from spec 10.14 alone, agrees with gspc bit for bit.
+    import spec_reader
+
+    _, out, _ = tiled
+    data = out.read_bytes()
+    attrs, views = spec_reader.read_scene(data)
+    scene, _ = decode_bytes(data)
+    assert not views
+    for name, value in attrs.items():
+        assert np.array_equal(value, getattr(scene, name).numpy()), name
