@@ -44,6 +44,7 @@ from gspc.format.attribute_section import (
     CONTRACTED_MAX_BITS,
     MAX_BITS,
     MAX_CONTRACTED,
+    RESOLUTION,
     Contraction,
     FarSet,
     PositionGrid,
@@ -86,7 +87,27 @@ def voxel_grid(means: np.ndarray, precision: float) -> tuple[int, list[float], l
     bits = span_bits(extent, step)
     if bits > MAX_BITS:
         step, bits = step * 2.0 ** (bits - MAX_BITS), MAX_BITS
+    step = resolvable_step(lo, step, bits)
     return bits, [float(x) for x in lo], [float(x) for x in step]
+
+
+def resolvable_step(
+    lo: np.ndarray, step: np.ndarray, bits: int, floor: np.ndarray | None = None
+) -> np.ndarray:
+    """``step`` per axis, coarsened where the grid's span (2^bits - 1) step is under RESOLUTION of the
+    larger of |lo| and the far corner's magnitude, or under ``floor`` (spec 10.1): only a flat axis far from
+    the origin (its step 1 whatever its coordinate), or a grid of less than one binary32 step, needs it."""
+    out = np.array(step, np.float64)
+    least = np.zeros(3) if floor is None else np.asarray(floor, np.float64)
+    top = float((1 << bits) - 1)
+    for a in range(3):
+        for _ in range(4):  # the corner moves with the step: settles at once
+            corner = max(abs(float(lo[a])), abs(float(lo[a]) + top * out[a]))
+            need = max(RESOLUTION * corner, float(least[a])) / top
+            if top * out[a] >= max(RESOLUTION * corner, float(least[a])):
+                break
+            out[a] = need * (1.0 + 2.0**-20)
+    return out
 
 
 def cubic_step(extent: np.ndarray, precision: float) -> np.ndarray:
@@ -175,10 +196,13 @@ def morton_decode(code: np.ndarray, bits: int) -> np.ndarray:
     return v
 
 
-def contracted_grid(y: np.ndarray, precision: float) -> tuple[int, list[float], list[float]]:
+def contracted_grid(
+    y: np.ndarray, precision: float, centre_floor: np.ndarray | None = None
+) -> tuple[int, list[float], list[float]]:
     """(grid bits, lo, step) in grid space: the voxel size a grid of ``precision`` bits has over the Gaussians
     the mapping leaves as they are (|y| <= 2), with as many bits as the whole scene's extent needs at that
-    size (at most MAX_BITS; beyond, the voxels grow)."""
+    size (at most MAX_BITS; beyond, the voxels grow), spanning at least ``centre_floor`` per axis (what
+    binary32 resolves at the region's centre, spec 10.1)."""
     inside = np.sqrt((y * y).sum(1)) <= IDENTITY_RADIUS
     core = y[inside] if inside.any() else y
     step = cubic_step(core.max(0) - core.min(0), precision)
@@ -187,6 +211,7 @@ def contracted_grid(y: np.ndarray, precision: float) -> tuple[int, list[float], 
     bits = min(max(grid_bits(precision), need), CONTRACTED_MAX_BITS)
     if need > CONTRACTED_MAX_BITS:
         step = step * 2.0 ** (need - CONTRACTED_MAX_BITS)
+    step = resolvable_step(lo, step, bits, centre_floor)
     return bits, [float(x) for x in lo], _inside_bound(lo, hi, step, bits)
 
 
@@ -221,7 +246,7 @@ def curve_order(
         return v[order], order, grid
     centre, radius = roi
     y = contract(means, centre, radius)
-    bits, lo, step = contracted_grid(y, precision)
+    bits, lo, step = contracted_grid(y, precision, RESOLUTION * np.abs(centre) / radius * (1.0 + 2.0**-20))
     grid = PositionGrid(bits, tuple(lo), tuple(step), Contraction(tuple(float(c) for c in centre), radius))
     v = voxelise(y, lo, step, bits)
     order = np.argsort(morton_encode(v, bits), kind="stable")
