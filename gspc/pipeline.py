@@ -51,11 +51,18 @@ from gspc.format.side_chunk import SideViews, read_side_views
 from gspc.format.view_records import check_view_pixels
 from gspc.io import read_scene, write_ply
 from gspc.io.camera_files import load_cameras
-from gspc.limits import default_refine_iterations
 from gspc.options import DecodeOptions, EncodeOptions
 from gspc.paths import refuse_output_over_input
 from gspc.progress import Progress
-from gspc.reconstruct import refine_in_cells, render_images, restored_targets
+from gspc.reconstruct import (
+    check_decode_work,
+    decode_work,
+    refine_in_cells,
+    refine_iterations,
+    render_images,
+    restored_targets,
+    work_bound,
+)
 from gspc.restore.restorer import load_restorer
 from gspc.scene import GaussianScene
 
@@ -214,6 +221,10 @@ def _side_information(
     side = candidates[0] if candidates[0].payload is not None else None
     if side is None:
         return _EncoderChoice(_unrefined(scene, coded_attributes, progress, rep, deadline), None, runs.refine)
+    # No more iterations than a decode of a file of at least these payloads runs (gspc/limits.py).
+    least = enc.num_bytes + min(len(c.payload) for c in candidates if c.payload is not None)
+    bound = work_bound(enc.decoded, view_cams, side.images, least)
+    runs = iteration_counts(opts, enc.decoded.num_gaussians, bound)
     if runs.check == 0:
         return _EncoderChoice(enc, side, runs.refine)
     inputs = CheckInputs(
@@ -322,19 +333,25 @@ def _file_bytes(scene: GaussianScene, choice: _EncoderChoice, opts: EncodeOption
     """The .gspc file of the encoder's choice: header, attribute chunks and the SIDE chunk."""
     enc, side = choice.attributes, choice.side
     chunks = [container.Chunk(name, enc.chunks[name]) for name in ATTRIBUTE_TYPES if name in enc.chunks]
+    iterations, work = choice.refine_iterations, None
     if side is not None:
         chunks.append(container.Chunk(SIDE, side.payload))  # all views in one chunk (spec 10.9)
+        # Name no more iterations than a decode of this file runs (its payloads' bytes: a lower bound).
+        work = decode_work(enc.decoded, [v.camera.to_camera() for v in side.records], side.images, None)
+        iterations = refine_iterations(iterations, work, sum(len(c.payload) for c in chunks))
     file_header = FileHeader(
         encoder=f"gspc {__version__}",
         scene=SceneSummary(enc.decoded.num_gaussians, enc.decoded.sh_degree, scene.num_gaussians),
         attributes=enc.section,
-        side_info=SideInfoHeader(opts.background, opts.restorer, choice.refine_iterations),
+        side_info=SideInfoHeader(opts.background, opts.restorer, iterations),
     )
     data = container.pack(file_header.to_dict(), chunks)
-    # The decoder refuses views beyond its pixel budget for this file size (gspc/limits.py): refuse to
-    # make a file it would refuse.
+    # The decoder refuses views beyond its pixel and work budgets for this file size (gspc/limits.py):
+    # refuse to make a file it would refuse.
     try:
         check_view_pixels(side.records if side is not None else [], len(data))
+        if work is not None:
+            check_decode_work(work, len(data))
     except CodecError as e:
         raise InputError(f"{e}; lower --max-side or --views-fraction") from None
     return data
@@ -393,7 +410,9 @@ def decode_bytes(
     cams = [v.camera.to_camera() for v in side.views]
     if cams and (opts.restore or opts.refine):
         precision = decoded_precision(file.attribute_chunks, file.header.attributes)
-        scene = _restore_and_refine(scene, file.header, side, cams, restorer, opts, progress, rep, precision)
+        scene = _restore_and_refine(
+            scene, file.header, side, cams, restorer, opts, progress, rep, precision, len(data)
+        )
     rep.info["restorer"] = restorer_name if opts.restore else "off"
     rep.num_views = rep.info["views"] = len(cams)
     rep.num_views_with_residual = len(side.images)
@@ -429,18 +448,22 @@ def _restore_and_refine(
     progress: Progress | None,
     rep: Report,
     precision: PrecisionMap | None,
+    file_size: int,
 ) -> GaussianScene:
     """Render G~ at the stored views, restore them with their residuals and refine G~ against them."""
     background = header.side_info.background
     with rep.timed("render"):
+        # What rendering, restoring and refining ask for, bounded by the file's bytes (gspc/limits.py).
+        work = decode_work(scene, cams, side.images if restorer is not None else (), file_size)
+        check_decode_work(work, file_size)
         degraded = render_images(scene, cams, background, progress, "render coded")
     with rep.timed("restore"):
         targets = restored_targets(degraded, side.views, side.images, restorer, progress)
     # With no residual anywhere every target equals the render: the gradients are only round-off, and
     # Adam would turn them into full-size steps (measured: 50.7 -> 41.7 dB on a statue), so skip.
     has_residual = bool(side.images) and opts.restore
-    # The file's number is a default, bounded by the Gaussians it codes (gspc/limits.py).
-    file_default = default_refine_iterations(header.side_info.refine_iterations, scene.num_gaussians)
+    # The file's number is a default, bounded by its Gaussians and its bytes' work budget (gspc/limits.py).
+    file_default = refine_iterations(header.side_info.refine_iterations, work, file_size)
     iterations = opts.iterations if opts.iterations is not None else file_default
     if not (opts.refine and iterations > 0):
         return scene
