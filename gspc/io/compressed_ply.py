@@ -77,8 +77,8 @@ def _packed(vertex: np.ndarray, name: str, source: str) -> np.ndarray:
     good = (wide >= 0) & (wide <= 0xFFFFFFFF) & (np.floor(wide) == wide)  # False for NaN, no warning
     if not good.all():
         raise InputError(
-            f"{source}: vertex property '{name}' holds {float(wide[~good][0])!r}, not a packed field (an integer "
-            "in 0..2^32 - 1)"
+            f"{source}: vertex property '{name}' holds {float(wide[~good][0])!r}, not a packed field (an "
+            "integer in 0..2^32 - 1)"
         )
     return wide.astype(np.uint32)
 
