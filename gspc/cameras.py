@@ -17,6 +17,8 @@ import numpy as np
 from gspc.errors import InputError
 from gspc.limits import MAX_CAMERA_SIDE
 
+FLOAT32_MAX = float(np.finfo(np.float32).max)
+
 
 @dataclass
 class Camera:
@@ -40,6 +42,13 @@ class Camera:
             )
         if not (np.isfinite(self.world_to_cam).all() and np.isfinite(self.K).all()):
             raise InputError(f"camera {self.name!r} has NaN or Inf in its matrices")
+        # Cameras are rendered and stored in binary32 (spec 10.8): a larger value would overflow there.
+        for what, m in (("pose", self.world_to_cam), ("intrinsics", self.K)):
+            if np.abs(m).max() > FLOAT32_MAX:
+                raise InputError(
+                    f"camera {self.name!r} has {float(m.flat[np.abs(m).argmax()]):g} in its {what}, beyond "
+                    f"binary32's range ({FLOAT32_MAX:.3g})"
+                )
         # Projection divides by the focal lengths (gspc/render/project.py); zero or negative ones are no
         # pinhole camera.
         if not (self.K[0, 0] > 0 and self.K[1, 1] > 0):

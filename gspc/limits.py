@@ -7,39 +7,37 @@ or allocation (issue 15), so the spec can cite one list. Each limit says why it 
 from __future__ import annotations
 
 # --- decoding a .gspc file --------------------------------------------------------------------------------
+# The measurements behind the per-byte rules (what real files of each kind ask for, and the work and memory of
+# files crafted at each limit) are in bench/robustness.md: "What real files ask of a decoder" and "Work asked
+# for by files at each size-bounded limit".
 
 # Refinement iterations a header (side_info.refine_iterations) or --iterations / --check-iterations may ask
-# for. The presets use 300 and 1000 (gspc/presets.py); 100x the larger is about 4.4 h for the 20k-Gaussian
-# lego fit at 0.16 s per iteration (bench/pipeline.md), far past the point where more iterations gain
-# anything (3000: +0.2 dB over 1000).
+# for: far past the presets' (gspc/presets.py) and past the point where more iterations gain anything
+# (bench/refine.md).
 MAX_REFINE_ITERATIONS = 100_000
 # The encoder's tuning of its coded values (gspc/encoder/tuning.py): each iteration codes the scene once.
 MAX_TUNE_ITERATIONS = 1_000
 
 # The header's refine_iterations is the decoder's DEFAULT refinement (no --iterations given), and a file may
 # not make that default longer than its Gaussians warrant: at most max(REFINE_DEFAULT_FLOOR, n) iterations
-# for n coded Gaussians (one per Gaussian beyond the high preset's 1000). An iteration costs a few ms plus
-# time in proportion to n (bench/scale.md): a 1,000-Gaussian file naming 100,000 iterations ran about 10
-# minutes (issue 26, 6 ms each); under this rule it runs 1000 (about 6 s). The encoder's own choices (the
-# presets' 300 and 1000, scaled down for large scenes by gspc/presets.py) are always within it. A decoder
-# runs the smaller of the file's number and this bound; --iterations asks for any length up to
+# for n coded Gaussians (an iteration costs a few milliseconds whatever the scene, issue 26). The decoder's
+# work budget below bounds it again by the file's bytes; --iterations asks for any length up to
 # MAX_REFINE_ITERATIONS.
 REFINE_DEFAULT_FLOOR = 1000
 
 
 def default_refine_iterations(file_iterations: int, num_gaussians: int) -> int:
-    """The refinement a decode runs without --iterations: the file's number, bounded by its Gaussians."""
+    """The refinement a decode runs without --iterations, before the work budget: the file's number,
+    bounded by its Gaussians."""
     return min(file_iterations, max(REFINE_DEFAULT_FLOOR, num_gaussians), MAX_REFINE_ITERATIONS)
 
 
 # Gaussians a .gspc file may declare for its attribute payload bytes P (POSN, OPAC, SCAL, ROTN, SHDC and
 # SHRS chunk payloads together): at most max(GAUSSIAN_FLOOR, floor(8 P / MIN_CODED_BITS_PER_GAUSSIAN)). A
 # Gaussian whose every symbol has a one-value model costs no bits, so without this rule a tiny file could
-# ask for any allocation; decoding costs about 1 KB and 20 us per Gaussian (issue 26: 2^20 Gaussians from
-# 17 KB took 1.13 GB and 20 s under the old rule of 64 per byte). Real files code 23 or more bits per
-# Gaussian even at lambda 1000 (donut 3.3 B/G, the lego fit 2.9: positions alone 2 B/G at the coarsest
-# default grid), twice this minimum; the floor keeps any scene of up to 65,536 Gaussians codable however
-# regular (a lattice of identical Gaussians codes in almost no bits), at about 70 MB.
+# ask for any allocation (issue 26). Real files code about twice this minimum at the coarsest rates; the
+# floor keeps any scene of up to 2^16 Gaussians codable however regular (a lattice of identical Gaussians
+# codes in almost no bits).
 GAUSSIAN_FLOOR = 1 << 16
 MIN_CODED_BITS_PER_GAUSSIAN = 12
 
@@ -52,15 +50,13 @@ def max_coded_gaussians(payload_bytes: int) -> int:
 # Entries of the probability tables one entropy-coded matrix's models build (spec 10.0: a kind-2 or kind-3
 # model over lo..hi builds hi - lo + 1), summed over all its models, for a matrix payload of P bytes: at most
 # max(MODEL_TABLE_FLOOR, MODEL_ENTRIES_PER_BYTE * P). A six-integer geometric model may span 2^22 symbols, so
-# without this rule a 6 KB file built tables for 86 s (issue 26). Building costs about 0.17 us and 30
-# transient bytes per entry (measured on this project's loaded 2-vCPU machine). The floor is one model of the
-# widest window (gspc/codec/entropy.py MAX_WINDOW), about 0.7 s, and a file holds at most 8 matrices; at
+# without this rule a few kilobytes could ask for minutes of table building (issue 26). The floor is one
+# model of the widest window (gspc/codec/entropy.py MAX_WINDOW), and a file holds at most 8 matrices; at
 # attribute codec version 4 (up to 16 classes, a matrix each per chunk) the matrices of one chunk also share
-# this bound, P the chunk's bytes (gspc/codec/precision.py unpack_bins; without it a 10 KB file of 16 classes
-# took 30 s), so a file again holds at most 8 floors' worth. Real
-# matrices need under 1 entry per payload byte at lambda 0.1 and above; tables grow as 1/lambda, to 34 per
-# byte at lambda 1e-3 (donut's DC), so this rule stops the finest lambdas on real scenes, where the encoder
-# refuses with a ValueRangeError (a larger lambda codes it) rather than write a file the decoder refuses.
+# this bound, P the chunk's bytes (gspc/codec/precision.py unpack_bins), so a file again holds at most 8
+# floors' worth. Tables grow as 1/lambda: this rule stops the finest lambdas on real scenes, where the
+# encoder refuses with a ValueRangeError (a larger lambda codes it) rather than write a file the decoder
+# refuses.
 MODEL_TABLE_FLOOR = 1 << 22
 MODEL_ENTRIES_PER_BYTE = 16
 
@@ -71,10 +67,9 @@ def max_model_entries(payload_bytes: int) -> int:
 
 
 # Decompressed bytes of one matrix's model list (a zstd frame of msgpack) for a frame of P bytes: at most
-# max(MODEL_LIST_FLOOR, MODEL_LIST_RATIO * P), and never beyond MAX_MODELS_BYTES. Real model lists compress
-# 1.0-3.8 times (the lego fit and donut at lambda 1e-3..1000); zstd can expand a frame thousands of times,
-# and every decompressed byte is parsed and checked in Python (the old cap alone let a 3.6 KB file take
-# 17.7 s and 1.07 GB, issue 26).
+# max(MODEL_LIST_FLOOR, MODEL_LIST_RATIO * P), and never beyond MAX_MODELS_BYTES. zstd can expand a frame
+# thousands of times, and every decompressed byte is parsed and checked in Python (issue 26); real model
+# lists compress a few times at most.
 MODEL_LIST_FLOOR = 1 << 16
 MODEL_LIST_RATIO = 32
 MAX_MODELS_BYTES = 1 << 26
@@ -89,20 +84,19 @@ def max_model_list_bytes(frame_bytes: int) -> int:
 # 1..65536), and far beyond any sensor; a camera file's larger sizes are refused rather than scaled.
 MAX_CAMERA_SIDE = 1 << 16
 
-# Pixels of one side-information view the decoder renders: 4096 x 4096. Each pixel costs 24 bytes held
-# for the whole decode (the render and its restored target, float32 RGB) plus the renderer's work.
+# Pixels of one side-information view the decoder renders: 4096 x 4096. The decoder holds each pixel for the
+# whole decode (the render and its restored target) and renders and restores it.
 MAX_VIEW_PIXELS = 1 << 24
 
-# Pixels of all side-information views together, whatever the file's size: 2^28 is 6 GiB of renders and
-# targets, the most a decoder on a workstation should be asked to hold.
+# Pixels of all side-information views together, whatever the file's size: 2^28 pixels of renders and
+# targets are the most a decoder on a workstation should be asked to hold.
 MAX_TOTAL_PIXELS = 1 << 28
 
 # ... and bounded by the file's size: at most max(PIXEL_FLOOR, PIXELS_PER_FILE_BYTE * file bytes). A view
 # without a residual costs 52 bytes of SIDE chunk (gspc/format/side_chunk.py), so without this rule a 1 KB
 # file could ask for 2^28 pixels. The floor admits the default encode of a scene without cameras (24
-# synthesised views at 400 x 400 = 3.84 Mpixel, gspc/options.py) whatever the file's size; 1024 pixels per
-# byte is 5x the densest real file we have (lego at the low preset: 35 views of 200 x 200 in 199 KB is
-# 7 pixels per byte; 120 views of 400 x 267 in 250 KB would be 200).
+# synthesised views at 400 x 400, gspc/options.py) whatever the file's size; real files hold a few hundred
+# pixels per byte at most.
 PIXEL_FLOOR = 1 << 22
 PIXELS_PER_FILE_BYTE = 1024
 
@@ -110,6 +104,75 @@ PIXELS_PER_FILE_BYTE = 1024
 def view_pixel_budget(file_size: int) -> int:
     """The most pixels a .gspc file of ``file_size`` bytes may ask the decoder to render over all views."""
     return min(MAX_TOTAL_PIXELS, max(PIXEL_FLOOR, PIXELS_PER_FILE_BYTE * file_size))
+
+
+# --- the work of a decoder that renders: restores, refines (spec 10.8, "The decoder's work") --------------
+
+# Gaussian-tile pairs of one render (the boxes' tiles, counted before the compositor allocates its lists:
+# gspc/render/rasterize.py bin_tiles): every render, of a file or of a user's own scene, is refused beyond
+# this. The lists take a few bytes per pair, so this is gigabytes, far beyond any real view.
+MAX_VIEW_PAIRS = 1 << 30
+
+# Pairs of one side-information view of a .gspc file of F bytes: at most max(PAIR_FLOOR, PAIRS_PER_FILE_BYTE
+# * F), counted from each view's projection before it is rendered (gspc/render/work.py, spec 10.8). Without
+# this rule a 1 KB file of 2^16 identical large Gaussians in front of one view asked the compositor for
+# gigabytes (issue 50). Real files hold a few pairs per byte at most in their largest view; the floor admits
+# a small scene filling a view of the pixel floor's size.
+PAIR_FLOOR = 1 << 22
+PAIRS_PER_FILE_BYTE = 32
+
+
+def view_pair_budget(file_size: int) -> int:
+    """The most Gaussian-tile pairs one view of a .gspc file of ``file_size`` bytes may ask for."""
+    return min(MAX_VIEW_PAIRS, max(PAIR_FLOOR, PAIRS_PER_FILE_BYTE * file_size))
+
+
+# The decoder's work, in units of what rendering costs: rendering a view once costs its Gaussians plus its
+# pairs plus its pixels (view_work), restoring a pixel RESTORE_PIXEL_WORK units (the restorer is a network
+# run over every pixel). A decode that renders does the first renders of every view, restores the views that
+# carry a residual and refines, each iteration rendering one view (its cost: the heaviest view's). The first
+# renders and the restoration together may cost at most the file's budget, max(WORK_FLOOR,
+# WORK_PER_FILE_BYTE * F); beyond, the file is refused. The default refinement runs at most as many
+# iterations as the rest of the budget pays for (refine_work_iterations). Without this rule a 1 KB file of
+# 2^16 identical Gaussians naming 2^16 iterations asked for hours (issue 50). The floor pays for restoring
+# the pixel floor's views (and their renders) whatever the file's size; real files ask for a fraction of the
+# per-byte term, and the encoder names no more iterations than its file's budget pays for
+# (gspc/reconstruct.py work_bound, gspc/pipeline.py).
+WORK_FLOOR = 1 << 26
+WORK_PER_FILE_BYTE = 4096
+RESTORE_PIXEL_WORK = 8
+
+
+def view_work(num_gaussians: int, pairs: int, pixels: int) -> int:
+    """The work of rendering one view once: its Gaussians, Gaussian-tile pairs and pixels."""
+    return num_gaussians + pairs + pixels
+
+
+def decode_work_budget(file_size: int) -> int:
+    """The most work a .gspc file of ``file_size`` bytes may ask of a decoder by default."""
+    return max(WORK_FLOOR, WORK_PER_FILE_BYTE * file_size)
+
+
+def refine_work_iterations(first_work: int, heaviest_view: int, file_size: int) -> int:
+    """The refinement iterations a file's budget pays for after ``first_work`` (its first renders and
+    restoration), each costing ``heaviest_view``."""
+    left = decode_work_budget(file_size) - first_work
+    return max(0, left) // max(1, heaviest_view)
+
+
+# The memory a decode takes (the whole process's peak resident memory: Python, torch and the restorer's
+# network included; restoration and refinement on), for a file of F bytes whose views hold X pixels: at most
+# DECODE_MEMORY_BASE + DECODE_MEMORY_PER_FILE_BYTE * F + DECODE_MEMORY_PER_PIXEL * X. Not a check: what the
+# limits above add up to (Gaussians and pairs per byte, pixels per view), stated so that users can size a
+# machine, and measured on real files and on files crafted at every limit (bench/robustness.md).
+DECODE_MEMORY_BASE = 1 << 30
+DECODE_MEMORY_PER_FILE_BYTE = 2048
+DECODE_MEMORY_PER_PIXEL = 256
+
+
+def decode_memory_bound(file_size: int, pixels: int) -> int:
+    """The most memory (bytes) a decode of a ``file_size``-byte file with views of ``pixels`` takes."""
+    return DECODE_MEMORY_BASE + DECODE_MEMORY_PER_FILE_BYTE * file_size + DECODE_MEMORY_PER_PIXEL * pixels
 
 
 # --- input scenes (gspc/io/) -------------------------------------------------------------------------------

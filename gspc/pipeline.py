@@ -37,7 +37,14 @@ from gspc.limits import default_refine_iterations
 from gspc.options import DecodeOptions, EncodeOptions, check_region
 from gspc.paths import refuse_output_over_input
 from gspc.progress import Progress
-from gspc.reconstruct import refine_in_cells, render_images, restored_targets
+from gspc.reconstruct import (
+    check_decode_work,
+    decode_work,
+    refine_in_cells,
+    refine_iterations,
+    render_images,
+    restored_targets,
+)
 from gspc.restore.restorer import load_restorer
 from gspc.scene import GaussianScene
 from gspc.stages import Stages
@@ -297,6 +304,16 @@ def decode_bytes(
     if device.type == "cpu" and uncompiled_kernels():
         with stages.stage("compile", announce=False):
             compile_kernels(progress)
+    # What rendering, restoring and refining ask for, bounded by the file's bytes before anything is
+    # rendered (spec 10.8); the file's default length is bounded by what its work budget pays for.
+    cams = [v.camera.to_camera() for v in side.views]
+    work = decode_work(scene, cams, side.images, file.file_size)
+    check_decode_work(work, file.file_size)
+    if opts.iterations is None:
+        iterations = refine_iterations(file.header.side_info.refine_iterations, work, file.file_size)
+        if iterations == 0:
+            rep.info["refine"] = "none (the file's work budget pays for no refinement, spec 10.8)"
+            return scene, rep
     restorer_name = opts.restorer if opts.restorer is not None else file.header.side_info.restorer
     restorer = load_restorer(restorer_name, device=device)
     rep.info["restorer"] = restorer_name
@@ -320,7 +337,8 @@ def _decode_attributes(file: GspcFile) -> DecodedSection:
 
 
 def _refine_iterations(file: GspcFile, num_gaussians: int, opts: DecodeOptions) -> int:
-    """``--iterations``, else the file's number bounded by the Gaussians it codes (gspc/limits.py)."""
+    """``--iterations``, else the file's number bounded by the Gaussians it codes (gspc/limits.py); a decode
+    that renders bounds it by the work its bytes pay for too (spec 10.8)."""
     if opts.iterations is not None:
         return opts.iterations
     return default_refine_iterations(file.header.side_info.refine_iterations, num_gaussians)

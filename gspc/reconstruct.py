@@ -7,7 +7,8 @@ steps live here, used by gspc/pipeline.py's decoder and gspc/encoder/policy.py a
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Collection, Sequence
+from dataclasses import dataclass
 
 import torch
 
@@ -15,13 +16,108 @@ from gspc.cameras import Camera
 from gspc.codec import residuals
 from gspc.codec.cells import quantisation_cells
 from gspc.codec.precision import PrecisionMap
+from gspc.errors import CodecError
 from gspc.format.attribute_section import AttributeSection
 from gspc.format.view_records import ViewRecord
+from gspc.limits import (
+    PAIR_FLOOR,
+    PAIRS_PER_FILE_BYTE,
+    RESTORE_PIXEL_WORK,
+    WORK_FLOOR,
+    WORK_PER_FILE_BYTE,
+    decode_work_budget,
+    default_refine_iterations,
+    refine_work_iterations,
+    view_pair_budget,
+    view_work,
+)
 from gspc.progress import Progress
 from gspc.refine import Deadline, Refined, Refinement, Schedule
 from gspc.render import render
+from gspc.render.work import view_pairs
 from gspc.scene import GaussianScene
 from gspc.visibility import sampling_coverage
+
+
+@dataclass(frozen=True)
+class DecodeWork:
+    """What a decode that renders asks for, counted from the projections before anything is rendered
+    (gspc/limits.py, spec 10.8 "The decoder's work"): each view's Gaussian-tile pairs and pixels, and the
+    pixels it restores."""
+
+    num_gaussians: int
+    pairs: tuple[int, ...]  # per view
+    pixels: tuple[int, ...]  # per view
+    restored_pixels: int  # of the views whose residual the decoder restores
+
+    @property
+    def views(self) -> tuple[int, ...]:
+        """Each view's work: rendering it once."""
+        return tuple(view_work(self.num_gaussians, p, a) for p, a in zip(self.pairs, self.pixels))
+
+    @property
+    def first(self) -> int:
+        """The first renders of every view and the restoration."""
+        return sum(self.views) + RESTORE_PIXEL_WORK * self.restored_pixels
+
+    @property
+    def heaviest(self) -> int:
+        """One refinement iteration's work: the heaviest view's."""
+        return max(self.views, default=0)
+
+
+def decode_work(
+    scene: GaussianScene, cameras: Sequence[Camera], restored: Collection[int], file_size: int | None
+) -> DecodeWork:
+    """The work of rendering ``scene`` at every camera and restoring the views ``restored`` (view numbers),
+    each view's pairs counted from its projection alone; with a ``file_size``, refused (CodecError) as soon
+    as a view is beyond the pair budget of a file of that many bytes, before anything else is projected."""
+    pairs = []
+    for k, cam in enumerate(cameras):
+        pairs.append(view_pairs(scene, cam))
+        if file_size is not None:
+            _check_view_pairs(k, pairs[-1], file_size)
+    pixels = tuple(c.width * c.height for c in cameras)
+    return DecodeWork(scene.num_gaussians, tuple(pairs), pixels, sum(pixels[k] for k in restored))
+
+
+def _check_view_pairs(k: int, pairs: int, file_size: int) -> None:
+    budget = view_pair_budget(file_size)
+    if pairs > budget:
+        raise CodecError(
+            f"side-information view {k} asks for {pairs:,} Gaussian-tile pairs in a {file_size:,}-byte file; "
+            f"the limit is {budget:,} (max({PAIR_FLOOR:,}, {PAIRS_PER_FILE_BYTE} per file byte), spec 10.8)"
+        )
+
+
+def check_decode_work(work: DecodeWork, file_size: int) -> None:
+    """Refuse (CodecError) a file with a view beyond its pair budget, or whose first renders and restoration
+    alone pass its work budget."""
+    for k, pairs in enumerate(work.pairs):
+        _check_view_pairs(k, pairs, file_size)
+    budget = decode_work_budget(file_size)
+    if work.first > budget:
+        raise CodecError(
+            f"rendering and restoring the file's {len(work.pixels)} views asks for {work.first:,} units of "
+            f"work in a {file_size:,}-byte file; the limit is {budget:,} (max({WORK_FLOOR:,}, "
+            f"{WORK_PER_FILE_BYTE} per file byte), spec 10.8)"
+        )
+
+
+def work_bound(
+    scene: GaussianScene, cameras: Sequence[Camera], restored: Collection[int], file_size: int
+) -> int:
+    """The refinement iterations the work budget of a file of at least ``file_size`` bytes pays for, with
+    ``scene`` at ``cameras`` restored at the views ``restored``: the encoder's check runs no more."""
+    work = decode_work(scene, cameras, restored, None)
+    return refine_work_iterations(work.first, work.heaviest, file_size)
+
+
+def refine_iterations(file_iterations: int, work: DecodeWork, file_size: int) -> int:
+    """The refinement a decode runs without --iterations: the file's number, bounded by its Gaussians and by
+    what its work budget pays for after the first renders and restoration."""
+    by_work = refine_work_iterations(work.first, work.heaviest, file_size)
+    return min(default_refine_iterations(file_iterations, work.num_gaussians), by_work)
 
 
 @torch.no_grad()

@@ -207,6 +207,7 @@ class Refinement:
         # A CPU generator whatever the scene's device: the views are drawn in the same order on every device.
         self._gen = torch.Generator().manual_seed(seed)
         self.done = 0
+        self.skipped = 0  # iterations whose loss was not finite: no step taken
         self.total = schedule.iterations if self._groups else 0
 
     def run(
@@ -232,11 +233,16 @@ class Refinement:
             target = self._targets[v]
             loss = (1 - SSIM_WEIGHT) * (image - target).abs().mean() + SSIM_WEIGHT * (1 - ssim(image, target))
             self._opt.zero_grad()
-            with float32_math():  # SSIM's convolutions' gradients too (gspc/device.py)
-                loss.backward()
-            self._opt.step()
-            if self._cells is not None:
-                project_into_cells(self._groups, self._cells)
+            # A scene's values may be finite but so large that the loss is not (a file may code colours of
+            # 10^30): such a step would make every attribute NaN, so it is not taken.
+            if bool(torch.isfinite(loss)):
+                with float32_math():  # SSIM's convolutions' gradients too (gspc/device.py)
+                    loss.backward()
+                self._opt.step()
+                if self._cells is not None:
+                    project_into_cells(self._groups, self._cells)
+            else:
+                self.skipped += 1
             self.done += 1
             if deadline is not None:
                 self.total = deadline.length(self.done, self.total, self._scene.means.device)

@@ -38,6 +38,7 @@ MAX_VIEW_PIXELS = 1 << 24
 MAX_TOTAL_PIXELS = 1 << 28
 PIXEL_FLOOR, PIXELS_PER_BYTE = 1 << 22, 1024  # 10.8: all views <= min(2^28, max(2^22, 1024 x file bytes))
 MAX_REFINE = 100_000
+MAX_STEP = 2.0**64  # 10.0: quantiser steps
 SQRT_HALF = 0.7071067811865476
 LN2 = 0.6931471805599453
 BOOSTS = [1, 2, 3, 4, 6, 8, 11, 16, 23, 32, 45, 64, 91, 128, 181, 256, 362, 512, 724, 1024, 1448, 2048]
@@ -374,7 +375,8 @@ def class_steps(q: dict, k: int) -> dict:
     sh = q["sh_steps"]
     need(isinstance(sh, list) and len(sh) == k, "sh_steps length")
     steps = [q["scale_step"], q["dc_step"], *sh]
-    need(all(finite_float(s) and s > 0 for s in steps), "steps")
+    # 10.0: every step finite, > 0 and at most 2^64 (then 2^48 x step is a finite binary32)
+    need(all(finite_float(s) and 0 < s <= MAX_STEP for s in steps), "steps")
     return {key: q[key] for key in QUANTISER_KEYS}
 
 
@@ -429,6 +431,12 @@ def _decode_attributes(meta: dict, chunks: dict[str, bytes], budget: Budget | No
     need(all(abs(x) <= bound for x in lo + corner), "position grid bounds")
     if contracted:
         need(all(abs(c) <= 2.0**64 for c in centre) and radius <= 2.0**64, "centre, radius bounds")
+    # 10.1 resolution: each axis's grid spans at least 2^-24 of its corners (and, contracted, of its centre)
+    for ax in range(3):
+        span = float(2**bits - 1) * step[ax]
+        need(span >= 2.0**-24 * max(abs(lo[ax]), abs(corner[ax])), "position grid under binary32's grain")
+        if contracted:
+            need(radius * span >= 2.0**-24 * abs(centre[ax]), "position grid under binary32's grain")
     # 10.0, 10.13: class 0 is the section's own quantisers; at version 4 each classes map is one more.
     classes = [class_steps(a, k)]
     if version == 4:
@@ -585,6 +593,94 @@ def parse_side(payload: bytes) -> list[dict]:
     return views
 
 
+JXL_CONTAINER = bytes.fromhex("0000000c4a584c200d0a870a")
+JXL_RATIOS = {1: (1, 1), 2: (12, 10), 3: (4, 3), 4: (3, 2), 5: (16, 9), 6: (5, 4), 7: (2, 1)}
+
+
+def boxes(data: bytes, start: int, end: int):
+    """10.7: ISOBMFF boxes (type, payload start, payload end) from ``start`` to ``end``; the walk stops at a
+    box whose size is below its header or runs past ``end``."""
+    pos = start
+    while pos + 8 <= end:
+        size, kind = struct.unpack_from(">I4s", data, pos)
+        head = 8
+        if size == 1:
+            if pos + 16 > end:
+                return
+            (size,) = struct.unpack_from(">Q", data, pos + 8)
+            head = 16
+        if size == 0:
+            size = end - pos
+        if size < head or pos + size > end:
+            return
+        yield kind, pos + head, pos + size
+        pos += size
+
+
+def jxl_size(data: bytes) -> tuple[int, int]:
+    """10.7: (width, height) from a JPEG XL codestream's SizeHeader, bits read least significant first."""
+    code = data
+    if data[:12] == JXL_CONTAINER:
+        found = [(k, a, b) for k, a, b in boxes(data, 0, len(data)) if k in (b"jxlc", b"jxlp")]
+        need(bool(found), "JPEG XL container without a codestream box")
+        kind, a, b = found[0]
+        code = data[a + (4 if kind == b"jxlp" else 0) : b]
+    need(code[:2] == b"\xff\x0a", "JPEG XL signature")
+    pos = 16  # bits, after FF 0A
+
+    def bits(n: int) -> int:
+        nonlocal pos
+        need(pos + n <= 8 * len(code), "JPEG XL codestream ends inside its SizeHeader")
+        v = sum(((code[(pos + i) >> 3] >> ((pos + i) & 7)) & 1) << i for i in range(n))
+        pos += n
+        return v
+
+    def u32() -> int:
+        return bits((9, 13, 18, 30)[bits(2)]) + 1
+
+    div8 = bits(1)
+    height = (bits(5) + 1) * 8 if div8 else u32()
+    ratio = bits(3)
+    if ratio:
+        num, den = JXL_RATIOS[ratio]
+        return height * num // den, height
+    return ((bits(5) + 1) * 8 if div8 else u32()), height
+
+
+def webp_size(data: bytes) -> tuple[int, int]:
+    """10.7: (width, height) from a WebP's first chunk: VP8, VP8L or VP8X."""
+    need(len(data) >= 30 and data[:4] == b"RIFF" and data[8:12] == b"WEBP", "WebP signature")
+    kind = data[12:16]
+    if kind == b"VP8 " and data[23:26] == b"\x9d\x01\x2a":
+        w, h = struct.unpack_from("<HH", data, 26)
+        return w & 0x3FFF, h & 0x3FFF
+    if kind == b"VP8L" and data[20] == 0x2F:
+        (v,) = struct.unpack_from("<I", data, 21)
+        return (v & 0x3FFF) + 1, ((v >> 14) & 0x3FFF) + 1
+    need(kind == b"VP8X", "WebP first chunk")
+    return int.from_bytes(data[24:27], "little") + 1, int.from_bytes(data[27:30], "little") + 1
+
+
+def avif_size(data: bytes) -> tuple[int, int]:
+    """10.7: the largest width and the largest height of the ispe boxes in meta / iprp / ipco."""
+    sizes = []
+    for k1, a1, b1 in boxes(data, 0, len(data)):
+        for k2, a2, b2 in boxes(data, a1 + 4, b1) if k1 == b"meta" else ():
+            for k3, a3, b3 in boxes(data, a2, b2) if k2 == b"iprp" else ():
+                for k4, a4, b4 in boxes(data, a3, b3) if k3 == b"ipco" else ():
+                    if k4 == b"ispe" and b4 - a4 >= 12:
+                        sizes.append(struct.unpack_from(">II", data, a4 + 4))
+    need(bool(sizes), "AVIF without an image size (ispe)")
+    return max(w for w, _ in sizes), max(h for _, h in sizes)
+
+
+def check_image_header(view: dict) -> None:
+    """10.7: the image's signature and declared size, which every decoder checks."""
+    s, H, W = view["scale"], view["height"], view["width"]
+    declared = [jxl_size, webp_size, avif_size][view["codec"]](view["image"])
+    need(declared == (-(-W // s), -(-H // s)), "residual image declares another size")
+
+
 def decode_residual(view: dict) -> np.ndarray:
     """10.7: R (H, W, 3) float32 at the camera's full size."""
     decode = [imagecodecs.jpegxl_decode, imagecodecs.webp_decode, imagecodecs.avif_decode][view["codec"]]
@@ -636,8 +732,10 @@ def record_view(r: dict, image: bytes | None) -> dict:
         isinstance(intr, bytes) and len(intr) == 16 and isinstance(pose, bytes) and len(pose) == 48,
         "camera bins",
     )
-    check_camera(cam["width"], cam["height"], struct.unpack("<4f", intr), struct.unpack("<12f", pose))
+    intrinsics, pose = struct.unpack("<4f", intr), struct.unpack("<12f", pose)
+    check_camera(cam["width"], cam["height"], intrinsics, pose)
     view = {"width": cam["width"], "height": cam["height"], "length": len(image or b"")}
+    view.update(intrinsics=intrinsics, pose=pose)
     if res is not None:
         need(isinstance(res, dict), "residual map")
         # 10.7: the gain as binary32 (what R is divided by) finite and > 0
@@ -739,8 +837,10 @@ def read_tiles(meta: dict, chunks: list[tuple[str, int, bytes]]) -> dict[str, np
     return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
 
 
-def read_scene(data: bytes) -> tuple[dict[str, np.ndarray], list[dict]]:
-    """A whole file's codec layer: the attributes, and the side-information views with residual R."""
+def read_scene(data: bytes, residuals: bool = True) -> tuple[dict[str, np.ndarray], list[dict]]:
+    """A whole file's codec layer: the attributes, and the side-information views with residual R. With
+    ``residuals`` False, a decoder that does not use the residual images (10.7): each image's signature and
+    declared size are checked, its pixels are not decoded."""
     version, meta, chunks = read_container(data)
     tiled = any(t == "TIDX" for t, _, _ in chunks)
     check_meta(meta, tiled)
@@ -772,5 +872,83 @@ def read_scene(data: bytes) -> tuple[dict[str, np.ndarray], list[dict]]:
     need(sum(v["width"] * v["height"] for v in views) <= budget, "pixels beyond the file's budget")
     for v in views:
         if v["length"]:
+            check_image_header(v)
+    for v in views:
+        if v["length"] and residuals:
             v["residual"] = decode_residual(v)
     return attributes, views
+
+
+# --------------------------------------------------------------------------------- the decoder's work (10.8)
+
+PAIR_FLOOR, PAIRS_PER_BYTE = 1 << 22, 32  # 10.8: P_v <= max(2^22, 32 x size)
+WORK_FLOOR, WORK_PER_BYTE = 1 << 26, 4096  # 10.8: F <= max(2^26, 4096 x size)
+RESTORED_PIXEL = 8
+
+
+def view_pairs(attributes: dict[str, np.ndarray], view: dict) -> int:
+    """10.8 "The decoder's work": the Gaussian-tile pairs P_v of one view, from the projection of 10.12
+    rules 1 and 2 (binary64)."""
+    fx, fy, cx, cy = (float(v) for v in view["intrinsics"])
+    w, h = view["width"], view["height"]
+    pose = np.array(view["pose"], np.float64).reshape(3, 4)
+    rot, t = pose[:, :3], pose[:, 3]
+    p = attributes["means"].astype(np.float64) @ rot.T + t
+    q = attributes["quats"].astype(np.float64)
+    q = q / np.linalg.norm(q, axis=1, keepdims=True)
+    qw, qx, qy, qz = q.T
+    rq = np.stack(
+        [
+            np.stack([1 - 2 * (qy * qy + qz * qz), 2 * (qx * qy - qw * qz), 2 * (qx * qz + qw * qy)], -1),
+            np.stack([2 * (qx * qy + qw * qz), 1 - 2 * (qx * qx + qz * qz), 2 * (qy * qz - qw * qx)], -1),
+            np.stack([2 * (qx * qz - qw * qy), 2 * (qy * qz + qw * qx), 1 - 2 * (qx * qx + qy * qy)], -1),
+        ],
+        1,
+    )
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        m = rq * np.exp(attributes["log_scales"].astype(np.float64))[:, None, :]
+        cov = rot @ (m @ m.transpose(0, 2, 1)) @ rot.T
+        z = p[:, 2]
+        lim_x = (cx / fx + 0.3 * w / (2 * fx), (w - cx) / fx + 0.3 * w / (2 * fx))
+        lim_y = (cy / fy + 0.3 * h / (2 * fy), (h - cy) / fy + 0.3 * h / (2 * fy))
+        tx = np.clip(p[:, 0] / z, -lim_x[0], lim_x[1])
+        ty = np.clip(p[:, 1] / z, -lim_y[0], lim_y[1])
+        j = np.zeros((len(z), 2, 3))
+        j[:, 0, 0], j[:, 0, 2] = fx / z, -fx * tx / z
+        j[:, 1, 1], j[:, 1, 2] = fy / z, -fy * ty / z
+        cov2 = j @ cov @ j.transpose(0, 2, 1)
+        alpha = 1 / (1 + np.exp(-attributes["opacities"].astype(np.float64)))
+        thr = 2 * np.log(255 * alpha)
+        hx, hy = np.sqrt(thr * (cov2[:, 0, 0] + 0.3)), np.sqrt(thr * (cov2[:, 1, 1] + 0.3))
+        mx, my = fx * p[:, 0] / z + cx, fy * p[:, 1] / z + cy
+        drawn = (z > 0.01) & (alpha >= 1 / 255)
+
+        def tiles(centre: np.ndarray, half: np.ndarray, size: int) -> np.ndarray:
+            # columns i, 0 <= i < ceil(size / 8), with 8 i + 0.5 <= centre + half, 8 i + 7.5 >= centre - half
+            first = np.maximum(np.ceil((centre - half - 7.5) / 8), 0)
+            last = np.minimum(np.floor((centre + half - 0.5) / 8), -(-size // 8) - 1)
+            return np.where(np.isfinite(last - first), np.maximum(last - first + 1, 0), 0)
+
+        count = tiles(mx, hx, w) * tiles(my, hy, h)
+    return int(count[drawn & np.isfinite(count)].sum())
+
+
+def decoder_work(data: bytes, restore: bool = True) -> int:
+    """10.8: check a file's work as a decoder that renders (and, with ``restore``, restores) does, and return
+    the refinement iterations its default runs."""
+    attributes, views = read_scene(data, residuals=restore)
+    size, n = len(data), len(attributes["means"])
+    work = []
+    for k, v in enumerate(views):
+        pairs = view_pairs(attributes, v)
+        need(
+            pairs <= max(PAIR_FLOOR, PAIRS_PER_BYTE * size), f"view {k}: Gaussian-tile pairs past the budget"
+        )
+        work.append(n + pairs + v["width"] * v["height"])
+    restored = sum(v["width"] * v["height"] for v in views if v["length"]) if restore else 0
+    first = sum(work) + RESTORED_PIXEL * restored
+    budget = max(WORK_FLOOR, WORK_PER_BYTE * size)
+    need(first <= budget, "first renders and restoration past the work budget")
+    meta = read_container(data)[1]
+    iterations = meta["side_info"].get("refine_iterations", 300)
+    return min(iterations, max(1000, n), (budget - first) // max(work, default=1))

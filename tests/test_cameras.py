@@ -209,6 +209,19 @@ def test_colmap_distortion_warns_and_unknown_model_fails(tmp_path):
 # --- bad input ------------------------------------------------------------------------------------
 
 
+@pytest.mark.filterwarnings("error")
+def test_camera_values_beyond_binary32_are_named(tmp_path):
+    """Issue 50: a translation of 1e200 (cameras are rendered and stored in binary32) is refused where the
+    camera is read, before any arithmetic overflows."""
+    frame = {
+        "file_path": "a",
+        "transform_matrix": [[1, 0, 0, 1e200], [0, 1, 0, 0], [0, 0, 1, 3], [0, 0, 0, 1]],
+    }
+    (tmp_path / "t.json").write_text(json.dumps({"fl_x": 3, "w": 4, "h": 4, "frames": [frame]}))
+    with pytest.raises(InputError, match="1e\\+200 in its pose, beyond binary32"):
+        load_cameras(tmp_path / "t.json")
+
+
 def test_bad_camera_files(tmp_path):
     with pytest.raises(InputError, match="does not exist"):
         load_cameras(tmp_path / "nope.json")

@@ -127,6 +127,7 @@ def test_codec_vectors_cover_each_chunk_type() -> None:
     ok = [v for v in CODEC if v["codec"]["expect"] == "ok"]
     types = {c["type"] for v in ok for c in v["chunks"]}
     assert types == set(container.KNOWN_TYPES)
+    ok = [v for v in ok if "attributes" in v["meta"]]  # one section each: not a tiled file (spec 10.14)
     assert {v["meta"]["attributes"]["sh_degree"] for v in ok} >= {0, 3}
     # Every attribute codec version decodes (spec 10.0), version 4 on each kind of position grid (10.13).
     assert {v["meta"]["attributes"]["version"] for v in ok} == {1, 2, 3, 4}
@@ -142,6 +143,11 @@ def test_codec_vectors_cover_each_chunk_type() -> None:
 @pytest.mark.parametrize("vector", CODEC, ids=[v["file"] for v in CODEC])
 def test_codec_vector_reference(vector: dict) -> None:
     data = (VECTORS / vector["file"]).read_bytes()
+    if vector["codec"].get("residuals") == "refused":  # spec 10.7: decodes unless its residuals are used
+        check_decoded(vector, *mv.reference_decode(data, residuals=False))
+        with pytest.raises(CodecError, match="residual"):
+            mv.reference_decode(data)
+        return
     if vector["codec"]["expect"] == "ok":
         check_decoded(vector, *mv.reference_decode(data))
         return
@@ -154,11 +160,20 @@ def test_codec_vector_reference(vector: dict) -> None:
 @pytest.mark.parametrize("vector", CODEC, ids=[v["file"] for v in CODEC])
 def test_codec_vector_spec_reader(vector: dict) -> None:
     data = (VECTORS / vector["file"]).read_bytes()
+    if vector["codec"].get("residuals") == "refused":
+        check_decoded(vector, *spec_reader.read_scene(data, residuals=False))
+        with pytest.raises(spec_reader.SpecError):
+            spec_reader.read_scene(data)
+        return
     if vector["codec"]["expect"] == "ok":
         check_decoded(vector, *spec_reader.read_scene(data))
         return
     with pytest.raises(spec_reader.SpecError):
         spec_reader.read_scene(data)
+    # A file refused for its attributes or views is refused by a decoder that does not use the residual
+    # images too (spec 10.7 and 10.10: only the images' pixels are left to decoders that decode them).
+    with pytest.raises(spec_reader.SpecError):
+        spec_reader.read_scene(data, residuals=False)
 
 
 def spec_hexdump() -> bytes:
@@ -328,3 +343,17 @@ def test_pack_refuses_what_readers_refuse(header, chunks, words) -> None:
 def test_pack_accepts_the_deepest_allowed_header() -> None:
     deep = nested(container.MAX_DEPTH - 2)  # top map (level 1) > meta (2) > 30 lists (3..32)
     assert unpack(pack({"d": deep}, [])).header == {"d": deep}
+
+
+@pytest.mark.parametrize("name", ["codec_residual_damaged", "codec_residual_damaged_webp"])
+def test_a_damaged_residual_decodes_unless_the_decoder_restores(name, tmp_path) -> None:
+    """Spec 10.7 (1.4, revised): an image cut short after a valid header is read only by its header when the
+    decoder does not restore, and refused, in one line and with no output, when it does."""
+    from gspc.pipeline import DecodeOptions, decode
+
+    path = VECTORS / f"{name}.gspc"
+    decode(path, tmp_path / "plain.ply", DecodeOptions(restore=False))
+    decode(path, tmp_path / "attributes.ply", DecodeOptions(restore=False, refine=False))
+    with pytest.raises(CodecError, match="residual"):
+        decode(path, tmp_path / "restored.ply", DecodeOptions(iterations=1))
+    assert not (tmp_path / "restored.ply").exists()

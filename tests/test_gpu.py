@@ -650,3 +650,39 @@ def test_check_restorer_and_refinement_run_on_gpu():
     assert rep.side_info is not None  # the check ran on the GPU
     out, rep = decode_bytes(data, DecodeOptions(iterations=3, device="cuda"))
     assert out.means.is_cuda and all(torch.isfinite(t).all() for t in out.tensors().values())
+
+
+@needs_cuda
+@pytest.mark.slow
+def test_the_decoders_work_limits_on_the_gpu(tmp_path):
+    """Issue 50 on CUDA: every crafted work file (tools/amplification_cases.py work_files) decoded with
+    --device cuda ends as on the CPU (refused in one line before it renders, or decoded within its budget),
+    and a render past 2^30 pairs is refused before its tile lists are built."""
+    import amplification_cases as amp
+
+    from gspc.errors import GspcError
+    from gspc.pipeline import decode
+    from gspc.render.rasterize import bin_tiles
+
+    write_ply(random_scene(300, sh_degree=1, seed=0), tmp_path / "s.ply")
+    opts = EncodeOptions(
+        lam=200, synth_views=6, max_side=48, check_iterations=0, precision=False, device="cuda"
+    )
+    encode(tmp_path / "s.ply", tmp_path / "b.gspc", opts=opts)
+    header = container.read(tmp_path / "b.gspc").header
+    for name, path, ok in amp.work_files(header, tmp_path):
+        try:
+            decode(path, tmp_path / "o.ply", DecodeOptions(device="cuda"))
+            assert ok, name
+        except GspcError as e:
+            assert not ok and "spec 10.8" in str(e), (name, str(e))
+    n, dev = 70_000, "cuda"
+    with pytest.raises(GspcError, match="Gaussian-tile pairs"):
+        bin_tiles(
+            torch.full((n, 2), 1024.0, device=dev),
+            torch.tensor([[1.0, 0.0, 1.0]], device=dev).repeat(n, 1),
+            torch.full((n,), 0.9, device=dev),
+            torch.full((n, 2), 5000.0, device=dev),
+            2048,
+            2048,
+        )

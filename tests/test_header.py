@@ -67,4 +67,4 @@ def test_defaults_of_optional_fields():
 
 def test_one_registry_of_chunk_types():
     assert set(ATTRIBUTE_TYPES) <= KNOWN_TYPES == set(REGISTRY)
-    assert KNOWN_TYPES == {"POSN", "PREC", "OPAC", "SCAL", "ROTN", "SHDC", "SHRS", "RESI", "SIDE"}
+    assert KNOWN_TYPES == {"POSN", "PREC", "OPAC", "SCAL", "ROTN", "SHDC", "SHRS", "RESI", "SIDE", "TIDX"}

@@ -2,6 +2,9 @@
 output, and costs memory bounded by its size (issue 15); files at a size-bounded limit's edge decode, one step
 past it are refused (issue 26)."""
 
+import os
+import subprocess
+import sys
 import tracemalloc
 from pathlib import Path
 
@@ -17,11 +20,13 @@ from hostile_cases import (
     option_cases,
     outcome,
     output_cases,
+    read_value_cases,
     scene_value_cases,
     snapshot,
     sog_cases,
     touched,
     unneeded_bomb,
+    unrestored_cases,
 )
 from scenes import random_scene
 from sog_files import make_sog
@@ -33,6 +38,7 @@ from gspc.io import write_ply
 from gspc.pipeline import DecodeOptions, EncodeOptions, decode, encode
 
 runner = CliRunner()
+ROOT = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope="module")
@@ -59,6 +65,8 @@ def all_cases(tmp, scene, base) -> list[Case]:
         *output_cases(scene, base, tmp),
         *environment_cases(scene),
         *camera_input_cases(scene, tmp),
+        *read_value_cases(scene, tmp),
+        *unrestored_cases(base, tmp),
     ]
 
 
@@ -102,14 +110,54 @@ def test_hostile_files_decode_in_bounded_memory(work):
         for _, name, path in gspc_files(base, tmp):
             tracemalloc.reset_peak()
             before = tracemalloc.get_traced_memory()[0]
+            # A residual damaged after its header is refused by a decoder that restores (spec 10.7).
+            restore = "(restoring)" in name
             with pytest.raises(GspcError):
-                decode(path, tmp / "mem_out.ply", DecodeOptions(restore=False, refine=False))
+                opts = DecodeOptions(restore=restore, refine=False, restorer="none")
+                decode(path, tmp / "mem_out.ply", opts)
             peak = tracemalloc.get_traced_memory()[1] - before
             size = path.stat().st_size
             # 4 MiB for the interpreter's own work (imports on first use, tracebacks), then 64 x the file.
             assert peak <= (4 << 20) + 64 * size, (name, peak, size)
     finally:
         tracemalloc.stop()
+
+
+@pytest.mark.slow
+def test_bad_values_are_named_before_any_warning(work):
+    """Issue 50: each bad value is named by the reader that reads it, in one line, before any arithmetic
+    warns: run under ``python -W error``, every warning would end the run as an internal error."""
+    tmp, scene, _ = work
+    problems = []
+    for case in read_value_cases(scene, tmp):
+        if case.output is not None and case.output.is_file():
+            case.output.unlink()
+        code = "import sys; from gspc.cli import app; app(sys.argv[1:])"
+        env = {**os.environ, "GSPC_THREADS": "1", "PYTHONPATH": str(ROOT)}
+        run = subprocess.run(
+            [sys.executable, "-W", "error", "-c", code, *case.args], capture_output=True, text=True, env=env
+        )
+        got = outcome(case, run.returncode, run.stdout + run.stderr)
+        if got != case.expect:
+            problems.append(f"{case.name}: {got}: {(run.stdout + run.stderr).strip()[-200:]!r}")
+    assert not problems, "\n".join(problems)
+
+
+def test_work_files_are_refused_before_they_render(work):
+    """Issue 50: files whose views ask for more Gaussian-tile pairs, or first renders of more work, than
+    their bytes pay for are refused in one line before anything is rendered (spec 10.8)."""
+    import amplification_cases as amp
+
+    from gspc.format import container
+
+    tmp, _, base = work
+    for name, path, ok in amp.work_files(container.read(base).header, tmp):
+        if ok:
+            continue  # decoded by the slow sweep (test_hostile_inputs_end_as_expected)
+        out = tmp / "work_out.ply"
+        res = runner.invoke(app, ["decode", str(path), "-o", str(out)])
+        assert outcome(Case("", name, [], out), res.exit_code, res.output) == "refused", (name, res.output)
+        assert "spec 10.8" in res.output, (name, res.output)
 
 
 def test_unneeded_sog_member_is_not_read(tmp_path):
@@ -188,6 +236,49 @@ def test_spec_reader_refuses_every_hostile_header_and_view(work):
         except spec_reader.SpecError:
             pass
     assert not accepted, accepted
+
+
+@pytest.mark.slow
+def test_spec_reader_takes_the_decoders_work_decisions(work):
+    """Spec 10.8 "The decoder's work" as tests/spec_reader.py reads it: the same refusals and default
+    refinement as gspc's decoder on every crafted work file and on the base file, and pair counts that
+    differ only by the reference's widened boxes."""
+    import amplification_cases as amp
+    import spec_reader
+
+    from gspc.codec.attributes import decode_attributes
+    from gspc.format import container
+    from gspc.format.attribute_section import AttributeSection, attribute_chunks
+    from gspc.format.header import FileHeader
+    from gspc.format.side_chunk import read_side_views
+    from gspc.reconstruct import check_decode_work, decode_work, refine_iterations
+
+    tmp, _, base = work
+    # (Not the megabyte of SH-3 Gaussians: the spec reader decodes a symbol per Python call.)
+    files = [(n, p) for n, p, _ in amp.work_files(container.read(base).header, tmp) if "SH-3" not in n]
+    for name, path in [*files, ("base", base)]:
+        data = path.read_bytes()
+        c = container.unpack(data)
+        header = FileHeader.from_dict(c.header)
+        side = read_side_views(header.side_info.legacy_views, c.chunks, len(data))
+        scene = decode_attributes(
+            attribute_chunks(c.chunks), AttributeSection.from_dict(c.header["attributes"])
+        )
+        ours = decode_work(scene, [v.camera.to_camera() for v in side.views], side.images, None)
+        attributes, views = spec_reader.read_scene(data, residuals=False)
+        theirs = [spec_reader.view_pairs(attributes, v) for v in views]
+        for a, b in zip(theirs, ours.pairs, strict=True):
+            assert a <= b <= 1.01 * a + 64, (name, a, b)
+        try:
+            check_decode_work(ours, len(data))
+            runs = refine_iterations(header.side_info.refine_iterations, ours, len(data))
+        except GspcError:
+            runs = None
+        try:
+            spec_runs = spec_reader.decoder_work(data)
+        except spec_reader.SpecError:
+            spec_runs = None
+        assert runs == spec_runs, (name, runs, spec_runs)
 
 
 def test_precision_files_end_as_expected(work):

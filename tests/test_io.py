@@ -186,6 +186,18 @@ def test_ply_tiny_quaternion_is_normalised(tmp_path, tiny):
     assert torch.equal(scene.quats[1], torch.full((4,), 0.5))  # ordinary rows keep their bits
 
 
+@pytest.mark.filterwarnings("error")
+def test_ply_huge_quaternion_is_normalised(tmp_path):
+    """Issue 50: (3e38, 3e38, 3e38, 3e38) is a direction; its float32 norm overflows, so it is made unit
+    length where it is read rather than turning into an all-zero rotation inside the encoder."""
+    cols = _inria_columns(n=2)
+    cols["rot_0"][0], cols["rot_1"][0], cols["rot_2"][0], cols["rot_3"][0] = 3e38, 3e38, 3e38, -3e38
+    _write_vertex(tmp_path / "huge.ply", cols)
+    scene = read_scene(tmp_path / "huge.ply")
+    np.testing.assert_allclose(scene.quats[0].numpy(), [0.5, 0.5, 0.5, -0.5], rtol=1e-6)
+    assert torch.equal(scene.quats[1], torch.full((4,), 0.5))
+
+
 def test_ply_zero_and_non_finite_quaternions_are_refused(tmp_path):
     cols = _inria_columns(n=3)
     for name in ("rot_0", "rot_1", "rot_2", "rot_3"):
@@ -341,6 +353,26 @@ def test_compressed_ply_errors(tmp_path):
     write_ply(random_scene(7, sh_degree=0), tmp_path / "inria.ply")
     with pytest.raises(InputError, match="not a compressed PLY"):
         read_compressed_ply(tmp_path / "inria.ply")
+
+
+@pytest.mark.filterwarnings("error")
+def test_compressed_ply_bad_values_are_named_where_read(tmp_path):
+    """Issue 50: a packed field stored as float holding NaN (once cast to an integer with a numpy warning),
+    and a chunk bound of inf (once interpolated into NaN), are named by the reader."""
+    make_compressed_ply(tmp_path / "c.ply", n=300)
+    ply = PlyData.read(str(tmp_path / "c.ply"))
+    vertex = ply["vertex"].data
+    floats = np.empty(len(vertex), dtype=[(n, "<f4") for n in vertex.dtype.names])
+    for n in vertex.dtype.names:
+        floats[n] = vertex[n]
+    floats["packed_scale"][7] = np.nan
+    PlyData([ply["chunk"], PlyElement.describe(floats, "vertex")]).write(str(tmp_path / "nan.ply"))
+    with pytest.raises(InputError, match="'packed_scale' holds nan"):
+        read_scene(tmp_path / "nan.ply")
+    ply["chunk"].data["min_y"][0] = -np.inf
+    PlyData([ply["chunk"], ply["vertex"]]).write(str(tmp_path / "inf.ply"))
+    with pytest.raises(InputError, match="'min_y' holds -inf"):
+        read_scene(tmp_path / "inf.ply")
 
 
 # ---------------------------------------------------------------- real files (../shared/data)

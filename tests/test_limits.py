@@ -34,6 +34,58 @@ def test_default_refinement_is_bounded_by_the_gaussians(asked, n, runs):
     assert limits.default_refine_iterations(asked, n) == runs
 
 
+def test_a_views_pairs_and_the_decoders_work_grow_with_the_file():
+    assert limits.view_pair_budget(1000) == 1 << 22
+    assert limits.view_pair_budget(1 << 20) == 32 << 20
+    assert limits.view_pair_budget(1 << 40) == limits.MAX_VIEW_PAIRS
+    assert limits.decode_work_budget(1000) == 1 << 26
+    assert limits.decode_work_budget(1 << 20) == 4096 << 20
+    assert limits.view_work(10, 20, 30) == 60
+
+
+@pytest.mark.parametrize(
+    ("first", "heaviest", "size", "runs"),
+    [(0, 1 << 16, 1000, 1024), ((1 << 26) - 5, 1, 1000, 5), (1 << 27, 100, 1000, 0), (0, 0, 1000, 1 << 26)],
+)
+def test_refinement_gets_what_the_first_work_leaves(first, heaviest, size, runs):
+    assert limits.refine_work_iterations(first, heaviest, size) == runs
+
+
+def test_decoder_work_counts_pairs_and_refuses_past_the_budgets():
+    """gspc/reconstruct.py over a scene of identical large Gaussians before a 64 x 64 view: every one of
+    its 64 tiles is in every Gaussian's box."""
+    import numpy as np
+
+    from gspc.cameras import Camera
+    from gspc.errors import CodecError
+    from gspc.reconstruct import DecodeWork, check_decode_work, decode_work, refine_iterations
+    from gspc.scene import make_scene
+
+    n = 100
+    scene = make_scene(
+        np.zeros((n, 3)),
+        np.tile([1.0, 0, 0, 0], (n, 1)),
+        np.full((n, 3), 1.0),
+        np.full(n, 4.0),
+        np.zeros((n, 3)),
+    )
+    w2c = np.eye(4)
+    w2c[2, 3] = 3.0
+    cam = Camera(w2c, [[64, 0, 32], [0, 64, 32], [0, 0, 1]], 64, 64)
+    work = decode_work(scene, [cam, cam], [1], None)
+    assert work.pairs == (6400, 6400) and work.pixels == (4096, 4096) and work.restored_pixels == 4096
+    assert work.first == 2 * (100 + 6400 + 4096) + 8 * 4096
+    assert refine_iterations(10**5, work, 1000) == min(1000, ((1 << 26) - work.first) // work.heaviest)
+    check_decode_work(work, 1000)
+    # One Gaussian past the pair floor in one view: refused while the view is counted.
+    many = scene.map(lambda t: t[:1].repeat((limits.PAIR_FLOOR // 64 + 1,) + (1,) * (t.dim() - 1)))
+    with pytest.raises(CodecError, match="Gaussian-tile pairs"):
+        decode_work(many, [cam], [], 1000)
+    # Views each within their pairs, together past the work floor.
+    with pytest.raises(CodecError, match="units of work"):
+        check_decode_work(DecodeWork(n, (6400,) * 7000, (4096,) * 7000, 0), 1000)
+
+
 @pytest.mark.slow
 def test_decode_runs_the_bounded_default(tmp_path, monkeypatch):
     from scenes import random_scene
@@ -54,11 +106,11 @@ def test_decode_runs_the_bounded_default(tmp_path, monkeypatch):
     container.write(path, c.header, c.chunks)
     seen = []
 
-    def spy(asked: int, n: int) -> int:
-        seen.append((asked, n))
+    def spy(asked: int, work, size: int) -> int:
+        seen.append((asked, work.num_gaussians, size))
         return 2  # the bound itself is tested above; here: decode runs what it returns
 
-    monkeypatch.setattr(pipeline, "default_refine_iterations", spy)
+    monkeypatch.setattr(pipeline, "refine_iterations", spy)
     rep = pipeline.decode(path, tmp_path / "o.ply")
-    assert seen == [(100_000, coded)]
+    assert seen == [(100_000, coded, path.stat().st_size)]
     assert rep.refine_iterations in (0, 2)  # 0 when no view carries a residual

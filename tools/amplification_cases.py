@@ -63,13 +63,14 @@ def constant_chunks(meta: dict, n: int, opac: bytes | None = None, pad: int = 0)
 
 
 def write_gspc(path: Path, header: dict, n: int, chunks: dict[str, bytes]) -> Path:
-    """A file of the base ``header`` with attributes.n = ``n``, these attribute chunks and no side
-    information."""
+    """A file of the base ``header`` with attributes.n = ``n`` and these attribute chunks (and SIDE chunk, if
+    any: none of the base's side information)."""
     meta = json.loads(json.dumps(header, default=lambda b: b.hex()))  # a deep copy (no bins in these maps)
     meta["attributes"] = dict(header["attributes"], n=n)
     meta["scene"] = dict(meta.get("scene", {}), num_gaussians=n, sh_degree=header["attributes"]["sh_degree"])
     meta["side_info"] = {k: v for k, v in header["side_info"].items() if k != "views"}
-    container.write(path, meta, [container.Chunk(t, chunks[t]) for t in ATTRIBUTES if t in chunks])
+    types = [*ATTRIBUTES, "SIDE"]
+    container.write(path, meta, [container.Chunk(t, chunks[t]) for t in types if t in chunks])
     return path
 
 
@@ -367,4 +368,98 @@ def scene_files(d: Path) -> list[tuple[str, Path, bool]]:
         out.append((f"{kind} PLY declaring 10^9 vertices in 500 bytes", path, False))
     out.append(("SOG at the floor: 2^19 Gaussians", sog_file(d / "floor.sog", floor), True))
     out.append(("SOG one past the floor", sog_file(d / "past.sog", floor + 1), False))
+    return out
+
+
+# ----------------------------------------------------------------- the decoder's render and refinement work
+
+
+def facing_view(point: list[float], width: int, height: int, distance: float, residual: bool) -> tuple:
+    """(view record, residual image or None) of a camera ``distance`` in front of ``point`` looking at it
+    (OpenCV axes: along +z), focal length = its width; the residual a constant lossless JPEG XL of 8 bits
+    (a few dozen bytes whatever its size) with gain 1."""
+    from gspc.format.view_records import CameraRecord, ResidualRecord, ViewRecord
+
+    centre = np.array(point, np.float64) - np.array([0.0, 0.0, distance])
+    pose = np.concatenate([np.eye(3), -centre[:, None]], 1).astype("<f4").tobytes()
+    intrinsics = np.array([width, width, width / 2, height / 2], "<f4").tobytes()
+    camera = CameraRecord(width, height, intrinsics, pose)
+    if not residual:
+        return ViewRecord(camera), None
+    image = imagecodecs.jpegxl_encode(np.full((height, width, 3), 128, np.uint8), lossless=True, effort=1)
+    return ViewRecord(camera, ResidualRecord("jxl", 8, 1.0, (height, width), 1)), image
+
+
+def work_file(
+    path: Path,
+    header: dict,
+    n: int,
+    views: list[tuple],
+    log_scale: float = 0.0,
+    iterations: int | None = None,
+    pad: int = 0,
+) -> Path:
+    """A file of ``n`` identical, opaque Gaussians of log-scale about ``log_scale`` (the nearest multiple of
+    the header's step), all at the grid's origin, with the side-information ``views`` (facing_view's), the
+    refinement ``iterations`` it names (None: the header's) and ``pad`` bytes of unread words."""
+    from gspc.format.side_chunk import pack_side
+
+    a = header["attributes"]
+    chunks = constant_chunks(a, n, pad=pad)
+    chunks["SCAL"] = ecm(n, [(0, [[1, round(log_scale / a["scale_step"])]] * 15)] * 3)
+    chunks["OPAC"] = ecm(n, [(0, [[1, a["opacity_levels"]]] * 15)], bytes(pad))
+    side = {k: v for k, v in header["side_info"].items() if k != "views"}
+    if iterations is not None:
+        side["refine_iterations"] = iterations
+    images = {k: image for k, (_, image) in enumerate(views) if image is not None}
+    chunks["SIDE"] = pack_side([v for v, _ in views], images)
+    return write_gspc(path, dict(header, side_info=side), n, chunks)
+
+
+def work_files(header: dict, d: Path) -> list[tuple[str, Path, bool]]:
+    """(name, file, decodes) asking a decoder that restores and refines for work out of proportion to their
+    bytes (issue 50; spec 10.8, "The decoder's work"): a default refinement of 2^16 iterations over 2^16
+    Gaussians, a view's Gaussian-tile pairs at the floor and one Gaussian past it, the issue's 2^16 large
+    Gaussians before one 640 x 640 and one 2048 x 2048 view, first renders at the work budget and one view
+    past it, and views of the pixel floor's restored."""
+    lo = header["attributes"]["position"]["lo"]
+    out = []
+    view = facing_view(lo, 48, 48, 3.0, True)
+    name = "65,536 identical Gaussians naming 65,536 refinement iterations (runs what its budget pays for)"
+    out.append((name, work_file(d / "work_refine.gspc", header, 1 << 16, [view], -4.0, 1 << 16), True))
+    # Gaussians covering every tile of a 512 x 512 view (64 x 64 tiles): 2^22 / 4096 of them at the floor.
+    big = facing_view(lo, 512, 512, 3.0, False)
+    per = (512 // 8) ** 2
+    for count, ok in ((limits.PAIR_FLOOR // per, True), (limits.PAIR_FLOOR // per + 1, False)):
+        name = f"{count:,} large Gaussians before a 512 x 512 view: {count * per:,} pairs"
+        name += " (the floor)" if ok else " (one Gaussian past the floor)"
+        out.append((name, work_file(d / f"work_pairs_{count}.gspc", header, count, [big], 2.0), ok))
+    for side in (640, 2048):
+        name = f"65,536 large Gaussians before one {side} x {side} view (issue 50)"
+        view = facing_view(lo, side, side, 3.0, False)
+        out.append((name, work_file(d / f"work_view_{side}.gspc", header, 1 << 16, [view], 2.0), False))
+    # Views each at the pair floor: their first renders reach the work floor after a few.
+    count = limits.PAIR_FLOOR // per
+    first = limits.view_work(count, limits.PAIR_FLOOR, 512 * 512)
+    fits = limits.WORK_FLOOR // first
+    for views, ok in ((fits, True), (fits + 1, False)):
+        path = work_file(d / f"work_views_{views}.gspc", header, count, [big] * views, 2.0)
+        assert limits.decode_work_budget(path.stat().st_size) == limits.WORK_FLOOR
+        name = f"{views} views at the pair floor: first renders {'within' if ok else 'past'} the work floor"
+        out.append((name, path, ok))
+    restored = facing_view(lo, 400, 400, 3.0, True)
+    views = limits.PIXEL_FLOOR // (400 * 400)
+    name = f"{views} views of 400 x 400 restored (the pixel floor), 16 Gaussians"
+    out.append((name, work_file(d / "work_restore.gspc", header, 16, [restored] * views, -4.0), True))
+    # The most Gaussians a megabyte may declare, at SH degree 3 (the widest rows), restored and refined for
+    # a few iterations: the memory of a refinement per file byte.
+    a = header["attributes"]
+    steps = a["sh_steps"] or [a["dc_step"]]
+    sh3 = dict(header, attributes=dict(a, sh_degree=3, sh_steps=[steps[0]] * 15))
+    edge = limits.max_coded_gaussians(
+        payload_bytes(constant_chunks(sh3["attributes"], 1 << 20, pad=1_000_000))
+    )
+    view = facing_view(lo, 400, 400, 3.0, True)
+    path = work_file(d / "work_sh3.gspc", sh3, edge, [view], -4.0, iterations=3, pad=1_000_000)
+    out.append((f"{edge:,} SH-3 Gaussians in 1 MB (12 coded bits each) refined 3 iterations", path, True))
     return out

@@ -311,6 +311,9 @@ def scene_value_cases(scene: Path, tmp: Path) -> Iterator[Case]:
 
 BAD_TYPES: list[object] = ["x", {"a": 1}, [1, 2], None, True]
 BAD_NUMBERS: list[object] = [math.nan, math.inf, -math.inf]
+# Finite floats too large for any field: a quantiser step or position field this large decoded infinite
+# values or every Gaussian onto one point (issue 50).
+HUGE_FLOATS: list[float] = [3.4e38, 1e300]
 
 
 def _paths(meta: dict) -> Iterator[tuple[tuple, object]]:
@@ -368,6 +371,9 @@ def header_mutations(meta: dict) -> Iterator[tuple[str, dict]]:
                 yield f"{where} = {bad!r}", _set(meta, path, bad)
             for bad in BAD_NUMBERS:
                 yield f"{where} = {bad!r}", _set(meta, path, bad)
+            if isinstance(v, float):
+                for bad in HUGE_FLOATS:
+                    yield f"{where} = {bad!r}", _set(meta, path, bad)
             if not (len(path) >= 3 and path[-2] == "lo"):  # any finite lo is a position
                 yield f"{where} = -1", _set(meta, path, -1)
         elif isinstance(v, str):
@@ -391,6 +397,11 @@ def header_mutations(meta: dict) -> Iterator[tuple[str, dict]]:
     }.items():
         yield name, _set(meta, ("side_info", "refine_iterations"), value)
     yield "attributes.n 2^62", _set(meta, ("attributes", "n"), 2**62)
+    lo = meta["attributes"]["position"]["lo"]
+    yield (
+        "attributes.position.lo.0 = 2^64 (grid under binary32's resolution)",
+        _set(meta, ("attributes", "position", "lo"), [2.0**64, *lo[1:]]),
+    )
     yield "attributes.sh_degree 4", _set(meta, ("attributes", "sh_degree"), 4)
     yield "side_info.views not a list", _set(meta, ("side_info", "views"), {"a": 1})
 
@@ -497,6 +508,30 @@ def side_mutations(meta: dict, chunks: list[container.Chunk]) -> Iterator[tuple[
             yield f"1.0 residual {field} = {bad!r}", m, [*base, *resi]
     yield "residual not JXL", meta, with_views(records, {**images, k: b"\x00" * 40})
     yield "residual JXL cut to 3 bytes", meta, with_views(records, {**images, k: images[k][:3]})
+    yield "residual JXL cut after its size header (restoring)", meta, with_views(records, cut_images(images))
+
+
+def cut_images(images: dict[int, bytes]) -> dict[int, bytes]:
+    """The residual images with the first one cut to half its bytes: its size header intact, its pixels not
+    (spec 10.7: decoded without restoration, refused with)."""
+    k = min(images)
+    return {**images, k: images[k][: len(images[k]) // 2]}
+
+
+def unrestored_cases(base: Path, tmp: Path) -> Iterator[Case]:
+    """A residual image cut after its size header: a decode that does not restore reads only its header and
+    decodes (spec 10.7); the restoring decode refuses it (side_mutations)."""
+    c = container.read(base)
+    side = unpack_side(next(ch for ch in c.chunks if ch.type == "SIDE").payload)
+    chunks = [ch for ch in c.chunks if ch.type != "SIDE"]
+    chunks.append(container.Chunk("SIDE", pack_side(side.views, cut_images(side.images))))
+    path = tmp / "residual_cut.gspc"
+    container.write(path, c.header, chunks)
+    out = tmp / "unrestored.ply"
+    for extra in (["--no-restore"], ["--no-restore", "--no-refine"]):
+        args = ["decode", str(path), "-o", str(out), *extra]
+        name = f"residual JXL cut after its size header, {' '.join(extra)}"
+        yield Case(".gspc residual images, not restored", name, args, out, "ok")
 
 
 def gspc_files(base: Path, tmp: Path) -> list[tuple[str, str, Path]]:
@@ -609,6 +644,9 @@ def amplification_cases(base: Path, tmp: Path) -> Iterator[Case]:
         for name, path, ok in make(header, d):
             args = ["decode", str(path), "-o", str(out), "--no-restore", "--no-refine"]
             yield Case(category, name, args, out, "ok" if ok else "refused")
+    for name, path, ok in amp.work_files(header, d):
+        args = ["decode", str(path), "-o", str(out)]
+        yield Case("work: render, restoration and refinement", name, args, out, "ok" if ok else "refused")
     c = container.read(base)
     long = d / "refine_100000.gspc"
     meta = copy.deepcopy(c.header)
@@ -703,3 +741,75 @@ def camera_input_cases(scene: Path, tmp: Path) -> Iterator[Case]:
         rdir = tmp / f"cam_q_{i}"
         args = ["render", str(scene), "-o", str(rdir), "--cameras", str(sub), "--max-side", "16"]
         yield Case("camera input: COLMAP poses", name, args, rdir, "ok" if ok else "refused")
+
+
+# ------------------------------------------------------------------------- values named where they are read
+
+
+def read_value_cases(scene: Path, tmp: Path) -> Iterator[Case]:
+    """Values that once passed their reader and warned or failed in arithmetic far from it (issue 50): each
+    is named by its reader in one line before anything warns, or (a quaternion: a direction whatever its
+    length) read as what it means. tests/test_hostile.py runs them under ``python -W error``."""
+    from plyfile import PlyElement
+
+    d = tmp / "read_values"
+    d.mkdir(exist_ok=True)
+    ply = PlyData.read(str(scene))
+    for i in range(4):
+        ply["vertex"].data[f"rot_{i}"][:2] = 3e38
+    huge = d / "quaternion_3e38.ply"
+    ply.write(str(huge))
+    out = tmp / "read_value_out.gspc"
+    yield Case(
+        "values named where read: scenes",
+        "quaternion (3e38, 3e38, 3e38, 3e38)",
+        _small_encode(huge, out),
+        out,
+        "ok",
+    )
+    geometry = [(f"{b}_{a}", "f4") for b in ("min", "max") for a in "xyz"]
+    geometry += [(f"{b}_scale_{a}", "f4") for b in ("min", "max") for a in "xyz"]
+    for name, packed_type, bound in (
+        ("compressed PLY: float32 packed_position holding NaN", "f4", 1.0),
+        ("compressed PLY: chunk bound max_x = inf", "u4", math.inf),
+    ):
+        chunk = np.zeros(1, dtype=geometry)
+        for a in "xyz":
+            chunk[f"max_{a}"], chunk[f"min_scale_{a}"], chunk[f"max_scale_{a}"] = 1.0, -5.0, -4.0
+        chunk["max_x"] = bound
+        fields = ("packed_position", "packed_rotation", "packed_scale", "packed_color")
+        vertex = np.zeros(256, dtype=[(f, packed_type) for f in fields])
+        vertex["packed_color"] = 0xFF8080FF
+        if packed_type == "f4":
+            vertex["packed_position"][3] = np.nan
+        path = d / f"compressed_{packed_type}.ply"
+        PlyData([PlyElement.describe(chunk, "chunk"), PlyElement.describe(vertex, "vertex")]).write(str(path))
+        convert_out = tmp / "read_value_out.ply"
+        yield Case(
+            "values named where read: scenes",
+            name,
+            ["convert", str(path), "-o", str(convert_out)],
+            convert_out,
+        )
+    frames = [_frame(transform_matrix=[[1, 0, 0, 1e200], [0, 1, 0, 0], [0, 0, 1, 3], [0, 0, 0, 1]])]
+    frames += [_frame(file_path=f"./s{k}") for k in range(3)]
+    far = d / "far" / "transforms.json"
+    far.parent.mkdir(exist_ok=True)
+    far.write_text(json.dumps({"camera_angle_x": 0.7, "w": 32, "h": 24, "frames": frames}))
+    inria = d / "inria" / "cameras.json"
+    inria.parent.mkdir(exist_ok=True)
+    inria.write_text(json.dumps([_inria_entry(position=[1e200, 0.0, -3.0])]))
+    colmap = d / "colmap"
+    colmap.mkdir(exist_ok=True)
+    (colmap / "cameras.txt").write_text("1 PINHOLE 32 24 30 30 16 12\n")
+    (colmap / "images.txt").write_text("1 1 0 0 0 1e200 0 3 1 a.png\n\n")
+    rdir = tmp / "read_value_renders"
+    for name, cams in (
+        ("transforms.json translation 1e200", far),
+        ("cameras.json position 1e200", inria),
+        ("COLMAP translation 1e200", colmap),
+    ):
+        render = ["render", str(scene), "-o", str(rdir), "--cameras", str(cams), "--max-side", "16"]
+        yield Case("values named where read: cameras", f"{name} (render)", render, rdir)
+    args = _small_encode(scene, out) + ["--cameras", str(far)]
+    yield Case("values named where read: cameras", "transforms.json translation 1e200 (encode)", args, out)

@@ -817,8 +817,9 @@ def digest(a: np.ndarray) -> dict:
     }
 
 
-def reference_decode(data: bytes) -> tuple[dict[str, np.ndarray], list[dict]]:
-    """gspc's decoder up to the decoded attributes and residuals (what gspc decode does before rendering)."""
+def reference_decode(data: bytes, residuals: bool = True) -> tuple[dict[str, np.ndarray], list[dict]]:
+    """gspc's decoder up to the decoded attributes and residuals (what gspc decode does before rendering);
+    ``residuals`` False: as a decoder that does not use them (spec 10.7), the images' headers only."""
     from gspc.codec.attributes import decode_attributes
     from gspc.codec.residuals import decode_residual
     from gspc.errors import CodecError
@@ -840,15 +841,19 @@ def reference_decode(data: bytes) -> tuple[dict[str, np.ndarray], list[dict]]:
     out = []
     for k, v in enumerate(side.views):
         view = {"width": v.camera.width, "height": v.camera.height}
-        if k in side.images:
+        if k in side.images and residuals:
             view["residual"] = decode_residual(side.images[k], v.residual)
         out.append(view)
     return attrs, out
 
 
-def codec_expectation(data: bytes) -> dict:
-    attrs, views = reference_decode(data)
+def codec_expectation(data: bytes, residuals: bool = True) -> dict:
+    """What MANIFEST.json states of a file that decodes; ``residuals`` False for one whose residual images a
+    decoder that uses them refuses ("residuals": "refused"), listed as a decoder that does not decodes it."""
+    attrs, views = reference_decode(data, residuals)
     out = {"expect": "ok", "attributes": {k: digest(v) for k, v in attrs.items()}, "views": []}
+    if not residuals:
+        out["residuals"] = "refused"
     for v in views:
         rec = {"width": v["width"], "height": v["height"]}
         if "residual" in v:
@@ -888,9 +893,9 @@ def with_model(payload: bytes, column: int, bucket: int, spec: list | None = Non
 def codec_vectors() -> list[Vector]:
     vs: list[Vector] = []
 
-    def ok(name: str, desc: str, meta: dict, chunks, minor: int = 1) -> Vector:
+    def ok(name: str, desc: str, meta: dict, chunks, minor: int = 1, residuals: bool = True) -> Vector:
         v = valid(name, desc, meta, chunks, minor=minor)
-        v.codec = codec_expectation(v.data)
+        v.codec = codec_expectation(v.data, residuals)
         vs.append(v)
         return v
 
@@ -1198,6 +1203,8 @@ def codec_vectors() -> list[Vector]:
         "index 1",
     )
     limit_vectors(vs, ok, bad_codec, a0, c0)
+    step_vectors(ok, bad_codec, a0, c0, a5, c5)
+    image_vectors(ok, bad_codec, a2, c2, side, a0, c0, views10, image)
     for key in ("opacity_levels", "rotation_levels"):
         bad_codec(
             f"codec_invalid_{key}_2p48",
@@ -1225,6 +1232,105 @@ def codec_vectors() -> list[Vector]:
     precision_vectors(ok, bad_codec, a0, c0)
     tile_vectors(ok, bad_codec)
     return vs
+
+
+def step_vectors(ok, bad_codec, a0: dict, c0: dict, a5: dict, c5: dict) -> None:
+    """10.0, 10.1 (1.4, revised): quantiser steps at and past 2^64, and position grids that span under
+    binary32's resolution at their corners (each decoded every value infinite, or every Gaussian onto one
+    point)."""
+    ok(
+        "codec_step_at_bound",
+        "scale_step = 2^64, the largest step 10.0 allows: every decoded log-scale a finite binary32",
+        scene_meta(dict(a0, scale_step=2.0**64)),
+        attribute_entries(c0),
+    )
+    bad_codec(
+        "codec_invalid_step_bound",
+        "scale_step = 3.4e38 (finite, but its decoded values overflow binary32)",
+        scene_meta(dict(a0, scale_step=3.4e38)),
+        attribute_entries(c0),
+        "scale_step",
+    )
+    a7, c7 = encode_classed(tiny_scene(120, 3, 9), (-1, 2), 9)
+    classes = [dict(a7["classes"][0], dc_step=1e300), *a7["classes"][1:]]
+    bad_codec(
+        "codec_invalid_class_step_bound",
+        "attribute codec version 4 whose classes[0].dc_step is 1e300",
+        scene_meta(dict(a7, classes=classes)),
+        attribute_entries(c7),
+        "classes[0].dc_step",
+        minor=4,
+    )
+    grid = dict(a0["position"], lo=[2.0**64, *a0["position"]["lo"][1:]])
+    bad_codec(
+        "codec_invalid_grid_resolution",
+        "version 1 with position.lo[0] = 2^64 (within the bound of 10.1, and its corner rounds to 2^64): "
+        "the grid spans under binary32's resolution there, every Gaussian would decode onto one x",
+        scene_meta(dict(a0, position=grid)),
+        attribute_entries(c0),
+        "on axis 0",
+    )
+    grid = dict(a5["position"], centre=[2.0**40, *a5["position"]["centre"][1:]])
+    bad_codec(
+        "codec_invalid_centre_resolution",
+        "version 2 with position.centre[0] = 2^40: the grid spans under binary32's resolution there",
+        scene_meta(dict(a5, position=grid)),
+        attribute_entries(c5),
+        "on axis 0",
+        minor=2,
+    )
+
+
+def image_vectors(
+    ok, bad_codec, a2: dict, c2: dict, side: bytes, a0: dict, c0: dict, views10: list, webp: bytes
+) -> None:
+    """10.7 (1.4, revised): residual images whose signature or declared size is wrong (refused by every
+    decoder) and images cut short after a valid header (refused by a decoder that decodes them only)."""
+    from gspc.format.side_chunk import pack_side, unpack_side
+
+    unpacked = unpack_side(side)
+    ((k, image),) = unpacked.images.items()
+
+    def with_image(img: bytes) -> list:
+        payload = pack_side(unpacked.views, {k: img})
+        return [*attribute_entries(c2), (entry("SIDE", payload), payload)]
+
+    ok(
+        "codec_residual_damaged",
+        f"SIDE view 1's JPEG XL residual cut to {len(image) // 2} of its {len(image)} bytes after a valid "
+        "size header: decodes without the residuals; a decoder that decodes them refuses it",
+        scene_meta(a2),
+        with_image(image[: len(image) // 2]),
+        residuals=False,
+    )
+    import imagecodecs
+
+    tiny = imagecodecs.jpegxl_encode(np.full((1, 1, 3), 128, np.uint8), lossless=True, effort=3)
+    bad_codec(
+        "codec_invalid_residual_size",
+        "SIDE view 1's residual a JPEG XL image that declares 1x1 pixels (its view's residual is 12x10)",
+        scene_meta(a2),
+        with_image(tiny),
+        "declares 1x1",
+    )
+    bad_codec(
+        "codec_invalid_residual_signature",
+        "SIDE view 1's residual a WebP image where the chunk names JPEG XL",
+        scene_meta(a2),
+        with_image(webp),
+        "signature",
+    )
+    meta10 = scene_meta(a0, {"views": views10, "background": BACKGROUND, "restorer": "none"})
+    cut = webp[: len(webp) - 8]
+    ok(
+        "codec_residual_damaged_webp",
+        f"format 1.0 side information: the RESI chunk's lossless WebP cut to {len(cut)} of its {len(webp)} "
+        "bytes: decodes without the residuals; a decoder that decodes them refuses it",
+        meta10,
+        [*attribute_entries(c0), (entry("RESI", cut), cut)],
+        minor=0,
+        residuals=False,
+    )
 
 
 def precision_vectors(ok, bad_codec, a0: dict, c0: dict) -> None:
@@ -1506,6 +1612,8 @@ def manifest(vs: list[Vector]) -> dict:
             "message holds. 'codec' (codec_* files, section 10): expect 'ok': the decoded attributes "
             "(binary32 little-endian arrays in curve order: shape, SHA-256 of the bytes, row 0's values) "
             "and per side-information view its size and decoded residual R (H x W x 3, after upsampling); "
+            "with 'residuals': 'refused', those of a decoder that does not decode the residual images, while "
+            "one that decodes them refuses the file (spec 10.7); "
             "expect 'error': a decoder refuses the payloads (the reference raises CodecError)."
         ),
         "generated_by": "python tools/make_vectors.py",
@@ -1530,6 +1638,8 @@ def readme(vs: list[Vector]) -> str:
         expected = v.error or "ok"
         if v.codec is not None:
             expected = "decodes" if v.codec["expect"] == "ok" else "ok; codec: CodecError"
+            if v.codec.get("residuals") == "refused":
+                expected = "decodes without residuals; with them CodecError"
         lines.append(f"| `{v.name}.gspc` | {len(v.data)} | {expected} | {v.description} |")
     return "\n".join(lines) + "\n"
 
@@ -1556,6 +1666,14 @@ def check_with_reader(vs: list[Vector]) -> list[str]:
             (e["type"], e["index"], p) for e, p in v.kept
         ]:
             problems.append(f"{v.name}: reader decoded different content")
+        elif v.codec is not None and v.codec.get("residuals") == "refused":
+            from gspc.errors import CodecError
+
+            try:
+                reference_decode(v.data)
+                problems.append(f"{v.name}: the reference decoded residuals a decoder must refuse")
+            except CodecError:
+                pass
         elif v.codec is not None and v.codec["expect"] == "error":
             from gspc.errors import CodecError
 

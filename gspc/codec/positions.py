@@ -44,6 +44,7 @@ from gspc.format.attribute_section import (
     CONTRACTED_MAX_BITS,
     MAX_BITS,
     MAX_CONTRACTED,
+    RESOLUTION,
     Contraction,
     FarSet,
     PositionGrid,
@@ -85,7 +86,27 @@ def voxel_grid(means: np.ndarray, precision: float) -> tuple[int, list[float], l
     bits = span_bits(extent, step)
     if bits > MAX_BITS:
         step, bits = step * 2.0 ** (bits - MAX_BITS), MAX_BITS
+    step = resolvable_step(lo, step, bits)
     return bits, [float(x) for x in lo], [float(x) for x in step]
+
+
+def resolvable_step(
+    lo: np.ndarray, step: np.ndarray, bits: int, floor: np.ndarray | None = None
+) -> np.ndarray:
+    """``step`` per axis, coarsened where the grid's span (2^bits - 1) step is under RESOLUTION of the
+    larger of |lo| and the far corner's magnitude, or under ``floor`` (spec 10.1): only a flat axis far from
+    the origin (its step 1 whatever its coordinate), or a grid of less than one binary32 step, needs it."""
+    out = np.array(step, np.float64)
+    least = np.zeros(3) if floor is None else np.asarray(floor, np.float64)
+    top = float((1 << bits) - 1)
+    for a in range(3):
+        for _ in range(4):  # the corner moves with the step: settles at once
+            corner = max(abs(float(lo[a])), abs(float(lo[a]) + top * out[a]))
+            need = max(RESOLUTION * corner, float(least[a])) / top
+            if top * out[a] >= max(RESOLUTION * corner, float(least[a])):
+                break
+            out[a] = need * (1.0 + 2.0**-20)
+    return out
 
 
 def cubic_step(extent: np.ndarray, precision: float) -> np.ndarray:
@@ -173,17 +194,31 @@ def morton_decode(code: np.ndarray, bits: int) -> np.ndarray:
     return v
 
 
-def contracted_grid(y: np.ndarray, precision: float) -> tuple[int, list[float], list[float]]:
+def contracted_grid(
+    y: np.ndarray, precision: float, centre_floor: np.ndarray | None = None
+) -> tuple[int, list[float], list[float]]:
     """(grid bits, lo, step) in grid space: the voxel size a grid of ``precision`` bits has over the Gaussians
     the mapping leaves as they are (|y| <= 2), with as many bits as the whole scene's extent needs at that
-    size (at most MAX_BITS; beyond, the voxels grow)."""
+    size (at most MAX_BITS; beyond, the voxels grow), spanning at least ``centre_floor`` per axis (what
+    binary32 resolves at the region's centre, spec 10.1)."""
     inside = np.sqrt((y * y).sum(1)) <= IDENTITY_RADIUS
     core = y[inside] if inside.any() else y
-    return _contracted_grid(y.min(0), y.max(0), np.stack([core.min(0), core.max(0)]), precision)
+    core_bounds = np.stack([core.min(0), core.max(0)])
+    return _contracted_grid(y.min(0), y.max(0), core_bounds, precision, centre_floor)
+
+
+def resolution_floor(contraction: Contraction) -> np.ndarray:
+    """The least span per axis of a grid in ``contraction``'s space: what binary32 resolves at the region's
+    centre (spec 10.1)."""
+    return RESOLUTION * np.abs(np.asarray(contraction.centre)) / contraction.radius * (1.0 + 2.0**-20)
 
 
 def _contracted_grid(
-    lo: np.ndarray, hi: np.ndarray, core: np.ndarray, precision: float
+    lo: np.ndarray,
+    hi: np.ndarray,
+    core: np.ndarray,
+    precision: float,
+    centre_floor: np.ndarray | None = None,
 ) -> tuple[int, list[float], list[float]]:
     """:func:`contracted_grid` from the bounds: all the points' (``lo``, ``hi``), the core's (2 x 3)."""
     step = cubic_step(core[1] - core[0], precision)
@@ -191,6 +226,7 @@ def _contracted_grid(
     bits = min(max(grid_bits(precision), need), CONTRACTED_MAX_BITS)
     if need > CONTRACTED_MAX_BITS:
         step = step * 2.0 ** (need - CONTRACTED_MAX_BITS)
+    step = resolvable_step(lo, step, bits, centre_floor)
     return bits, [float(x) for x in lo], _inside_bound(lo, hi, step, bits)
 
 
@@ -238,7 +274,7 @@ class GridFrame:
             bits, lo_, step = voxel_grid(np.stack([lo, hi]), precision)
             return PositionGrid(bits, tuple(lo_), tuple(step))
         core = np.stack([np.asarray(self.core_lo), np.asarray(self.core_hi)])
-        bits, lo_, step = _contracted_grid(lo, hi, core, precision)
+        bits, lo_, step = _contracted_grid(lo, hi, core, precision, resolution_floor(self.contraction))
         return PositionGrid(bits, tuple(lo_), tuple(step), self.contraction)
 
 

@@ -51,7 +51,7 @@ from gspc.format.header import FileHeader, SceneSummary, SideInfoHeader
 from gspc.format.view_records import check_view_pixels
 from gspc.options import EncodeOptions
 from gspc.presets import quality_preset
-from gspc.reconstruct import render_images
+from gspc.reconstruct import check_decode_work, decode_work, refine_iterations, render_images, work_bound
 from gspc.restore.restorer import load_restorer
 from gspc.scene import GaussianScene
 from gspc.stages import Stages
@@ -434,6 +434,11 @@ def _side_information(
     if side is None:
         reason = "none (no view's residual was worth sending)"
         return _Side(_unrefined(scene, coded, stages), None, runs.refine, reason)
+    # No more iterations than a decode of a file of at least these payloads runs (spec 10.8).
+    least = enc.num_bytes + min(len(c.payload) for c in candidates if c.payload is not None)
+    runs = iteration_counts(
+        opts, enc.decoded.num_gaussians, work_bound(enc.decoded, view_cams, side.images, least)
+    )
     if runs.check == 0:
         return _Side(enc, side, runs.refine, _sent(side, "unchecked, --check-iterations 0"))
     inputs = CheckInputs(
@@ -572,11 +577,17 @@ def _unrefined(scene: GaussianScene, coded: CodedAttributes, stages: Stages) -> 
 
 
 def file_bytes(decisions: EncoderDecisions, scene: GaussianScene | None, opts: EncodeOptions) -> bytes:
-    """The .gspc file the decisions describe. The decoder refuses views beyond its pixel budget for the
-    file's size (gspc/limits.py): the encoder refuses to write a file it would refuse."""
+    """The .gspc file the decisions describe. The decoder refuses views beyond its pixel and work budgets for
+    the file's size (spec 10.8): the encoder refuses to write a file it would refuse."""
     if decisions.tiles:
         return _tiled_file_bytes(decisions, opts)
     enc, side = decisions.attributes, decisions.side
+    iterations, work = decisions.refine_iterations, None
+    if side is not None:
+        # Name no more iterations than a decode of this file runs (its payloads' bytes: a lower bound).
+        work = decode_work(enc.decoded, [v.camera.to_camera() for v in side.records], side.images, None)
+        payloads = enc.num_bytes + len(side.payload)
+        iterations = refine_iterations(iterations, work, payloads)
     header = FileHeader(
         encoder=f"gspc {__version__}",
         scene=SceneSummary(
@@ -587,11 +598,13 @@ def file_bytes(decisions: EncoderDecisions, scene: GaussianScene | None, opts: E
             decisions.fidelity.psnr_db if decisions.fidelity is not None else None,
         ),
         attributes=enc.section,
-        side_info=SideInfoHeader(opts.background, opts.restorer, decisions.refine_iterations),
+        side_info=SideInfoHeader(opts.background, opts.restorer, iterations),
     )
     data = pack_file(header, enc.chunks, side.payload if side is not None else None)
     try:
         check_view_pixels(side.records if side is not None else [], len(data))
+        if work is not None:
+            check_decode_work(work, len(data))
     except CodecError as e:
         raise InputError(f"{e}; lower --max-side or --views-fraction") from None
     return data

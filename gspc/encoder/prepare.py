@@ -136,13 +136,16 @@ class Iterations:
     refine: int  # the decoder's default, written to the header
 
 
-def iteration_counts(opts: EncodeOptions, num_gaussians: int) -> Iterations:
+def iteration_counts(opts: EncodeOptions, num_gaussians: int, work_bound: int | None = None) -> Iterations:
     """The check's and the decoder's refinement lengths: an explicit ``--check-iterations``, else the preset's
     scaled down for large scenes (gspc/presets.py, REFINE_WORK); both within the default a file of
-    ``num_gaussians`` coded Gaussians may name (gspc/limits.py), so the check runs what a decode will run."""
+    ``num_gaussians`` coded Gaussians may name and within ``work_bound``, the iterations its bytes pay for
+    (gspc/limits.py, gspc/reconstruct.py work_bound), so the check runs what a decode will run."""
     preset = refine_iterations_for(quality_preset(opts.quality).refine_iterations, num_gaussians)
     check = preset if opts.check_iterations is None else opts.check_iterations
     check = default_refine_iterations(check, num_gaussians)
+    if work_bound is not None:
+        preset, check = min(preset, work_bound), min(check, work_bound)
     return Iterations(check, check or preset)  # unchecked files name the preset's
 
 

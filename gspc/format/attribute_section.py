@@ -11,7 +11,7 @@ order is part of the file's bytes. No numpy or torch here: ``gspc info`` reads h
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from gspc.errors import CodecError
 from gspc.format.chunks import ATTRIBUTE_TYPES, PREC, SHRS
@@ -48,6 +48,14 @@ MAX_COORDINATE = 2.0**64
 # A contracted grid's corners in grid space: |y_a| <= 32 keeps rho = |y| below 56, so the octave e =
 # floor(rho - 1) is at most 54 and R 2^(e + 1) <= 2^120 (a grid point at 32 is 2^31 radii away).
 MAX_CONTRACTED = 32.0
+# On every axis a grid spans at least 2^-24 of the coordinates at its corners (and a contracted grid of its
+# centre): binary32 holds 24 significant bits, so a grid spanning less decodes every Gaussian onto one
+# binary32 coordinate on that axis whatever its payload says (a grid at lo = 2^64 did). Spec 10.1.
+RESOLUTION = 2.0**-24
+# Quantiser steps (scale_step, dc_step, sh_steps, of every class): a decoded integer is at most 2^48 in
+# magnitude (spec 10.0), so a step of at most 2^64 keeps every decoded value a finite binary32 (a step of
+# 3.4e38 decoded infinite values).
+MAX_STEP = 2.0**64
 
 
 def _show(value: object) -> str:
@@ -154,6 +162,21 @@ class PositionGrid:
                 f"attribute codec header's position grid reaches {_show(list(top))} "
                 f"(lo + (2^bits - 1) step), beyond +-{_bound(bound)} (spec 10.1)"
             )
+        for a, (lo, s, t) in enumerate(zip(self.lo, self.step, top)):
+            span = float((1 << self.bits) - 1) * s  # the product T_a adds to lo_a
+            if span < RESOLUTION * max(abs(lo), abs(t)):
+                raise CodecError(
+                    f"attribute codec header's position grid spans {span!r} on axis {a} (position.step[{a}] "
+                    f"x (2^bits - 1)), under 2^-24 of its corner {max(abs(lo), abs(t))!r}: binary32 decodes "
+                    "it onto one point (spec 10.1)"
+                )
+            c = self.contraction
+            if c is not None and c.radius * span < RESOLUTION * abs(c.centre[a]):
+                raise CodecError(
+                    f"attribute codec header's position grid spans {c.radius * span!r} on axis {a} in world "
+                    f"space (radius x step x (2^bits - 1)), under 2^-24 of position.centre[{a}] = "
+                    f"{c.centre[a]!r}: binary32 decodes it onto one point (spec 10.1)"
+                )
         if self.far is not None and self.contraction is None:
             raise CodecError("attribute codec header has a far set on a grid that is not contracted")
         if self.far is not None and not 1 <= self.far.shift <= self.bits - 1:
@@ -226,6 +249,7 @@ class ClassSteps:
     rotation_levels: int
     dc_step: float
     sh_steps: tuple[float, ...]
+    where: str = field(default="", compare=False, repr=False)  # "classes[k]." of a map read from a file
 
     def __post_init__(self) -> None:
         # Levels up to 2^48, as every other integer of the codec (spec 10.0): each enters binary64 exactly.
@@ -234,9 +258,9 @@ class ClassSteps:
                 f"attribute codec header has impossible quantiser levels ({self.opacity_levels}, "
                 f"{self.rotation_levels})"
             )
-        _positive((self.scale_step,), "scale_step")
-        _positive((self.dc_step,), "dc_step")
-        _positive(self.sh_steps, "sh_steps")
+        _positive((self.scale_step,), f"{self.where}scale_step", MAX_STEP)
+        _positive((self.dc_step,), f"{self.where}dc_step", MAX_STEP)
+        _positive(self.sh_steps, f"{self.where}sh_steps", MAX_STEP)
 
     def to_dict(self) -> dict:
         return {
@@ -264,7 +288,7 @@ class ClassSteps:
                 f"(needs {num_sh})"
             )
         sh_steps = _floats(meta, "sh_steps", where + "sh_steps", num_sh)
-        return cls(opacity_levels, scale_step, rotation_levels, dc_step, sh_steps)
+        return cls(opacity_levels, scale_step, rotation_levels, dc_step, sh_steps, where)
 
 
 @dataclass(frozen=True)

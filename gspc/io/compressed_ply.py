@@ -56,6 +56,33 @@ def _unpack_rotation(packed: np.ndarray) -> np.ndarray:
     return place_largest(mode, abc)
 
 
+def _finite(element: np.ndarray, name: str, source: str) -> np.ndarray:
+    """A chunk's bound as float64; InputError naming it where one is NaN or infinite (the interpolation
+    would turn it into NaN)."""
+    values = np.asarray(element[name], np.float64)
+    if not np.isfinite(values).all():
+        bad = values[~np.isfinite(values)][0]
+        raise InputError(f"{source}: chunk property '{name}' holds {bad} (a chunk's bounds must be finite)")
+    return values
+
+
+def _packed(vertex: np.ndarray, name: str, source: str) -> np.ndarray:
+    """A packed vertex field as uint32: an unsigned integer property (splat-transform writes uint), or a
+    float or signed one whose every value is a whole number in 0 .. 2^32 - 1; InputError naming it otherwise
+    (a float NaN would cast to an arbitrary integer)."""
+    values = np.asarray(vertex[name])
+    if values.dtype.kind == "u" and values.dtype.itemsize <= 4:
+        return values.astype(np.uint32)
+    wide = values.astype(np.float64)
+    good = (wide >= 0) & (wide <= 0xFFFFFFFF) & (np.floor(wide) == wide)  # False for NaN, no warning
+    if not good.all():
+        raise InputError(
+            f"{source}: vertex property '{name}' holds {float(wide[~good][0])!r}, not a packed field (an "
+            "integer in 0..2^32 - 1)"
+        )
+    return wide.astype(np.uint32)
+
+
 def scene_from_compressed(ply: PlyData, source: str = "PLY") -> GaussianScene:
     """Decode a parsed compressed PLY into a validated scene."""
     names = [e.name for e in ply.elements]
@@ -79,11 +106,11 @@ def scene_from_compressed(ply: PlyData, source: str = "PLY") -> GaussianScene:
     ci = np.arange(n) // CHUNK_SIZE
 
     def bounds(prefix: str, axes) -> tuple[np.ndarray, np.ndarray]:
-        lo = np.stack([np.asarray(chunk[f"min_{prefix}{a}"], np.float64) for a in axes], axis=1)[ci]
-        hi = np.stack([np.asarray(chunk[f"max_{prefix}{a}"], np.float64) for a in axes], axis=1)[ci]
+        lo = np.stack([_finite(chunk, f"min_{prefix}{a}", source) for a in axes], axis=1)[ci]
+        hi = np.stack([_finite(chunk, f"max_{prefix}{a}", source) for a in axes], axis=1)[ci]
         return lo, hi
 
-    packed = {p: np.asarray(vertex[p]).astype(np.uint32) for p in PACKED}
+    packed = {p: _packed(vertex, p, source) for p in PACKED}
     means = _lerp(*bounds("", "xyz"), _unpack_111011(packed["packed_position"]))
     log_scales = _lerp(*bounds("scale_", "xyz"), _unpack_111011(packed["packed_scale"]))
     quats = _unpack_rotation(packed["packed_rotation"])

@@ -2,7 +2,8 @@
 
 Readers of float attributes (the INRIA PLY reader) pass their columns through here before validation, so a
 scene from splat-transform or spz-js loads, while values that mean nothing (NaN, an all-zero rotation, a
-double too large for float32) are still refused by name.
+double too large for float32) are still refused by name. A quaternion is a direction whatever its length, so
+one too small or too large for float32 arithmetic is made unit length rather than refused.
 """
 
 from __future__ import annotations
@@ -18,10 +19,12 @@ from gspc.errors import InputError
 # below -103.9, where the renderer's log(alpha) (gspc/render/rasterize.py) becomes -inf; -20 keeps it finite.
 OPACITY_LOGIT_LIMIT = 20.0
 
-# Quaternions whose largest component is below this are rescaled to unit length in float64: their squared
-# norm, which float32 code downstream computes to normalise them, would underflow (below about 1e-19 it is
-# 0 in float32), so they would read as "all-zero" or turn into NaN though their direction is well defined.
+# Quaternions whose largest component is below TINY_QUATERNION or above HUGE_QUATERNION are rescaled to unit
+# length in float64: their squared norm, which float32 code downstream computes to normalise them, would
+# underflow (below about 1e-19 it is 0 in float32) or overflow (above about 1e19 it is infinite), so they
+# would read as "all-zero" or turn into NaN though their direction is well defined.
 TINY_QUATERNION = 1e-10
+HUGE_QUATERNION = 1e10
 
 FLOAT32_MAX = float(np.finfo(np.float32).max)
 
@@ -34,15 +37,17 @@ def finite_opacity_logits(logits: np.ndarray) -> np.ndarray:
     return out
 
 
-def normalise_tiny_quaternions(quats: np.ndarray) -> np.ndarray:
-    """``quats`` (N, 4) with finite, non-zero but tiny rows scaled to unit length; other rows unchanged."""
+def normalise_extreme_quaternions(quats: np.ndarray) -> np.ndarray:
+    """``quats`` (N, 4) with finite rows that are tiny or huge (not zero) scaled to unit length; other rows
+    unchanged."""
     out = np.array(quats, dtype=np.float32, copy=True)
     with np.errstate(invalid="ignore"):
         largest = np.abs(out).max(axis=1)
-    tiny = np.isfinite(out).all(axis=1) & (largest > 0) & (largest < TINY_QUATERNION)
-    if tiny.any():
-        q = out[tiny].astype(np.float64) / largest[tiny, None]  # exact scaling first: no underflow
-        out[tiny] = q / np.linalg.norm(q, axis=1, keepdims=True)
+    extreme = (largest < TINY_QUATERNION) | (largest > HUGE_QUATERNION)
+    extreme &= np.isfinite(out).all(axis=1) & (largest > 0)
+    if extreme.any():
+        q = out[extreme].astype(np.float64) / largest[extreme, None]  # exact scaling first: no under/overflow
+        out[extreme] = q / np.linalg.norm(q, axis=1, keepdims=True)
     return out
 
 

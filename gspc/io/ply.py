@@ -3,8 +3,9 @@
 One ``vertex`` element with float properties ``x y z``, optional normals ``nx ny nz``, ``f_dc_0..2``,
 ``f_rest_0..3K-1`` (channel-major: the K red coefficients, then green, then blue), ``opacity`` (logit),
 ``scale_0..2`` (log) and ``rot_0..3`` (w, x, y, z, unnormalised). Any other vertex property is kept in
-``scene.extra`` and written back unchanged. Infinite opacity logits and tiny quaternions, which other tools
-write, are mapped to what they mean (gspc/io/interop.py); double values beyond float32 are refused by name.
+``scene.extra`` and written back unchanged. Infinite opacity logits and tiny or huge quaternions, which
+other tools write, are mapped to what they mean (gspc/io/interop.py); double values beyond float32 are
+refused by name.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ from plyfile import PlyData, PlyElement
 from gspc.atomic import atomic_write
 from gspc.errors import InputError
 from gspc.io.coordinates import OPENCV, oriented
-from gspc.io.interop import finite_opacity_logits, float32_column, normalise_tiny_quaternions
+from gspc.io.interop import finite_opacity_logits, float32_column, normalise_extreme_quaternions
 from gspc.scene import GaussianScene, num_sh_rest, sh_degree_from_rest
 
 POSITION = ("x", "y", "z")
@@ -137,7 +138,7 @@ def scene_from_plydata(ply: PlyData, source: str = "PLY") -> GaussianScene:
     extra = {p: np.array(data[p]) for p in props if p not in known}
     scene = GaussianScene(
         means=stack(POSITION),
-        quats=torch.from_numpy(normalise_tiny_quaternions(stack(ROTATION).numpy())),
+        quats=torch.from_numpy(normalise_extreme_quaternions(stack(ROTATION).numpy())),
         log_scales=stack(SCALES),
         opacities=torch.from_numpy(finite_opacity_logits(column(OPACITY))),
         sh_dc=stack(DC),

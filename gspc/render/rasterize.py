@@ -30,6 +30,8 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from gspc.errors import InputError
+from gspc.limits import MAX_VIEW_PAIRS
 from gspc.render.kernels import pick_kernel
 from gspc.render.rules import (
     ALPHA_MAX,
@@ -207,6 +209,13 @@ def bin_tiles(
     hi = torch.floor((means2d + extents - 0.5) / TILE)
     lo = torch.maximum(lo, torch.zeros_like(lo)).long()
     hi = torch.minimum(hi, torch.tensor([tiles_x - 1, tiles_y - 1], device=dev, dtype=hi.dtype)).long()
+    # The lists hold at most the boxes' tiles: refused before anything of that size is allocated.
+    boxes = int((hi - lo + 1).clamp_min(0).prod(1).sum())
+    if boxes > MAX_VIEW_PAIRS:
+        raise InputError(
+            f"rendering a {width}x{height} view asks for up to {boxes:,} Gaussian-tile pairs; no render may "
+            f"ask for more than {MAX_VIEW_PAIRS:,} (gspc/limits.py): lower the view's size"
+        )
     # thr = 2 ln(255 o) with the compositor's relative margin (composite_cpu.py walks that ellipse).
     thr = (2.0 * torch.log(opacities.to(torch.float64) / ALPHA_MIN)).clamp_min(0.0)
     thr = thr * (1.0 + THRESHOLD_REL_MARGIN) + THRESHOLD_REL_MARGIN
