@@ -421,14 +421,15 @@ def work_files(header: dict, d: Path) -> list[tuple[str, Path, bool]]:
     bytes (issue 50; spec 10.8, "The decoder's work"): a default refinement of 2^16 iterations over 2^16
     Gaussians, a view's Gaussian-tile pairs at the floor and one Gaussian past it, the issue's 2^16 large
     Gaussians before one 640 x 640 and one 2048 x 2048 view, first renders at the work budget and one view
-    past it, and views of the pixel floor's restored."""
+    past it, and views of the pixel floor's restored. Each has a residual at its first view at least: a
+    decoder renders only where it refines, and refines only where a view has a residual (spec 10.8)."""
     lo = header["attributes"]["position"]["lo"]
     out = []
     view = facing_view(lo, 48, 48, 3.0, True)
     name = "65,536 identical Gaussians naming 65,536 refinement iterations (runs what its budget pays for)"
     out.append((name, work_file(d / "work_refine.gspc", header, 1 << 16, [view], -4.0, 1 << 16), True))
     # Gaussians covering every tile of a 512 x 512 view (64 x 64 tiles): 2^22 / 4096 of them at the floor.
-    big = facing_view(lo, 512, 512, 3.0, False)
+    big, plain = facing_view(lo, 512, 512, 3.0, True), facing_view(lo, 512, 512, 3.0, False)
     per = (512 // 8) ** 2
     for count, ok in ((limits.PAIR_FLOOR // per, True), (limits.PAIR_FLOOR // per + 1, False)):
         name = f"{count:,} large Gaussians before a 512 x 512 view: {count * per:,} pairs"
@@ -436,14 +437,14 @@ def work_files(header: dict, d: Path) -> list[tuple[str, Path, bool]]:
         out.append((name, work_file(d / f"work_pairs_{count}.gspc", header, count, [big], 2.0), ok))
     for side in (640, 2048):
         name = f"65,536 large Gaussians before one {side} x {side} view (issue 50)"
-        view = facing_view(lo, side, side, 3.0, False)
+        view = facing_view(lo, side, side, 3.0, True)
         out.append((name, work_file(d / f"work_view_{side}.gspc", header, 1 << 16, [view], 2.0), False))
     # Views each at the pair floor: their first renders reach the work floor after a few.
     count = limits.PAIR_FLOOR // per
     first = limits.view_work(count, limits.PAIR_FLOOR, 512 * 512)
-    fits = limits.WORK_FLOOR // first
+    fits = (limits.WORK_FLOOR - limits.RESTORE_PIXEL_WORK * 512 * 512) // first
     for views, ok in ((fits, True), (fits + 1, False)):
-        path = work_file(d / f"work_views_{views}.gspc", header, count, [big] * views, 2.0)
+        path = work_file(d / f"work_views_{views}.gspc", header, count, [big] + [plain] * (views - 1), 2.0)
         assert limits.decode_work_budget(path.stat().st_size) == limits.WORK_FLOOR
         name = f"{views} views at the pair floor: first renders {'within' if ok else 'past'} the work floor"
         out.append((name, path, ok))

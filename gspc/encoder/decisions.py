@@ -304,10 +304,13 @@ def _decide_at(
         )
     fidelity = None
     if opts.target_psnr is not None:  # the fewest bytes that reach the fidelity, with the choices kept
+        # A file that cannot carry side information is coded with the parameters for no refinement: the
+        # search reaches the target with those, not with others re-searched in the same bytes after.
+        no_side = not (opts.side_info and quality_preset(opts.quality).side_info)
         with stages.stage("fidelity", announce=False):
             fidelity = code_to_fidelity(
                 scene.to("cpu"),
-                coded.params,
+                coded.params.unrefined() if no_side else coded.params,
                 coded.visible,
                 coded.significance,
                 cams,

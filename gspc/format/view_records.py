@@ -72,6 +72,9 @@ class CameraRecord:
             raise CodecError(f"camera pose {_show(self.pose)} is not {_POSE_BYTES} bytes")
         if not all(math.isfinite(x) for x in struct.unpack("<16f", self.intrinsics + self.pose)):
             raise CodecError("camera has NaN or Inf values")
+        fx, fy = struct.unpack("<2f", self.intrinsics[:8])
+        if not (fx > 0 and fy > 0):  # a pinhole camera divides by them (spec 10.8), read or not
+            raise CodecError(f"camera focal lengths fx={fx:g}, fy={fy:g}; both must be > 0")
 
     @property
     def pixels(self) -> int:
