@@ -35,11 +35,11 @@ from gspc.pipeline import decode
 LEGO = REPO / "examples" / "lego"
 BACKGROUND = (1.0, 1.0, 1.0)  # the lego example's, given to the encoder below
 VIEWS = (0, 12, 25, 37)  # cameras of examples/lego/cameras.json, around the scene and from above
-# The viewer's renderer (Spark) against gspc's, from the same camera on the same decoded Gaussians: set to
-# gspc's rules (spec 10.12), Spark still differs by its packed splat encoding (half-float centres, 8-bit
-# colours and scales), its per-splat depth sort and its 3.33-sigma quad. Measured over these views of both
-# files at 42 dB or more; the floor leaves 4 dB for drivers' round-off, and a wrong camera, axis or
-# attribute costs over 10 dB (bench/web.md, "In the browser: the viewer against gspc's render").
+# The viewer's renderer (Spark) against gspc's, from the same camera on the same decoded Gaussians. Set to
+# gspc's rules (spec 10.12) where Spark has a setting, it still differs in small ways: its packed splats
+# (half-float centres, 8-bit colours, opacities and log scales), its sort (per splat, not per pixel) and its
+# quad's cut. The floor sits several dB under the lowest view measured, and far above what a wrong setting,
+# camera or attribute gives (bench/web.md, "In the browser: the viewer against gspc's render").
 PSNR_FLOOR = 38.0
 ATTRIBUTES = {
     "means": "means",

@@ -6,8 +6,9 @@
 // range requests), region (x0,y0,z0,x1,y1,z1: only the tiles that meet this box), digest (1: keep the
 // decoded arrays for window.gspcViewer.digests(), for tests).
 //
-// window.gspcViewer, for tests and scripts: `shown` (a promise of {tiles, count, seconds} once every tile
-// is drawn, rejected with the error), setCamera(w2c, fx, fy, cx, cy, width, height) (an OpenCV camera,
+// window.gspcViewer, for tests and scripts: `shown` (a promise of {tiles, count, seconds, firstSeconds}
+// once every tile is drawn: seconds from the start to the last tile drawn and to the first; rejected with
+// the error), setCamera(w2c, fx, fy, cx, cy, width, height) (an OpenCV camera,
 // world-to-camera row-major, in the file's coordinates), capture() (a PNG data URL of the settled view),
 // digests() (each decoded attribute's SHA-256 over all tiles in file order, with ?digest=1).
 
@@ -62,6 +63,7 @@ async function main() {
   let size = 0;
   let tilesShown = 0;
   let shownCount = 0;
+  let firstSeconds = null;
   let drawing = Promise.resolve();
 
   const update = () => {
@@ -106,6 +108,7 @@ async function main() {
       if (!framed) frame([tile.box], [tile.count]);
       drawing = drawing.then(async () => {
         await view.addTile(tile);
+        if (firstSeconds === null) firstSeconds = (performance.now() - start) / 1000;
         tilesShown++;
         shownCount += tile.count;
         update();
@@ -132,7 +135,7 @@ async function main() {
     }
     return out;
   };
-  settle.resolve({ tiles: tilesShown, count: shownCount, seconds });
+  settle.resolve({ tiles: tilesShown, count: shownCount, seconds, firstSeconds });
 }
 
 window.gspcViewer = { shown };
