@@ -66,6 +66,8 @@ def _one_line_errors(fn):
             # The shell's convention for a run stopped by Ctrl-C (128 + SIGINT): scripts tell it from failure.
             err.print("[red]error:[/red] interrupted", highlight=False)
             raise typer.Exit(130) from None
+        except typer.Exit:
+            raise  # a command's own exit status (gspc view stopped by Ctrl-C)
         except Exception as e:  # an internal bug: still one line, with a way to see more
             if os.environ.get("GSPC_DEBUG"):
                 raise
@@ -541,6 +543,23 @@ def convert(
     _console_for(output).print(
         f"wrote {sc.num_gaussians:,} Gaussians (SH degree {sc.sh_degree}) to {output}", markup=False
     )
+
+
+@app.command()
+@_one_line_errors
+def view(
+    scene: Path = typer.Argument(..., help="the .gspc file to show"),
+    port: int = typer.Option(0, help="port on 127.0.0.1 to serve on (0: a free one)"),
+) -> None:
+    """Serve a .gspc file and the web viewer (web/viewer) on 127.0.0.1, and print the address to open."""
+    from gspc.view import serve
+
+    try:
+        serve(scene, port, lambda line: out.print(line, markup=False, highlight=False, soft_wrap=True))
+    except KeyboardInterrupt:
+        # Ctrl-C is how a server stops: no error, and the shell's status for it (128 + SIGINT).
+        out.print("gspc view: stopped", markup=False, highlight=False)
+        raise typer.Exit(130) from None
 
 
 def main() -> None:  # pragma: no cover - console script entry
