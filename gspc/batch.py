@@ -26,7 +26,7 @@ from gspc.progress import Progress
 from gspc.scene import GaussianScene
 from gspc.workers import TaskFailure, error_line, open_executor
 
-# A scene folder (tools/make_district.py writes them): its Gaussians, and the cameras they were trained at.
+# A scene folder (the INRIA layout's names, as the district scenes use): its Gaussians, and its cameras.
 SCENE_FILE = "point_cloud.ply"
 CAMERAS_FILE = "cameras.json"
 SOG_META = "meta.json"  # a SOG scene written as a folder is one scene

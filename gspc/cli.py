@@ -25,7 +25,7 @@ from gspc.atomic import check_output_path
 from gspc.errors import GspcError
 from gspc.options import DecodeOptions, EncodeOptions
 from gspc.progress import ProgressLines
-from gspc.workers import default_workers
+from gspc.workers import default_workers, error_line
 
 app = typer.Typer(
     add_completion=False, no_args_is_help=True, help="gspc: a codec for 3D Gaussian Splatting scenes."
@@ -58,10 +58,8 @@ def _one_line_errors(fn):
         try:
             with one_line_warnings():
                 return fn(*args, **kwargs)
-        except GspcError as e:
-            msg = str(e)
-        except (OSError, MemoryError) as e:
-            msg = f"{type(e).__name__}: {e}"
+        except (GspcError, OSError, MemoryError) as e:
+            msg = error_line(e)
         except typer.Exit:  # a command's own exit status (a batch where a scene failed)
             raise
         except KeyboardInterrupt:
@@ -71,7 +69,7 @@ def _one_line_errors(fn):
         except Exception as e:  # an internal bug: still one line, with a way to see more
             if os.environ.get("GSPC_DEBUG"):
                 raise
-            msg = f"internal error ({type(e).__name__}: {e}); rerun with GSPC_DEBUG=1 for a traceback"
+            msg = error_line(e)
         # Messages quote paths and install hints ("gspc[cuda]") that rich would read as markup and drop.
         err.print(f"[red]error:[/red] {escape(msg)}", highlight=False, soft_wrap=True)
         raise typer.Exit(1)

@@ -16,6 +16,7 @@ receives the reference.
 from __future__ import annotations
 
 import json
+import logging
 import multiprocessing
 import os
 import socket
@@ -29,6 +30,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import TypeVar
 
+from gspc import __version__
 from gspc.errors import DeviceError, GspcError, InputError
 from gspc.progress import Progress
 
@@ -147,6 +149,7 @@ class Executor:
     :class:`TaskFailure` in its place, the others go on)."""
 
     slots = 1  # tasks that run side by side
+    dies_together = False  # a worker's death fails the other tasks in flight too (they run again)
 
     def describe(self) -> str:
         raise NotImplementedError
@@ -207,8 +210,8 @@ class Executor:
                         self._restart()
                         if not keep_going:
                             raise GspcError(f"{name(job)}: {e}") from None
-                        # The others in flight ran on the lost workers too: they run again.
-                        pending = deque((j, self._submit_named(fn, j, name)) for j, _ in pending)
+                        if self.dies_together:
+                            pending = deque((j, self._submit_named(fn, j, name)) for j, _ in pending)
                         result = TaskFailure(name(job), str(e))
                     except Exception as e:
                         if not keep_going:
@@ -250,6 +253,8 @@ class InProcess(Executor):
 class LocalProcesses(Executor):
     """Tasks on worker processes of this machine (forkserver where there is one), started at the first
     task and kept for the executor's life: a batch of scenes starts them once."""
+
+    dies_together = True  # a process pool is broken by one death
 
     def __init__(self, workers: int) -> None:
         self.slots = workers
@@ -311,10 +316,6 @@ class RayExecutor(Executor):
 
     def __init__(self, address: str, workers: int | None) -> None:
         ray = self.ray = import_ray()
-        import logging
-
-        import gspc
-
         quiet = dict(log_to_driver=False, logging_level=logging.ERROR, include_dashboard=False)
         self.owned = not ray.is_initialized()
         self.address = address
@@ -332,7 +333,7 @@ class RayExecutor(Executor):
         cpus = int(ray.cluster_resources().get("CPU", 0))
         self.cpus = cpus
         self.slots = max(1, workers if workers and address != "auto" else cpus)
-        self.version = gspc.__version__
+        self.version = __version__
         self._task = ray.remote(num_cpus=1, max_retries=0, retry_exceptions=False)(_ray_task)
 
     def describe(self) -> str:
