@@ -60,14 +60,12 @@ def _one_line_errors(fn):
                 return fn(*args, **kwargs)
         except (GspcError, OSError, MemoryError) as e:
             msg = error_line(e)
-        except typer.Exit:  # a command's own exit status (a batch where a scene failed)
+        except typer.Exit:  # a command's own exit status (a batch where a scene failed, gspc view stopped)
             raise
         except KeyboardInterrupt:
             # The shell's convention for a run stopped by Ctrl-C (128 + SIGINT): scripts tell it from failure.
             err.print("[red]error:[/red] interrupted", highlight=False)
             raise typer.Exit(130) from None
-        except typer.Exit:
-            raise  # a command's own exit status (gspc view stopped by Ctrl-C)
         except Exception as e:  # an internal bug: still one line, with a way to see more
             if os.environ.get("GSPC_DEBUG"):
                 raise
