@@ -25,7 +25,7 @@ from gspc.atomic import check_output_path
 from gspc.errors import GspcError
 from gspc.options import DecodeOptions, EncodeOptions
 from gspc.progress import ProgressLines
-from gspc.workers import default_workers
+from gspc.workers import default_workers, error_line
 
 app = typer.Typer(
     add_completion=False, no_args_is_help=True, help="gspc: a codec for 3D Gaussian Splatting scenes."
@@ -58,10 +58,10 @@ def _one_line_errors(fn):
         try:
             with one_line_warnings():
                 return fn(*args, **kwargs)
-        except GspcError as e:
-            msg = str(e)
-        except (OSError, MemoryError) as e:
-            msg = f"{type(e).__name__}: {e}"
+        except (GspcError, OSError, MemoryError) as e:
+            msg = error_line(e)
+        except typer.Exit:  # a command's own exit status (a batch where a scene failed, gspc view stopped)
+            raise
         except KeyboardInterrupt:
             # The shell's convention for a run stopped by Ctrl-C (128 + SIGINT): scripts tell it from failure.
             err.print("[red]error:[/red] interrupted", highlight=False)
@@ -69,7 +69,7 @@ def _one_line_errors(fn):
         except Exception as e:  # an internal bug: still one line, with a way to see more
             if os.environ.get("GSPC_DEBUG"):
                 raise
-            msg = f"internal error ({type(e).__name__}: {e}); rerun with GSPC_DEBUG=1 for a traceback"
+            msg = error_line(e)
         # Messages quote paths and install hints ("gspc[cuda]") that rich would read as markup and drop.
         err.print(f"[red]error:[/red] {escape(msg)}", highlight=False, soft_wrap=True)
         raise typer.Exit(1)
@@ -191,8 +191,13 @@ def _option(cls: type, name: str, *flags: str):
 @app.command()
 @_one_line_errors
 def encode(
-    scene: Path = typer.Argument(..., help="input scene: INRIA PLY, PlayCanvas SOG or compressed PLY, SPZ"),
-    output: str = typer.Option(..., "-o", "--output", help="output .gspc file"),
+    scenes: list[Path] = typer.Argument(
+        ...,
+        help="input scene: INRIA PLY, PlayCanvas SOG or compressed PLY, SPZ; several, or a folder of them "
+        "(scene files, or folders holding point_cloud.ply and cameras.json): a batch, -o names a folder",
+        metavar="SCENE...",
+    ),
+    output: str = typer.Option(..., "-o", "--output", help="output .gspc file (a batch: a folder)"),
     cameras: Path | None = typer.Option(None, help="cameras.json, transforms.json or COLMAP sparse folder"),
     quality: str = _option(EncodeOptions, "quality"),
     lam: float | None = _option(EncodeOptions, "lam"),
@@ -213,9 +218,19 @@ def encode(
     time_budget: float | None = _option(EncodeOptions, "time_budget"),
     tile_size: int = _option(EncodeOptions, "tile_size"),
     workers: int | None = _option(EncodeOptions, "workers"),
+    ray: str | None = _option(EncodeOptions, "ray"),
+    ship_inputs: bool = _option(EncodeOptions, "ship_inputs"),
 ) -> None:
-    """Compress a 3DGS scene into a .gspc file."""
-    check_output_path(output)  # the text as typed: a Path would drop a trailing slash
+    """Compress a 3DGS scene into a .gspc file (several scenes: a batch, one file each)."""
+    from gspc.batch import is_batch
+
+    batch = is_batch(scenes)
+    if not batch:
+        check_output_path(output)  # the text as typed: a Path would drop a trailing slash
+    elif cameras is not None:
+        raise GspcError(
+            "--cameras names one scene's cameras: in a batch, each scene folder's cameras.json is used"
+        )
     from gspc.pipeline import encode as run
 
     _use_threads()
@@ -240,10 +255,45 @@ def encode(
         time_budget=time_budget,
         tile_size=tile_size,
         workers=workers,
+        ray=ray,
+        ship_inputs=ship_inputs,
     )
+    if batch:
+        _encode_batch(scenes, output, opts)
+        return
     with _progress_bars() as cb:
-        rep = run(scene, output, cameras, opts, progress=cb)
+        rep = run(scenes[0], output, cameras, opts, progress=cb)
     _summary(f"gspc encode -> {output}", rep, output)
+
+
+def _encode_batch(paths: list[Path], output: str, opts: EncodeOptions) -> None:
+    """``gspc encode`` of several scenes: a line for each as it ends (a failure as an error line of its
+    own), then a table of them all; exit status 1 where any failed."""
+    from gspc.batch import encode_batch, find_scenes
+
+    scenes = find_scenes(paths)
+
+    def done(r) -> None:
+        if r.error is None:
+            _log_line(f"{r.name}: {r.bytes:,} B in {r.seconds:.1f} s -> {r.output}")
+        else:
+            err.print(f"[red]error:[/red] {escape(f'{r.name}: {r.error}')}", highlight=False, soft_wrap=True)
+
+    with _progress_bars() as cb:
+        results = encode_batch(scenes, output, opts, progress=cb, done=done)
+    t = Table(title=f"gspc encode -> {output} ({len(results)} scenes)", show_header=True)
+    for col in ("scene", "Gaussians", "bytes", "B/Gaussian", "seconds", "result"):
+        t.add_column(col, justify="left" if col in ("scene", "result") else "right")
+    for r in results:
+        if r.error is None:
+            per = r.bytes / max(r.given, 1)
+            cells = (f"{r.given:,}", f"{r.bytes:,}", f"{per:.2f}", f"{r.seconds:.1f}", "ok")
+        else:
+            cells = ("", "", "", "", "error")
+        t.add_row(escape(r.name), *cells)
+    out.print(t)
+    if any(r.error is not None for r in results):
+        raise typer.Exit(1)
 
 
 @app.command()
@@ -262,6 +312,7 @@ def decode(
         None, help=_help(DecodeOptions, "region"), metavar="XMIN,YMIN,ZMIN,XMAX,YMAX,ZMAX"
     ),
     workers: int | None = _option(DecodeOptions, "workers"),
+    ray: str | None = _option(DecodeOptions, "ray"),
 ) -> None:
     """Decode a .gspc file into a 3DGS scene: PLY, SPZ or glb, as the output's extension names."""
     check_output_path(output)
@@ -279,6 +330,7 @@ def decode(
         time_budget=time_budget,
         region=region,
         workers=workers,
+        ray=ray,
     )
     with _progress_bars() as cb:
         rep = run(source, output, opts, progress=cb)
@@ -541,6 +593,23 @@ def convert(
     _console_for(output).print(
         f"wrote {sc.num_gaussians:,} Gaussians (SH degree {sc.sh_degree}) to {output}", markup=False
     )
+
+
+@app.command()
+@_one_line_errors
+def view(
+    scene: Path = typer.Argument(..., help="the .gspc file to show"),
+    port: int = typer.Option(0, help="port on 127.0.0.1 to serve on (0: a free one)"),
+) -> None:
+    """Serve a .gspc file and the web viewer (web/viewer) on 127.0.0.1, and print the address to open."""
+    from gspc.view import serve
+
+    try:
+        serve(scene, port, lambda line: out.print(line, markup=False, highlight=False, soft_wrap=True))
+    except KeyboardInterrupt:
+        # Ctrl-C is how a server stops: no error, and the shell's status for it (128 + SIGINT).
+        out.print("gspc view: stopped", markup=False, highlight=False)
+        raise typer.Exit(130) from None
 
 
 def main() -> None:  # pragma: no cover - console script entry

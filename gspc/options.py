@@ -119,12 +119,25 @@ def check_encode_options(o: Any) -> None:
     if o.tile_size != 0:
         check_int("--tile-size", o.tile_size, MIN_TILE_SIZE, MAX_TILE_SIZE)
     check_workers(o.workers)
+    o.ray = check_ray(o.ray)
     # device: checked (DeviceError) by gspc/device.py check_device, also before any work (it needs torch)
 
 
 def check_workers(value: Any) -> int | None:
     """``--workers``: None (the cores this process may use) or a whole number of processes, 1 or more."""
     return None if value is None else check_int("--workers", value, 1, MAX_WORKERS)
+
+
+def check_ray(value: Any) -> str | None:
+    """``--ray``: None (local processes), "auto" (a local Ray instance) or a running cluster's HOST:PORT
+    (ray://HOST:PORT for Ray Client); whether one answers there is checked when the run starts."""
+    if value is None or value == "auto":
+        return value
+    text = value.strip() if isinstance(value, str) else ""
+    host, _, port = text.removeprefix("ray://").rpartition(":")
+    if not (host and port.isdigit() and 0 < int(port) < 65536) or any(c.isspace() for c in host):
+        raise InputError(f"--ray {value!r}: give 'auto' (a local Ray instance) or a cluster's HOST:PORT")
+    return text
 
 
 def check_region(value: Any) -> tuple[float, ...] | None:
@@ -154,6 +167,7 @@ def check_decode_options(o: Any) -> None:
     check_real("lr_scale", o.lr_scale, 0.0, 1e3, lo_open=True)
     check_time_budget(o.time_budget)
     check_workers(o.workers)
+    o.ray = check_ray(o.ray)
     o.region = check_region(o.region)
 
 
@@ -238,6 +252,16 @@ class EncodeOptions:
     workers: int | None = knob(
         None, "worker processes that code tiles side by side (default: the cores this process may use)"
     )
+    ray: str | None = knob(
+        None,
+        "run the tasks on Ray ('auto': a local instance of --workers CPUs; HOST:PORT: the cluster `ray start "
+        "--head` started there; needs gspc[ray]): the same bytes as local workers",
+    )
+    ship_inputs: bool = knob(
+        False,
+        "the driver reads each tile's Gaussians and sends them with its task (a cluster whose nodes cannot "
+        "read the input path); default: each worker reads its tile from the file",
+    )
 
     def validate(self) -> None:
         """InputError naming the first option out of range; called before any work."""
@@ -266,6 +290,9 @@ class DecodeOptions:
     )
     workers: int | None = knob(
         None, "worker processes that decode tiles side by side (default: the cores this process may use)"
+    )
+    ray: str | None = knob(
+        None, "decode the tiles on Ray ('auto': a local instance; HOST:PORT: a running cluster; gspc[ray])"
     )
 
     def validate(self) -> None:

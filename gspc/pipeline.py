@@ -11,6 +11,7 @@ the CPU (gspc/device.py), and its decoded scene is moved to the device where it 
 
 from __future__ import annotations
 
+import os
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -48,7 +49,7 @@ from gspc.reconstruct import (
 from gspc.restore.restorer import load_restorer
 from gspc.scene import GaussianScene
 from gspc.stages import Stages
-from gspc.workers import default_workers, run_tasks
+from gspc.workers import DriverReads, Executor, open_executor, run_tasks
 
 
 @dataclass
@@ -96,7 +97,7 @@ def encode(
         rows = large_ply(scene_path, opts)  # a scene larger than a tile is read by rows, tile by tile
         scene = read_scene(scene_path) if rows is None else None
     if rows is not None:
-        data = _encode_with(lambda: decide_tiled(rows, cameras, opts, stages), None, opts, progress, rep)
+        data = encode_rows(rows, cameras, opts, progress, rep)
     else:
         data, rep = encode_scene(scene, cameras, opts, progress, rep)
     with stages.stage("write"):
@@ -106,14 +107,36 @@ def encode(
 
 def large_ply(path: str | Path, opts: EncodeOptions) -> PlyRows | None:
     """The PLY at ``path`` as rows to read on demand, where it holds more Gaussians than one tile and its
-    layout allows (little-endian float32 properties of one vertex element); else None: read it whole."""
+    layout allows (little-endian float32 properties of one vertex element); else None: read it whole.
+    On Ray its path is absolute (a worker's folder is not this one's); with ``ship_inputs`` this process
+    reads each tile's rows for its task (gspc/workers.py DriverReads)."""
     if not str(path).lower().endswith(".ply"):
         return None
     try:
-        rows = PlyRows(path)
+        rows = PlyRows(os.path.abspath(path) if opts.ray else path)
     except InputError:
         return None  # another layout: read_scene reads it, and names anything wrong with it
-    return rows if is_tiled(rows.num_gaussians, opts) else None
+    if not is_tiled(rows.num_gaussians, opts):
+        return None
+    return DriverReads(rows) if opts.ship_inputs else rows
+
+
+def encode_rows(
+    rows,
+    cameras: list[Camera] | None,
+    opts: EncodeOptions,
+    progress: Progress | None,
+    rep: Report,
+    executor: Executor | None = None,
+) -> bytes:
+    """The .gspc file of a scene larger than a tile read by rows (:func:`large_ply`), its tiles coded on
+    ``executor`` (None: the options' own), reported in ``rep``."""
+    stages = rep.stages(progress, opts.time_budget)
+
+    def decide_fn() -> EncoderDecisions:
+        return decide_tiled(rows, cameras, opts, stages, executor)
+
+    return _encode_with(decide_fn, None, opts, progress, rep)
 
 
 def encode_scene(
@@ -122,14 +145,19 @@ def encode_scene(
     opts: EncodeOptions | None = None,
     progress: Progress | None = None,
     rep: Report | None = None,
+    executor: Executor | None = None,
 ) -> tuple[bytes, Report]:
-    """Encode a scene in memory: (the .gspc file's bytes, what was done). ``cameras`` None: synthesised."""
+    """Encode a scene in memory: (the .gspc file's bytes, what was done). ``cameras`` None: synthesised.
+    A scene larger than a tile is coded on ``executor`` (None: the options' workers or Ray), each tile's
+    Gaussians sent with its task."""
     opts = opts or EncodeOptions()
     opts.validate()
     device = check_device(opts.device)
     rep = rep or Report()
     stages = rep.stages(progress, opts.time_budget)
-    data = _encode_with(lambda: decide(scene, cameras, opts, stages, device), scene, opts, progress, rep)
+    data = _encode_with(
+        lambda: decide(scene, cameras, opts, stages, device, executor), scene, opts, progress, rep
+    )
     return data, rep
 
 
@@ -197,11 +225,11 @@ class DecodedTile:
 
 
 def decode_tiles(
-    in_path: str | Path, region: tuple[float, ...] | None = None, workers: int = 1
+    in_path: str | Path, region: tuple[float, ...] | None = None, workers: int | Executor = 1
 ) -> Iterator[DecodedTile]:
     """The tiles of the .gspc file at ``in_path`` that meet ``region`` (every tile for None), decoded one
-    at a time in file order, on ``workers`` processes: memory follows the tiles, not the file. An untiled
-    file is one tile, its box that of its Gaussians."""
+    at a time in file order, on ``workers`` processes (or an executor: gspc/workers.py open_executor):
+    memory follows the tiles, not the file. An untiled file is one tile, its box that of its Gaussians."""
     region = check_region(region)
     with FileReader(in_path) as reader:
         if reader.tiles is None:
@@ -217,9 +245,10 @@ def decode_tiles(
 
 
 def _tile_scenes(
-    reader: FileReader, chosen: list[int], workers: int, progress: Progress | None
+    reader: FileReader, chosen: list[int], workers: int | Executor, progress: Progress | None
 ) -> Iterator[GaussianScene]:
-    """The ``chosen`` tiles decoded, in order, on ``workers`` processes (gspc/codec/tiles.py)."""
+    """The ``chosen`` tiles decoded, in order, on ``workers`` (gspc/codec/tiles.py): each job carries its
+    tile's chunks, read here."""
     total = sum(reader.tile_bytes())
     coordinates = reader.header.scene.coordinates if reader.header.scene else None
     tiles = reader.tiles.tiles
@@ -245,15 +274,14 @@ def _decode_tiles_to(
     if not chosen:
         raise InputError(f"--region meets none of the file's {len(tiles.tiles)} tiles; nothing to write")
     n = sum(tiles.tiles[k].n for k in chosen)
-    workers = opts.workers or default_workers()
-    rep.bytes = reader.budget
-    rep.num_gaussians_in = rep.num_gaussians_out = n
-    region = "" if opts.region is None else ", those meeting the region"
-    rep.info["tiles"] = f"{len(chosen)} of {len(tiles.tiles)}{region}, decoded on {workers} worker(s)"
-    rep.num_views = rep.info["views"] = len(reader.side.views)
-    rep.info["refine"] = "none (a tiled file's attributes are decoded as they are)"
-    parts = _tile_scenes(reader, chosen, workers, stages.progress)
-    with stages.stage("tiles", announce=False):
+    with open_executor(opts.workers, opts.ray) as ex, stages.stage("tiles", announce=False):
+        rep.bytes = reader.budget
+        rep.num_gaussians_in = rep.num_gaussians_out = n
+        region = "" if opts.region is None else ", those meeting the region"
+        rep.info["tiles"] = f"{len(chosen)} of {len(tiles.tiles)}{region}, decoded on {ex.describe()}"
+        rep.num_views = rep.info["views"] = len(reader.side.views)
+        rep.info["refine"] = "none (a tiled file's attributes are decoded as they are)"
+        parts = _tile_scenes(reader, chosen, ex, stages.progress)
         if write is write_ply:
 
             def body(f) -> None:

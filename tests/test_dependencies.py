@@ -16,7 +16,7 @@ ROOT = Path(__file__).resolve().parent.parent
 # Import names whose distribution is named otherwise, for packages that may not be installed here.
 KNOWN = {"PIL": "pillow", "yaml": "pyyaml", "sklearn": "scikit-learn", "cv2": "opencv-python"}
 # Extras gspc/ may import, always behind a guard that turns their absence into a clear error.
-OPTIONAL_IN_PACKAGE = ("cuda",)
+OPTIONAL_IN_PACKAGE = ("cuda", "ray")
 
 
 def normalise(name: str) -> str:

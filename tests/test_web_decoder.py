@@ -9,6 +9,7 @@ import shutil
 import subprocess
 from pathlib import Path
 
+import msgpack
 import pytest
 from cli_runs import run
 from make_vectors import (
@@ -22,6 +23,7 @@ from scenes import random_scene
 
 from gspc.errors import GspcError
 from gspc.format import container
+from gspc.format.file import FileReader
 from gspc.io import write_ply
 from gspc.options import DecodeOptions
 from gspc.pipeline import decode
@@ -171,3 +173,60 @@ def test_cli_encode_with_side_information(tmp_path):
     out = tmp_path / "out"
     out.mkdir()
     assert_same_ply(source, out)
+
+
+TILED = WEB / "test" / "fixtures" / "tiny_tiled_sh1.gspc"  # gspc encode --tile-size 1024: 4 tiles
+
+
+@pytest.mark.slow
+def test_tiled_file_whole_and_by_region_gives_the_same_ply(tmp_path):
+    """A tiled file (format 1.5) from gspc's encoder: whole, and the tiles whose boxes meet a region."""
+    assert_same_ply(TILED, tmp_path)
+    with FileReader(TILED) as reader:
+        region = ",".join(repr(v) for v in reader.tiles.tiles[1].box)
+    ours, theirs = tmp_path / "region.python.ply", tmp_path / "region.node.ply"
+    decode(TILED, ours, DecodeOptions(restore=False, refine=False, region=region))
+    res = subprocess.run(
+        [NODE, str(CLI), str(TILED), str(theirs), "--region", region], capture_output=True, text=True
+    )
+    assert res.returncode == 0, res.stderr
+    assert theirs.read_bytes() == ours.read_bytes()
+    assert len(ours.read_bytes()) < len((tmp_path / "python.ply").read_bytes())
+
+
+def retiled(tmp_path: Path, name: str, change) -> Path:
+    """The tiled fixture with its tile index (a list of maps) changed by ``change``, checksums right."""
+    c = container.unpack(TILED.read_bytes())
+    chunks = []
+    for ch in c.chunks:
+        if ch.type == "TIDX":
+            tiles = msgpack.unpackb(ch.payload, raw=False)
+            ch = container.Chunk("TIDX", msgpack.packb(change(tiles), use_bin_type=True))
+        chunks.append(ch)
+    path = tmp_path / f"{name}.gspc"
+    path.write_bytes(container.pack(c.header, chunks, c.version))
+    return path
+
+
+def shrunk_box(tiles):
+    box = tiles[2]["box"]
+    box[3] = (box[0] + box[3]) / 2  # half the tile's positions now lie outside
+    return tiles
+
+
+def more_gaussians(tiles):
+    tiles[0]["attributes"]["n"] += 1
+    return tiles
+
+
+@pytest.mark.slow
+def test_hostile_tiled_files_are_refused_by_both(tmp_path):
+    paths = [
+        retiled(tmp_path, "box", shrunk_box),
+        retiled(tmp_path, "count", more_gaussians),
+        retiled(tmp_path, "one_tile", lambda tiles: tiles[:1]),
+        retiled(tmp_path, "no_box", lambda tiles: [{"attributes": t["attributes"]} for t in tiles]),
+    ]
+    node = node_batch(paths)
+    for path in paths:
+        assert node[str(path)] == python_ply(path, tmp_path / "x.ply") == "CodecError", path.name

@@ -55,7 +55,7 @@ from gspc.reconstruct import check_decode_work, decode_work, refine_iterations, 
 from gspc.restore.restorer import load_restorer
 from gspc.scene import GaussianScene
 from gspc.stages import Stages
-from gspc.workers import default_workers
+from gspc.workers import Executor, executor_for
 
 # A SIDE chunk's table entry and padding, about (spec section 5): what side information adds to a file
 # beyond its payload, so that attributes and side information share a --target-size.
@@ -109,7 +109,7 @@ class EncoderDecisions:
     fidelity: Fidelity | None = None  # the fidelity search, where --target-psnr asked for one
     target_psnr: float | None = None
     tiles: tuple[TileCoding, ...] = ()  # a scene coded as spatial tiles (gspc/encoder/tiles.py), in order
-    workers: int = 1  # processes that coded the tiles
+    ran_on: str = "1 worker"  # where the tiles were coded (gspc/workers.py Executor.describe)
     coordinates: str | None = None  # the axes the input stated (spec 10.8)
 
     def summary(self) -> dict[str, str]:
@@ -140,8 +140,8 @@ class EncoderDecisions:
         sizes = [t.tile.n for t in tiles]
         out = {
             "Gaussians": self.counts.summary(),
-            "tiles": f"{len(tiles)} of {min(sizes):,}-{max(sizes):,} Gaussians, coded on {self.workers} "
-            f"worker{'s' if self.workers > 1 else ''} ({sum(t.seconds for t in tiles):.1f} s of tile work)",
+            "tiles": f"{len(tiles)} of {min(sizes):,}-{max(sizes):,} Gaussians, coded on {self.ran_on} "
+            f"({sum(t.seconds for t in tiles):.1f} s of tile work)",
             "lambda": f"{self.lam_asked:.4g} asked (it sets the bytes); tiles coded at {min(lams):.3g}-"
             f"{max(lams):.3g} with their own removal and grid, in those bytes"
             + (f", then each in its share of the {self.target_size:,} B target" if self.target_size else ""),
@@ -183,12 +183,13 @@ def decide(
     opts: EncodeOptions,
     stages: Stages,
     device,
+    executor: Executor | None = None,
 ) -> EncoderDecisions:
     """The encoder's decisions for ``scene`` (``cameras`` None: synthesised) under ``opts``; renders,
     the check and the restorer run on ``device``, the attribute codec on the CPU. A scene of more than
-    ``opts.tile_size`` Gaussians is coded as spatial tiles (:func:`decide_tiled`)."""
+    ``opts.tile_size`` Gaussians is coded as spatial tiles (:func:`decide_tiled`, on ``executor``)."""
     if is_tiled(scene.num_gaussians, opts):
-        return decide_tiled(SceneRows(scene), cameras, opts, stages)
+        return decide_tiled(SceneRows(scene), cameras, opts, stages, executor)
     cams = encoder_cameras(scene, cameras, opts)
     restorer = load_restorer(opts.restorer, device=device)  # fails early on a name the package lacks
     params = codec_params(opts)
@@ -215,22 +216,32 @@ def is_tiled(num_gaussians: int, opts: EncodeOptions) -> bool:
 
 
 def decide_tiled(
-    source, cameras: list[Camera] | None, opts: EncodeOptions, stages: Stages
+    source,
+    cameras: list[Camera] | None,
+    opts: EncodeOptions,
+    stages: Stages,
+    executor: Executor | None = None,
 ) -> EncoderDecisions:
-    """A scene larger than a tile, as spatial tiles each coded alone, on the options' workers
-    (gspc/encoder/tiles.py); ``source`` reads its Gaussians by rows (gspc/io/ply.py PlyRows, SceneRows).
-    Tiled files carry no side information: the decoder takes their attributes as they are."""
+    """A scene larger than a tile, as spatial tiles each coded alone, on ``executor`` (None: the options'
+    workers or Ray; gspc/encoder/tiles.py); ``source`` reads its Gaussians by rows (gspc/io/ply.py PlyRows,
+    SceneRows). Tiled files carry no side information: the decoder takes their attributes as they are."""
+    with executor_for(executor, opts.workers, opts.ray) as ex:
+        return _decide_tiled_on(source, cameras, opts, stages, ex)
+
+
+def _decide_tiled_on(
+    source, cameras: list[Camera] | None, opts: EncodeOptions, stages: Stages, ex: Executor
+) -> EncoderDecisions:
     cams = encoder_cameras(_camera_sample(source), cameras, opts)
     params = codec_params(opts)
     settings = TileSettings(
         tuple(cams), params, opts.background, removal_params(opts), tuning_params(opts), opts.target_psnr
     )
-    workers = opts.workers or default_workers()
     target = None if opts.target_size is None else opts.target_size
     for _ in range(TARGET_RETRIES + 1):
         budget = None if target is None else target - _tiled_framing(source.num_gaussians, opts.tile_size)
         with stages.stage("tiles", announce=False):
-            plan, codings = code_tiles(source, settings, opts.tile_size, workers, budget, stages.progress)
+            plan, codings = code_tiles(source, settings, opts.tile_size, ex, budget, stages.progress)
         given = sum(c.given for c in codings)
         candidates = sum(c.candidates for c in codings)
         coded = sum(c.tile.n for c in codings)
@@ -249,7 +260,7 @@ def decide_tiled(
             side_info=reason,
             target_size=opts.target_size,
             tiles=tuple(codings),
-            workers=workers,
+            ran_on=ex.describe(),
             target_psnr=opts.target_psnr,
             coordinates=source.coordinates,
         )

@@ -49,11 +49,11 @@ export function checkAttributeChunks(section, payloads) {
  * class (a msgpack array of C bins), class k's of classRows[k].length rows, all counted against the
  * chunk's table bound before any table is built.
  */
-function readParts(type, payload, section, columns, classRows) {
-  if (!section.precision) return [readEcm(payload, section.n, columns, type)];
+function readParts(type, payload, section, columns, classRows, tile) {
+  if (!section.precision) return [readEcm(payload, section.n, columns, type, null, tile)];
   const bins = readBinArray(payload, classRows.length, type);
   const budget = new TableBudget(maxModelEntries(payload.length), `${type}'s matrices together`);
-  return bins.map((bin, k) => readEcm(bin, classRows[k].length, columns, `${type} class ${k}`, budget));
+  return bins.map((bin, k) => readEcm(bin, classRows[k].length, columns, `${type} class ${k}`, budget, tile));
 }
 
 /** Decode every part of a chunk, calling `visit(k, rows, j, q)` per class k and column j. */
@@ -61,9 +61,9 @@ function decodeParts(type, parts, classRows, visit) {
   parts.forEach((ecm, k) => decodeEcm(ecm, (j, q) => visit(k, classRows[k], j, q), parts.length > 1 ? `${type} class ${k}` : type));
 }
 
-function decodeOpacities(payload, section, classRows) {
+function decodeOpacities(payload, section, classRows, tile) {
   const out = new Float32Array(section.n);
-  const parts = readParts('OPAC', payload, section, 1, classRows);
+  const parts = readParts('OPAC', payload, section, 1, classRows, tile);
   decodeParts('OPAC', parts, classRows, (k, rows, _, q) => {
     const logit = opacityDecoder(section.classes[k].opacityLevels);
     const count = parts[k].rows;
@@ -73,9 +73,9 @@ function decodeOpacities(payload, section, classRows) {
 }
 
 /** SCAL and SHDC: `n` x 3 values q x step, step the class's `stepOf(class)`. */
-function decodeScaled(type, payload, section, classRows, stepOf) {
+function decodeScaled(type, payload, section, classRows, tile, stepOf) {
   const out = new Float32Array(3 * section.n);
-  const parts = readParts(type, payload, section, 3, classRows);
+  const parts = readParts(type, payload, section, 3, classRows, tile);
   decodeParts(type, parts, classRows, (k, rows, j, q) => {
     const step = stepOf(section.classes[k]);
     const count = parts[k].rows;
@@ -84,9 +84,9 @@ function decodeScaled(type, payload, section, classRows, stepOf) {
   return out;
 }
 
-function decodeRotations(payload, section, classRows) {
+function decodeRotations(payload, section, classRows, tile) {
   const out = new Float32Array(4 * section.n);
-  const parts = readParts('ROTN', payload, section, 4, classRows);
+  const parts = readParts('ROTN', payload, section, 4, classRows, tile);
   parts.forEach((ecm, k) => {
     const count = ecm.rows;
     const levels = section.classes[k].rotationLevels;
@@ -129,10 +129,10 @@ function decodeRotations(payload, section, classRows) {
 }
 
 /** SHRS below version 4 (spec 10.6): flags, then the flagged Gaussians' coefficients. */
-function decodeRestFlagged(payload, section, out) {
+function decodeRestFlagged(payload, section, tile, out) {
   const { n, numRest } = section;
   const [flagsBin, valuesBin] = readBinArray(payload, 2, 'SHRS');
-  const flagsEcm = readEcm(flagsBin, n, 1, 'SHRS flags');
+  const flagsEcm = readEcm(flagsBin, n, 1, 'SHRS flags', null, tile);
   let flagged = null;
   decodeEcm(
     flagsEcm,
@@ -150,7 +150,7 @@ function decodeRestFlagged(payload, section, out) {
   );
   const columns = 3 * numRest;
   const steps = section.classes[0].shSteps;
-  const ecm = readEcm(valuesBin, flagged.length, columns, 'SHRS values');
+  const ecm = readEcm(valuesBin, flagged.length, columns, 'SHRS values', null, tile);
   decodeEcm(
     ecm,
     (j, q) => {
@@ -162,7 +162,7 @@ function decodeRestFlagged(payload, section, out) {
 }
 
 /** SHRS at version 4 (spec 10.13): per class and band, the rows of that class of at least that degree. */
-function decodeRestBanded(payload, section, precision, out) {
+function decodeRestBanded(payload, section, precision, tile, out) {
   const { numRest, shDegree } = section;
   const numClasses = section.classes.length;
   const bins = readBinArray(payload, numClasses * shDegree, 'SHRS');
@@ -173,7 +173,7 @@ function decodeRestBanded(payload, section, precision, out) {
     for (let b = 1; b <= shDegree; b++) {
       const rows = bands[b - 1][k];
       const what = `SHRS class ${k} band ${b}`;
-      parts.push({ k, b, rows, what, ecm: readEcm(bins[k * shDegree + b - 1], rows.length, 3 * (2 * b + 1), what, budget) });
+      parts.push({ k, b, rows, what, ecm: readEcm(bins[k * shDegree + b - 1], rows.length, 3 * (2 * b + 1), what, budget, tile) });
     }
   }
   const columns = 3 * numRest;
@@ -195,26 +195,27 @@ function decodeRestBanded(payload, section, precision, out) {
 
 /**
  * Decode an attribute section: `section` from readAttributeSection, `payloads` the attribute chunks'
- * payloads by type. Returns {count, shDegree, means (n x 3), quats (n x 4: w, x, y, z), logScales (n x 3),
- * opacities (n, logits), shDc (n x 3), shRest (n x K x 3)}, binary32 arrays in curve order.
+ * payloads by type, `tile` null or the TileBudget of a tile of a tiled file (spec 10.14). Returns {count,
+ * shDegree, means (n x 3), quats (n x 4: w, x, y, z), logScales (n x 3), opacities (n, logits), shDc
+ * (n x 3), shRest (n x K x 3)}, binary32 arrays in curve order.
  */
-export function decodeAttributes(section, payloads) {
+export function decodeAttributes(section, payloads, tile = null) {
   checkAttributeChunks(section, payloads);
   const { n, shDegree, numRest } = section;
   const precision = section.precision
-    ? decodePrecision(payloads.PREC, n, section.classes.length, shDegree)
+    ? decodePrecision(payloads.PREC, n, section.classes.length, shDegree, tile)
     : null;
   // Below version 4 every row is in class 0.
   const classRows = precision ? rowsByClass(precision, section.classes.length) : [Int32Array.from({ length: n }, (_, i) => i)];
-  const means = decodePositions(payloads.POSN, section.grid, n);
-  const opacities = decodeOpacities(payloads.OPAC, section, classRows);
-  const logScales = decodeScaled('SCAL', payloads.SCAL, section, classRows, (c) => c.scaleStep);
-  const quats = decodeRotations(payloads.ROTN, section, classRows);
-  const shDc = decodeScaled('SHDC', payloads.SHDC, section, classRows, (c) => c.dcStep);
+  const means = decodePositions(payloads.POSN, section.grid, n, tile);
+  const opacities = decodeOpacities(payloads.OPAC, section, classRows, tile);
+  const logScales = decodeScaled('SCAL', payloads.SCAL, section, classRows, tile, (c) => c.scaleStep);
+  const quats = decodeRotations(payloads.ROTN, section, classRows, tile);
+  const shDc = decodeScaled('SHDC', payloads.SHDC, section, classRows, tile, (c) => c.dcStep);
   const shRest = new Float32Array(n * numRest * 3);
   if (shDegree > 0) {
-    if (precision) decodeRestBanded(payloads.SHRS, section, precision, shRest);
-    else decodeRestFlagged(payloads.SHRS, section, shRest);
+    if (precision) decodeRestBanded(payloads.SHRS, section, precision, tile, shRest);
+    else decodeRestFlagged(payloads.SHRS, section, tile, shRest);
   }
   return { count: n, shDegree, means, quats, logScales, opacities, shDc, shRest };
 }

@@ -26,8 +26,8 @@ export const END_MARKER = Uint8Array.of(0x47, 0x45, 0x4e, 0x44); // "GEND"
 export const PREAMBLE_BYTES = 20;
 export const TRAILER_BYTES = 8;
 export const MAJOR = 1;
-/** Chunk types of format 1.4 (spec section 6). */
-export const KNOWN_TYPES = new Set(['POSN', 'OPAC', 'SCAL', 'ROTN', 'SHDC', 'SHRS', 'PREC', 'RESI', 'SIDE']);
+/** Chunk types of format 1.5 (spec section 6). */
+export const KNOWN_TYPES = new Set(['POSN', 'OPAC', 'SCAL', 'ROTN', 'SHDC', 'SHRS', 'PREC', 'TIDX', 'RESI', 'SIDE']);
 
 const FLAG_REQUIRED = 1;
 const TYPE_PATTERN = /^[A-Za-z0-9]{4}$/;
@@ -176,7 +176,8 @@ export function readHeader(preamble, headerBytes) {
   return { meta: top.get('meta'), entries, dataStart, trailerAt, fileSize: trailerAt + TRAILER_BYTES };
 }
 
-function regionAt(pos, headerLength, entries, trailerAt) {
+/** The region of a file that offset `pos` falls in, for messages about where a file ends. */
+export function regionAt(pos, headerLength, entries, trailerAt) {
   if (pos < PREAMBLE_BYTES + headerLength) return 'header';
   for (const e of entries) {
     if (pos < e.offset) return `padding before chunk ${e.name}`;
@@ -196,12 +197,12 @@ export function checkFileSize(size, preamble, layout) {
   }
 }
 
-function checkZero(bytes, start, end, after) {
+/** Bytes `start .. end` of the file are zero; `bytes` holds the file's bytes from offset `base` on. */
+function checkZero(bytes, start, end, after, base = 0) {
   for (let i = start; i < end; i++) {
-    if (bytes[i] !== 0) {
-      throw new BadPadding(
-        `padding byte at offset ${i} after the ${after} is 0x${bytes[i].toString(16).padStart(2, '0')}, not 0`,
-      );
+    const b = bytes[i - base];
+    if (b !== 0) {
+      throw new BadPadding(`padding byte at offset ${i} after the ${after} is 0x${b.toString(16).padStart(2, '0')}, not 0`);
     }
   }
 }
@@ -212,11 +213,11 @@ export function checkHeaderPadding(file, preamble, layout) {
 }
 
 /**
- * Check 9 for one chunk: `file` holds the chunk's payload and padding at their offsets. Returns the payload
- * (a view, not a copy).
+ * Check 9 for one chunk: `file` holds the file's bytes from offset `base` on, the chunk's payload and
+ * padding among them. Returns the payload (a view, not a copy).
  */
-export function checkChunk(file, entry) {
-  const payload = file.subarray(entry.offset, entry.offset + entry.length);
+export function checkChunk(file, entry, base = 0) {
+  const payload = file.subarray(entry.offset - base, entry.offset - base + entry.length);
   const got = crc32(payload);
   if (got !== entry.crc) {
     throw new ChecksumMismatch(
@@ -224,7 +225,7 @@ export function checkChunk(file, entry) {
         `the chunk table says ${hex32(entry.crc)}`,
     );
   }
-  checkZero(file, entry.offset + entry.length, align8(entry.offset + entry.length), `chunk ${entry.name}`);
+  checkZero(file, entry.offset + entry.length, align8(entry.offset + entry.length), `chunk ${entry.name}`, base);
   return payload;
 }
 

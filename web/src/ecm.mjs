@@ -16,10 +16,11 @@ const LEVEL0_STRIDE = 64;
 /**
  * The matrix whose payload is `payload` (a msgpack array [m, c, models, words]), which must have `rows` x
  * `columns` entries (refused before decoding otherwise). Model tables are counted against the matrix's own
- * bound and against `chunkBudget` when given (version 4: the chunk's bound). Returns {rows, columns, models,
- * words}; `what` names the matrix in messages.
+ * bound, against `chunkBudget` when given (version 4: the chunk's bound) and against `tile` (a TileBudget:
+ * a tile's share of its file's bounds, spec 10.14), which the `models` frame's content spends too. Returns
+ * {rows, columns, models, words}; `what` names the matrix in messages.
  */
-export function readEcm(payload, rows, columns, what, chunkBudget = null) {
+export function readEcm(payload, rows, columns, what, chunkBudget = null, tile = null) {
   const r = new MsgReader(payload);
   let m, c, packed, words;
   try {
@@ -41,9 +42,14 @@ export function readEcm(payload, rows, columns, what, chunkBudget = null) {
     return { rows, columns, models: [], words };
   }
   if (words.length % 4) throw new CodecError(`${what}: range coder words take ${words.length} bytes, not a multiple of 4`);
-  const content = decompressFrame(packed, maxModelListBytes(packed.length), `${what}: entropy models`);
-  const own = new TableBudget(maxModelEntries(payload.length), `${what}'s models`);
-  const budgets = chunkBudget ? [own, chunkBudget] : [own];
+  const own = maxModelListBytes(packed.length);
+  const limit = tile ? Math.min(own, tile.modelBytesLeft) : own;
+  const shared = limit < own ? ` (what is left of ${tile.what}'s model bytes, spec 10.14)` : '';
+  const content = decompressFrame(packed, limit, `${what}: entropy models${shared}`);
+  if (tile) tile.spendModelBytes(content.length);
+  const budgets = [new TableBudget(maxModelEntries(payload.length), `${what}'s models`)];
+  if (chunkBudget) budgets.push(chunkBudget);
+  if (tile) budgets.push(tile.tables);
   const models = readModels(content, columns, budgets, `${what}: entropy models`);
   return { rows, columns, models, words };
 }

@@ -6,6 +6,11 @@ import { MAX_SH_DEGREE } from './limits.mjs';
 import { readAttributeSection } from './section.mjs';
 import { readSideInfo } from './side.mjs';
 
+/** The sixteen axis conventions `scene.coordinates` may name (spec 10.8): x, y, z in that order. */
+export const CONVENTIONS = new Set(
+  ['LDB', 'RDB', 'LUB', 'RUB', 'LDF', 'RDF', 'LUF', 'RUF', 'LFD', 'RFD', 'LFU', 'RFU', 'LBD', 'RBD', 'LBU', 'RBU'],
+);
+
 /** meta["scene"] (informative, 10.8): checked when present; decoders use attributes.n. */
 function readScene(meta) {
   if (!meta.has('scene')) return null;
@@ -20,16 +25,25 @@ function readScene(meta) {
     }
     out[key] = Number(v);
   }
+  // Informative (10.8): a value that names no convention is ignored as if absent.
+  const coordinates = scene.get('coordinates');
+  if (typeof coordinates === 'string' && CONVENTIONS.has(coordinates)) out.coordinates = coordinates;
   return out;
 }
 
 /**
- * The checked records of a container's meta tree (Map, BigInt integers): {attributes (readAttributeSection),
- * sideInfo (readSideInfo), scene (null or its counts), encoder (null or the writer's name)}.
+ * The checked records of a container's meta tree (Map, BigInt integers): {attributes (readAttributeSection;
+ * null in a tiled file, whose tiles hold theirs, spec 10.14), sideInfo (readSideInfo), scene (null or its
+ * counts and coordinate convention), encoder (null or the writer's name)}. `tiled`: the file has a tile index.
  */
-export function readFileHeader(meta) {
-  if (!meta.has('attributes')) throw new CodecError('the .gspc header lacks attributes section');
-  const attributes = readAttributeSection(meta.get('attributes'));
+export function readFileHeader(meta, tiled = false) {
+  let attributes = null;
+  if (tiled) {
+    if (meta.has('attributes')) throw new CodecError("a tiled file's header has an attributes section; its tiles hold theirs");
+  } else {
+    if (!meta.has('attributes')) throw new CodecError('the .gspc header lacks attributes section');
+    attributes = readAttributeSection(meta.get('attributes'));
+  }
   const sideInfo = readSideInfo(meta);
   const scene = readScene(meta);
   const encoder = typeof meta.get('encoder') === 'string' ? meta.get('encoder') : null;

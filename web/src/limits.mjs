@@ -86,6 +86,30 @@ export function maxModelListBytes(frameBytes) {
 export const MAX_ZSTD_WINDOW = 2 ** 27;
 export const ZSTD_BLOCK_MAX = 2 ** 17;
 
+// --- spatial tiles (format 1.5, spec 10.14) -------------------------------------------------------------
+
+// Tiles of one file: 2 .. 8192. A tile brings up to seven chunks and a file holds at most 65,535 (spec 7).
+export const MIN_TILES = 2;
+export const MAX_TILES = 8192;
+// What decoding tile k may spend, P_k its attribute payload bytes and P all tiles': table entries
+// max(floor(2^25 P_k / P), 16 P_k) and decompressed model-list bytes max(floor(2^23 P_k / P), 32 P_k). The
+// floors of one file are shared by its tiles in proportion to their bytes: without the share, a file of
+// many tiny tiles would bring one floor per tile, yet each tile can be decoded, and bounded, alone.
+export const FILE_TABLE_FLOOR = 2 ** 25;
+export const FILE_MODEL_FLOOR = 2 ** 23;
+/** floor(floor * tileBytes / fileBytes) exactly (the product passes 2^53 for tiles above 256 MiB). */
+function share(floor, tileBytes, fileBytes) {
+  return Number((BigInt(floor) * BigInt(tileBytes)) / BigInt(Math.max(fileBytes, 1)));
+}
+/** The probability-table entries the ECMs of a tile of `tileBytes` attribute bytes may build together. */
+export function tileTableEntries(tileBytes, fileBytes) {
+  return Math.max(share(FILE_TABLE_FLOOR, tileBytes, fileBytes), MODEL_ENTRIES_PER_BYTE * tileBytes);
+}
+/** The bytes the `models` frames of a tile of `tileBytes` attribute bytes may decompress to together. */
+export function tileModelBytes(tileBytes, fileBytes) {
+  return Math.max(share(FILE_MODEL_FLOOR, tileBytes, fileBytes), MODEL_LIST_RATIO * tileBytes);
+}
+
 // --- side information (spec 10.7-10.10) -------------------------------------------------------------------
 
 // Views of a SIDE chunk (10.9): 1 .. 2^20.

@@ -58,6 +58,26 @@ export class TableBudget {
   }
 }
 
+/**
+ * What decoding one tile of a tiled file may spend (spec 10.14): its share of the file's table entries and
+ * decompressed model-list bytes, counted over all of the tile's matrices, each matrix once.
+ */
+export class TileBudget {
+  constructor(tableEntries, modelBytes, what) {
+    this.tables = new TableBudget(tableEntries, `${what}'s matrices together`);
+    this.modelBytesLeft = modelBytes;
+    this.modelBytes = modelBytes;
+    this.what = what;
+  }
+
+  spendModelBytes(bytes) {
+    if (bytes > this.modelBytesLeft) {
+      throw new CodecError(`${this.what}'s entropy models decompress to more than ${this.modelBytes} bytes together (spec 10.14)`);
+    }
+    this.modelBytesLeft -= bytes;
+  }
+}
+
 function integer(r, where) {
   let v;
   try {

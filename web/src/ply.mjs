@@ -23,9 +23,14 @@ export const plyFloatsPerVertex = (numRest) => 17 + 3 * numRest;
  * written without one buffer of its whole size.
  */
 export function* plyParts(scene, batch = 65536) {
+  yield plyHeader(scene.count, (scene.shDegree + 1) ** 2 - 1);
+  yield* plyRows(scene, batch);
+}
+
+/** The rows of a decoded scene's PLY without the header, in batches of `batch` rows: tiles one after another. */
+export function* plyRows(scene, batch = 65536) {
   const { count, means, quats, logScales, opacities, shDc, shRest } = scene;
   const k = (scene.shDegree + 1) ** 2 - 1;
-  yield plyHeader(count, k);
   const stride = plyFloatsPerVertex(k);
   for (let start = 0; start < count; start += batch) {
     const rows = Math.min(batch, count - start);

@@ -54,8 +54,8 @@ function bitsAt(raw, pos, k) {
  * The voxels (Uint32Array count x 3, curve order) of one curve of `count` codes on `bits` bits per axis,
  * from its `classes` ECM and `raw` bits.
  */
-function decodeCurve(classesBin, raw, count, bits, what) {
-  const ecm = readEcm(classesBin, count, 1, `POSN ${what} classes`);
+function decodeCurve(classesBin, raw, count, bits, what, tile) {
+  const ecm = readEcm(classesBin, count, 1, `POSN ${what} classes`, null, tile);
   const maxLength = 3 * bits;
   const lengths = new Uint8Array(count);
   let total = 0;
@@ -129,18 +129,18 @@ function decodeCurve(classesBin, raw, count, bits, what) {
 
 /**
  * Positions of the `n` Gaussians (Float32Array n x 3) from the POSN `payload` on the grid `grid` (from
- * readAttributeSection). The grid's bounds were checked with the header.
+ * readAttributeSection; `tile`: null or a tile's TileBudget). The grid's bounds were checked with the header.
  */
-export function decodePositions(payload, grid, n) {
+export function decodePositions(payload, grid, n, tile = null) {
   const far = grid.far;
   const bins = readBinArray(payload, far ? 4 : 2, 'POSN');
   const means = new Float32Array(3 * n);
   const near = far ? n - far.count : n;
   const place = grid.contraction ? placeContracted : placePlain;
-  place(grid, decodeCurve(bins[0], bins[1], near, grid.bits, 'curve'), 1, means, 0);
+  place(grid, decodeCurve(bins[0], bins[1], near, grid.bits, 'curve', tile), 1, means, 0);
   if (far) {
     // A far voxel w stands for the grid voxel w 2^s (exact).
-    place(grid, decodeCurve(bins[2], bins[3], far.count, grid.bits - far.shift, 'far set'), pow2(far.shift), means, near);
+    place(grid, decodeCurve(bins[2], bins[3], far.count, grid.bits - far.shift, 'far set', tile), pow2(far.shift), means, near);
   }
   return means;
 }

@@ -6,11 +6,11 @@ import { CodecError } from './errors.mjs';
 import { decodeEcm, readEcm } from './ecm.mjs';
 
 /**
- * Decode the PREC `payload` for `n` Gaussians with `numClasses` classes and SH degree `shDegree`:
- * {classOf, degreeOf} (Uint8Array n each).
+ * Decode the PREC `payload` for `n` Gaussians with `numClasses` classes and SH degree `shDegree` (`tile`:
+ * null or a tile's TileBudget): {classOf, degreeOf} (Uint8Array n each).
  */
-export function decodePrecision(payload, n, numClasses, shDegree) {
-  const ecm = readEcm(payload, n, shDegree === 0 ? 1 : 2, 'PREC');
+export function decodePrecision(payload, n, numClasses, shDegree, tile = null) {
+  const ecm = readEcm(payload, n, shDegree === 0 ? 1 : 2, 'PREC', null, tile);
   const classOf = new Uint8Array(n);
   const degreeOf = new Uint8Array(n);
   decodeEcm(

@@ -5,7 +5,9 @@
 // limit, and the frame's exact extent is known, so a byte after it (a skippable frame included) is refused.
 // The blocks themselves are decoded by fzstd.
 
-import { Decompress } from 'fzstd';
+// A relative path, not the bare name: module workers get no import map, and the same path resolves in
+// node (web/node_modules) and in a browser served the web/ folder.
+import { Decompress } from '../node_modules/fzstd/esm/index.mjs';
 import { CodecError } from './errors.mjs';
 import { MAX_ZSTD_WINDOW, ZSTD_BLOCK_MAX } from './limits.mjs';
 

@@ -169,3 +169,20 @@ export function constantScene(n, attributes = {}) {
   ];
   return { meta, chunks };
 }
+
+/** A box (6 binary64 floats: low x, y, z, high x, y, z) for a tile map. */
+export const box = (...values) => values.map((v) => new F64(v));
+
+/**
+ * meta and chunks of a tiled scene (spec 10.14): tile k a constant scene of counts[k] Gaussians at the
+ * origin (constantScene), its box [-1, 1] on every axis, its chunks of index k after the TIDX chunk.
+ * `tile(k, map)` may change tile k's index map ({box, attributes}) before it is written.
+ */
+export function tiledScene(counts, tile = (k, map) => map) {
+  const tiles = counts.map((n) => constantScene(n));
+  const index = tiles.map(({ meta }, k) => tile(k, { box: box(-1, -1, -1, 1, 1, 1), attributes: meta.attributes }));
+  const meta = { side_info: tiles[0].meta.side_info };
+  const chunks = [{ type: 'TIDX', payload: msgpack(index) }];
+  tiles.forEach(({ chunks: own }, k) => chunks.push(...own.map((c) => ({ ...c, index: k }))));
+  return { meta, chunks };
+}

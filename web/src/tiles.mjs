@@ -1,0 +1,179 @@
+// Spatial tiles (format 1.5, spec 10.14): the TIDX chunk's tile index, the rules that tie each tile to its
+// chunks in the chunk table, and the decoding of one tile with its share of the file's decode bounds.
+//
+// Everything here works from the chunk table's entries (type, index, length) and the tile index alone, so a
+// reader that has only the header and the TIDX chunk can check a file's layout and bound every tile's work
+// before it reads any tile.
+
+import { ATTRIBUTE_TYPES, checkAttributeChunks, decodeAttributes } from './attributes.mjs';
+import { CodecError, show } from './errors.mjs';
+import { MAX_TILES, MIN_TILES, maxCodedGaussians, tileModelBytes, tileTableEntries } from './limits.mjs';
+import { TileBudget } from './models.mjs';
+import { MsgReader, MsgpackError, kindOf } from './msgpack.mjs';
+import { readAttributeSection } from './section.mjs';
+
+export const TIDX = 'TIDX';
+const BOX_VALUES = 6;
+const nameOf = (e) => `${e.type}#${e.index}`;
+
+function readBox(value, k) {
+  const ok = Array.isArray(value) && value.length === BOX_VALUES && value.every((x) => typeof x === 'number');
+  if (!ok || !value.every(Number.isFinite)) {
+    throw new CodecError(`tile ${k}'s box is ${show(value)}, not an array of ${BOX_VALUES} finite floats`);
+  }
+  for (let a = 0; a < 3; a++) {
+    if (value[a] > value[a + 3]) throw new CodecError(`tile ${k}'s box has its low corner above its high one on axis ${a}`);
+  }
+  return value.slice();
+}
+
+/**
+ * The tile index of a TIDX payload (spec 10.14): {tiles: [{number, box (6 numbers: low x, y, z, high x, y,
+ * z), section (readAttributeSection)}], count (all tiles' Gaussians), shDegree}. The msgpack rules of spec
+ * section 4 hold; CodecError names the first bad field.
+ */
+export function readTileIndex(payload) {
+  const r = new MsgReader(payload);
+  let value;
+  try {
+    value = r.readValue(1);
+  } catch (err) {
+    if (err instanceof MsgpackError) throw new CodecError(`chunk ${TIDX} is not one msgpack value (${err.message})`);
+    throw err;
+  }
+  if (r.remaining) throw new CodecError(`chunk ${TIDX} holds ${r.remaining} bytes after its msgpack value`);
+  if (!Array.isArray(value) || value.length < MIN_TILES || value.length > MAX_TILES) {
+    const what = Array.isArray(value) ? `an array of ${value.length}` : `a msgpack ${kindOf(value)}`;
+    throw new CodecError(`chunk ${TIDX} is ${what}, not an array of ${MIN_TILES}..${MAX_TILES} tiles`);
+  }
+  const tiles = value.map((entry, k) => {
+    if (!(entry instanceof Map) || !entry.has('box') || !entry.has('attributes')) {
+      throw new CodecError(`tile ${k} of chunk ${TIDX} is not a map with a box and attributes`);
+    }
+    const box = readBox(entry.get('box'), k);
+    let section;
+    try {
+      section = readAttributeSection(entry.get('attributes'));
+    } catch (err) {
+      if (err instanceof CodecError) throw new CodecError(`tile ${k}: ${err.message}`);
+      throw err;
+    }
+    return { number: k, box, section };
+  });
+  const degrees = [...new Set(tiles.map((t) => t.section.shDegree))];
+  if (degrees.length !== 1) {
+    throw new CodecError(`the tiles of chunk ${TIDX} have SH degrees ${degrees.sort().join(', ')}; a scene has one`);
+  }
+  const count = tiles.reduce((sum, t) => sum + t.section.n, 0);
+  return { tiles, count, shDegree: degrees[0] };
+}
+
+/**
+ * The TIDX entry of a tiled file's chunk table (`entries`, in file order): exactly one, of index 0; null
+ * when the file has none (it is not tiled).
+ */
+export function tileIndexEntry(entries) {
+  const found = entries.filter((e) => e.type === TIDX);
+  if (!found.length) return null;
+  if (found.length !== 1 || found[0].index !== 0) {
+    throw new CodecError(`a tiled file holds one ${TIDX} chunk, of index 0; this one has ${found.map(nameOf).join(', ')}`);
+  }
+  return found[0];
+}
+
+/**
+ * Each tile's attribute chunks from the chunk table (spec 10.14), checked before any tile is read: the
+ * TIDX entry before every attribute chunk, every attribute chunk naming a tile and coming after the previous
+ * tiles' chunks, each tile's chunks those its section needs (10.10), and the Gaussians within what the
+ * bytes may declare, per tile and in all. `entries` are the table's entries (type, index, length, offset)
+ * in file order. Returns {tiles: [{entries: {type: entry}, bytes, start, end}], bytes}: `start .. end` the
+ * file bytes of a tile's chunks with their padding, `bytes` its attribute payload bytes (P_k), and in all
+ * (P).
+ */
+export function tileLayout(entries, index) {
+  const tiles = index.tiles.map(() => ({ entries: {}, bytes: 0, start: Infinity, end: 0 }));
+  let last = -1;
+  let seenIndex = false;
+  for (const e of entries) {
+    if (e.type === TIDX) {
+      seenIndex = true;
+      continue;
+    }
+    if (!ATTRIBUTE_TYPES.includes(e.type)) continue;
+    if (!seenIndex) throw new CodecError(`chunk ${nameOf(e)} comes before the tile index (${TIDX})`);
+    if (e.index >= tiles.length) throw new CodecError(`chunk ${nameOf(e)} names no tile (the file has ${tiles.length})`);
+    if (e.index < last) throw new CodecError(`chunk ${nameOf(e)} comes after tile ${last}'s chunks`);
+    last = e.index;
+    const tile = tiles[e.index];
+    tile.entries[e.type] = e;
+    tile.bytes += e.length;
+    tile.start = Math.min(tile.start, e.offset);
+    tile.end = Math.max(tile.end, Math.ceil((e.offset + e.length) / 8) * 8);
+  }
+  index.tiles.forEach((t, k) => {
+    try {
+      checkAttributeChunks(t.section, tiles[k].entries);
+    } catch (err) {
+      if (err instanceof CodecError) throw new CodecError(`tile ${k}: ${err.message}`);
+      throw err;
+    }
+  });
+  const bytes = tiles.reduce((sum, t) => sum + t.bytes, 0);
+  const most = maxCodedGaussians(bytes);
+  if (index.count > most) {
+    throw new CodecError(`${index.count} Gaussians in all from ${bytes} attribute payload bytes (at most ${most}, spec 10.14)`);
+  }
+  return { tiles, bytes };
+}
+
+/** Whether `box` meets the closed box `region` (each: low x, y, z, high x, y, z). */
+export function boxMeets(box, region) {
+  for (let a = 0; a < 3; a++) if (box[a] > region[a + 3] || region[a] > box[a + 3]) return false;
+  return true;
+}
+
+/**
+ * Decode tile `tile` (from readTileIndex) from its attribute payloads by type, `tileBytes` (P_k) and
+ * `fileBytes` (P) bounding its work (spec 10.14). Returns the scene arrays of decodeAttributes, every
+ * position checked inside the tile's box as binary32.
+ */
+export function decodeTile(tile, payloads, tileBytes, fileBytes) {
+  const what = `tile ${tile.number}`;
+  const budget = new TileBudget(tileTableEntries(tileBytes, fileBytes), tileModelBytes(tileBytes, fileBytes), what);
+  let scene;
+  try {
+    scene = decodeAttributes(tile.section, payloads, budget);
+  } catch (err) {
+    if (err instanceof CodecError) throw new CodecError(`${what}: ${err.message}`);
+    throw err;
+  }
+  const lo = tile.box.slice(0, 3).map(Math.fround);
+  const hi = tile.box.slice(3).map(Math.fround);
+  const { means } = scene;
+  for (let i = 0; i < means.length; i += 3) {
+    for (let a = 0; a < 3; a++) {
+      const v = means[i + a];
+      if (!(v >= lo[a] && v <= hi[a])) {
+        throw new CodecError(`${what}: Gaussian ${i / 3} decodes at ${v} on axis ${a}, outside the tile's box ${show(tile.box)}`);
+      }
+    }
+  }
+  return scene;
+}
+
+/** The scenes of decoded tiles one after another (spec 10.14, "Decoded scene"), in the given order. */
+export function concatScenes(scenes, shDegree) {
+  const count = scenes.reduce((sum, s) => sum + s.count, 0);
+  const numRest = (shDegree + 1) ** 2 - 1;
+  const out = { count, shDegree };
+  for (const [key, width] of [['means', 3], ['quats', 4], ['logScales', 3], ['opacities', 1], ['shDc', 3], ['shRest', 3 * numRest]]) {
+    const array = new Float32Array(count * width);
+    let at = 0;
+    for (const s of scenes) {
+      array.set(s[key], at);
+      at += s[key].length;
+    }
+    out[key] = array;
+  }
+  return out;
+}
