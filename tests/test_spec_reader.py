@@ -283,7 +283,13 @@ def test_shape_is_checked_before_decoding():
 
 
 def test_1_0_residual_record_with_bad_gain_is_refused_when_read():
-    cam = {"name": "", "width": 8, "height": 6, "intrinsics": struct.pack("<4f", 8, 8, 4, 3), "pose": bytes(48)}
+    cam = {
+        "name": "",
+        "width": 8,
+        "height": 6,
+        "intrinsics": struct.pack("<4f", 8, 8, 4, 3),
+        "pose": bytes(48),
+    }
     rec = {"codec": "jxl", "shape": [6, 8], "bits": 8, "gain": -1.0, "offset": 128}
     side = {"views": [{"camera": cam, "residual": rec}], "background": [0, 0, 0], "restorer": "none"}
     with pytest.raises(CodecError, match="gain"):
