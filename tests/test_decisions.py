@@ -76,9 +76,7 @@ def test_a_file_without_side_information_says_why(tmp_path):
 
 def test_side_information_sent_unchecked_says_so():
     _, rep = encode_scene(scene(), opts=coarse(check_iterations=0))
-    assert rep.info["side info"].startswith("sent (unchecked, --check-iterations 0): "), rep.info[
-        "side info"
-    ]
+    assert rep.info["side info"].startswith("sent (unchecked, --check-iterations 0): "), rep.info["side info"]
 
 
 def test_the_side_information_line_gives_the_checks_figures():

@@ -1,3 +1,4 @@
+import struct
 from dataclasses import replace
 
 import msgpack
@@ -22,7 +23,7 @@ DISTANCES = {"jxl": 1.0, "webp": 2.0, "avif": 2.0}  # WebP / AVIF: quality 80
 
 
 def camera(height: int, width: int) -> CameraRecord:
-    return CameraRecord(width, height, bytes(16), bytes(48))
+    return CameraRecord(width, height, struct.pack("<4f", width, width, width / 2, height / 2), bytes(48))
 
 
 def _residual(seed=0, h=48, w=40, amp=0.05):

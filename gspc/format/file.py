@@ -96,10 +96,13 @@ class FileReader:
             self.head = container.read_head(self._f)
             entries = self.head.entries
             has_index = any(e.type == TIDX for e in entries)
-            self.header = FileHeader.from_dict(self.head.meta, tiled=has_index)
+            # An untiled file is read whole (read_file), its header parsed after the whole-file checksum
+            # (spec section 8); a tiled one is read in parts, from here (10.14).
+            self.header: FileHeader | None = None
             self.tiles: TileIndex | None = None
             self.side = SideViews()
-            if has_index:  # an untiled file is read whole (read_file); a tiled one in parts, from here
+            if has_index:
+                self.header = FileHeader.from_dict(self.head.meta, tiled=True)
                 k = next(i for i, e in enumerate(entries) if e.type == TIDX)
                 index_chunk = container.read_chunk(self._f, self.head, k)
                 self.tiles = _tile_index([*entries[:k], index_chunk, *entries[k + 1 :]])

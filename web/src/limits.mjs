@@ -40,6 +40,10 @@ export const MAX_BITS_CONTRACTED = 21;
 // Position bounds (10.1): world coordinates within 2^64 and contracted grid coordinates within 32 keep every
 // binary64 step of the position decoding finite and every decoded coordinate a finite binary32.
 export const MAX_COORDINATE = 2 ** 64;
+/** The largest quantiser step (10.0): every decoded value stays a finite binary32. */
+export const MAX_STEP = 2 ** 64;
+/** binary32's relative resolution (10.1): a position grid spans at least this fraction of its corners. */
+export const RESOLUTION = 2 ** -24;
 export const MAX_CONTRACTED = 32;
 // Precision classes (10.0, 10.13): class 0 and at most 15 maps; each class is a matrix per chunk, so the
 // count bounds the matrices a file may ask for.

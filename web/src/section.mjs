@@ -12,6 +12,8 @@ import {
   MAX_COORDINATE,
   MAX_GAUSSIANS,
   MAX_SH_DEGREE,
+  MAX_STEP,
+  RESOLUTION,
 } from './limits.mjs';
 
 export const PLAIN_VERSION = 1;
@@ -54,7 +56,7 @@ function floats(map, key, where, length) {
 
 function positive(values, where, most = Infinity) {
   if (!values.every((v) => Number.isFinite(v) && v > 0 && v <= most)) {
-    const bound = most === Infinity ? '' : `, at most ${most === MAX_COORDINATE ? '2^64' : most}`;
+    const bound = most === Infinity ? '' : `, at most ${most === 2 ** 64 ? '2^64' : most}`;
     throw fail(where, values.length === 1 ? values[0] : values, `finite and > 0${bound}`);
   }
 }
@@ -111,6 +113,23 @@ function readGrid(grid, version) {
         `+-${contraction ? bound : '2^64'} (spec 10.1)`,
     );
   }
+  // Resolution (10.1): on every axis the grid spans at least 2^-24 of its corners (and, contracted, R times
+  // its span at least 2^-24 of the centre), or binary32 would hold every Gaussian on one coordinate there.
+  for (let a = 0; a < 3; a++) {
+    const span = (2 ** bits - 1) * step[a];
+    const far = Math.max(Math.abs(lo[a]), Math.abs(corner[a]));
+    if (span < RESOLUTION * far) {
+      throw new CodecError(
+        `attribute codec header's position grid spans ${span} on axis ${a}, under 2^-24 of its corner ${far} (spec 10.1)`,
+      );
+    }
+    if (contraction && contraction.radius * span < RESOLUTION * Math.abs(contraction.centre[a])) {
+      throw new CodecError(
+        `attribute codec header's position grid spans ${contraction.radius * span} on axis ${a} in world space, ` +
+          `under 2^-24 of position.centre[${a}] = ${contraction.centre[a]} (spec 10.1)`,
+      );
+    }
+  }
   return { version: v, bits, lo, step, contraction, far };
 }
 
@@ -131,9 +150,10 @@ function readClass(map, k, prefix) {
   }
   const opacityLevels = Number(opacity);
   const rotationLevels = Number(rotation);
-  positive([scaleStep], `${prefix}scale_step`);
-  positive([dcStep], `${prefix}dc_step`);
-  positive(shSteps, `${prefix}sh_steps`);
+  // At most 2^64 (10.0): a decoded integer times its step stays a finite binary32.
+  positive([scaleStep], `${prefix}scale_step`, MAX_STEP);
+  positive([dcStep], `${prefix}dc_step`, MAX_STEP);
+  positive(shSteps, `${prefix}sh_steps`, MAX_STEP);
   return { opacityLevels, scaleStep, rotationLevels, dcStep, shSteps };
 }
 

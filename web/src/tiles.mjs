@@ -154,7 +154,7 @@ export function decodeTile(tile, payloads, tileBytes, fileBytes) {
     for (let a = 0; a < 3; a++) {
       const v = means[i + a];
       if (!(v >= lo[a] && v <= hi[a])) {
-        throw new CodecError(`${what}: Gaussian ${i / 3} decodes at ${v} on axis ${a}, outside the tile's box ${show(tile.box)}`);
+        throw new CodecError(`${what}: Gaussian ${i / 3} decodes at ${v} on axis ${a}, outside its box ${show(tile.box)}`);
       }
     }
   }

@@ -258,7 +258,7 @@ test('tiles: an attribute chunk naming no tile, before the index or after a late
 });
 
 test('tiles: a position outside its tile\'s box, or a count its chunks do not hold, is refused', async () => {
-  await refused(withTile([40, 40], 1, (m) => ({ ...m, box: box(0.5, -1, -1, 1, 1, 1) })), 'outside the tile\'s box');
+  await refused(withTile([40, 40], 1, (m) => ({ ...m, box: box(0.5, -1, -1, 1, 1, 1) })), 'outside its box');
   // The box's bounds are compared as binary32: a bound that rounds to the position holds it.
   const edge = decodeGspc(withTile([40, 40], 1, (m) => ({ ...m, box: box(1e-46, -1, -1, 1, 1, 1) })));
   assert.equal(edge.count, 80);
