@@ -77,10 +77,12 @@ def test_each_figure_cites_a_section_its_file_has_and_numbers_it_states(fig):
 
 def test_a_figure_in_the_readme_is_linked_to_its_section():
     readme = (ROOT / README).read_text()
+    shown = {f"({s.file}#{s.anchor})" for fig in FIGURES if fig.readme for s in fig.sources}
     for fig in FIGURES:
         for src in fig.sources:
             link = f"({src.file}#{src.anchor})"
-            assert (link in readme) == fig.readme, fig.id
+            # A figure left out of the README may share its section with one in it.
+            assert (link in readme) == (fig.readme or link in shown), fig.id
 
 
 def test_github_anchors():
