@@ -130,7 +130,9 @@ def one(
     return row
 
 
-def plan_rows(plan: str, sizes: list[int]) -> list[tuple[int, str, float, int, int]]:
+def plan_rows(
+    plan: str, sizes: list[int], workers: tuple[int, ...] = (1, 2)
+) -> list[tuple[int, str, float, int, int]]:
     """(size, variant, lambda, tile size, workers) of every run of a plan."""
     rows = []
     if plan == "compare":
@@ -141,8 +143,8 @@ def plan_rows(plan: str, sizes: list[int]) -> list[tuple[int, str, float, int, i
                     rows.append((n, f"tiles of {tile:,}", lam, tile, 2))
     else:
         for n in sizes:
-            for workers in (1, 2):
-                rows.append((n, f"tiles of {1 << 18:,}", 8.0, 1 << 18, workers))
+            for w in workers:
+                rows.append((n, f"tiles of {1 << 18:,}", 8.0, 1 << 18, w))
     return rows
 
 
@@ -193,6 +195,7 @@ def main() -> None:
     ap.add_argument("--scenes", type=Path, default=Path("/work/district"))
     ap.add_argument("--sizes", default="1000000")
     ap.add_argument("--plan", choices=("compare", "scale"), default="compare")
+    ap.add_argument("--workers", default="1,2", help="--plan scale: the worker counts to run")
     ap.add_argument("--work", type=Path, default=Path("/work/bench_tiles"))
     ap.add_argument("--log", type=Path, default=None, help="rows as JSON lines (default: WORK/rows.jsonl)")
     ap.add_argument("-o", "--out", type=Path, default=None, help="the report (default: print it)")
@@ -202,7 +205,8 @@ def main() -> None:
     machine = f"{platform.node()}, {os.cpu_count()} CPUs, load {os.getloadavg()[0]:.1f} at start"
     rows = [json.loads(x) for x in log.read_text().splitlines()] if log.exists() else []
     done = {(r["scene"], r["variant"], r["lambda"], r["workers"]) for r in rows}
-    for n, variant, lam, tile, workers in plan_rows(args.plan, [int(s) for s in args.sizes.split(",")]):
+    sizes, counts = [int(s) for s in args.sizes.split(",")], tuple(int(w) for w in args.workers.split(","))
+    for n, variant, lam, tile, workers in plan_rows(args.plan, sizes, counts):
         scene_dir = args.scenes / f"district_{n}"
         if (scene_dir.name, variant, lam, workers) in done:
             continue
