@@ -45,7 +45,7 @@ RAY_INSTALL = "pip install 'gspc[ray]'"
 RAY_STORE_PER_CPU = 256 << 20
 RAY_STORE_MIN = 256 << 20
 # Seconds a --ray ADDRESS has to accept a connection, then to answer as a Ray cluster: Ray's own client
-# retries an address that does not answer for many minutes, printing as it goes (bench/ray.md).
+# retries an address that does not answer for many minutes; gspc answers in bounded time (tests/test_ray.py).
 CONNECT_SECONDS = 5.0
 ANSWER_SECONDS = 45.0
 
