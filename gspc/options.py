@@ -250,7 +250,9 @@ class EncodeOptions:
         "(0: one block whatever the size; bench/tiles.md)",
     )
     workers: int | None = knob(
-        None, "worker processes that code tiles side by side (default: the cores this process may use)"
+        None,
+        "worker processes that code tiles side by side (default: the cores this process may use, "
+        "as many as the available memory holds)",
     )
     ray: str | None = knob(
         None,
@@ -289,7 +291,9 @@ class DecodeOptions:
         None, "decode only the tiles of a tiled file that meet this box: XMIN,YMIN,ZMIN,XMAX,YMAX,ZMAX"
     )
     workers: int | None = knob(
-        None, "worker processes that decode tiles side by side (default: the cores this process may use)"
+        None,
+        "worker processes that decode tiles side by side (default: the cores this process may use, "
+        "as many as the available memory holds)",
     )
     ray: str | None = knob(
         None, "decode the tiles on Ray ('auto': a local instance; HOST:PORT: a running cluster; gspc[ray])"

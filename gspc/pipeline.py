@@ -34,7 +34,7 @@ from gspc.io import read_scene, scene_writer
 from gspc.io.camera_files import load_cameras
 from gspc.io.ply import PlyRows, write_ply, write_ply_parts
 from gspc.jit import compile_kernels, uncompiled_kernels
-from gspc.limits import default_refine_iterations
+from gspc.limits import DECODE_WORKER_BYTES, default_refine_iterations
 from gspc.options import DecodeOptions, EncodeOptions, check_region
 from gspc.paths import refuse_output_over_input
 from gspc.progress import Progress
@@ -274,7 +274,8 @@ def _decode_tiles_to(
     if not chosen:
         raise InputError(f"--region meets none of the file's {len(tiles.tiles)} tiles; nothing to write")
     n = sum(tiles.tiles[k].n for k in chosen)
-    with open_executor(opts.workers, opts.ray) as ex, stages.stage("tiles", announce=False):
+    executor = open_executor(opts.workers, opts.ray, DECODE_WORKER_BYTES)
+    with executor as ex, stages.stage("tiles", announce=False):
         rep.bytes = reader.budget
         rep.num_gaussians_in = rep.num_gaussians_out = n
         region = "" if opts.region is None else ", those meeting the region"

@@ -50,12 +50,29 @@ CONNECT_SECONDS = 5.0
 ANSWER_SECONDS = 45.0
 
 
-def default_workers() -> int:
-    """The cores this process may run on (its CPU affinity, else the machine's count)."""
+def default_workers(worker_bytes: int | None = None) -> int:
+    """The cores this process may run on (its CPU affinity, else the machine's count); with ``worker_bytes``
+    (the memory one worker may need), no more than the memory available now holds, and at least one."""
     try:
-        return max(1, len(os.sched_getaffinity(0)))
+        cores = max(1, len(os.sched_getaffinity(0)))
     except (AttributeError, OSError):  # no sched_getaffinity (macOS, Windows)
-        return max(1, os.cpu_count() or 1)
+        cores = max(1, os.cpu_count() or 1)
+    free = available_memory()
+    if worker_bytes is None or free is None:
+        return cores
+    return max(1, min(cores, free // worker_bytes))
+
+
+def available_memory() -> int | None:
+    """Bytes of memory available to new processes (Linux's MemAvailable; None where it is not known)."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        return None
+    return None
 
 
 def check_workers(value: object) -> int:
@@ -423,14 +440,17 @@ def check_ray_address(address: str) -> None:
 
 
 @contextmanager
-def open_executor(workers: int | None, ray: str | None = None) -> Iterator[Executor]:
+def open_executor(
+    workers: int | None, ray: str | None = None, worker_bytes: int | None = None
+) -> Iterator[Executor]:
     """The executor a run's options ask for, closed (Ray shut down, where it started it) when the run
     ends: Ray where ``ray`` names it ("auto": a local instance of ``workers`` CPUs, or an address), else
-    ``workers`` local processes (None: the cores this process may use; 1: this process)."""
+    ``workers`` local processes (None: the cores this process may use, as many as the available memory
+    holds at ``worker_bytes`` each; 1: this process)."""
     if ray is not None:
-        ex: Executor = RayExecutor(ray, workers)
+        ex: Executor = RayExecutor(ray, workers or (default_workers(worker_bytes) if ray == "auto" else None))
     else:
-        n = workers or default_workers()
+        n = workers or default_workers(worker_bytes)
         ex = InProcess() if n <= 1 else LocalProcesses(n)
     try:
         yield ex
@@ -439,12 +459,14 @@ def open_executor(workers: int | None, ray: str | None = None) -> Iterator[Execu
 
 
 @contextmanager
-def executor_for(given: Executor | None, workers: int | None, ray: str | None) -> Iterator[Executor]:
+def executor_for(
+    given: Executor | None, workers: int | None, ray: str | None, worker_bytes: int | None = None
+) -> Iterator[Executor]:
     """``given`` where the caller holds one (a batch shares its executor), else one of the options' own."""
     if given is not None:
         yield given
         return
-    with open_executor(workers, ray) as ex:
+    with open_executor(workers, ray, worker_bytes) as ex:
         yield ex
 
 

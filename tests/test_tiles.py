@@ -236,3 +236,16 @@ def test_the_spec_reader_decodes_a_tiled_file_to_the_same_bits(tiled):
     assert not views
     for name, value in attrs.items():
         assert np.array_equal(value, getattr(scene, name).numpy()), name
+
+
+def test_default_workers_fit_the_available_memory(monkeypatch):
+    """--workers by default: every core, but no more workers than the memory available holds."""
+    import gspc.workers as workers
+
+    cores = workers.default_workers()
+    monkeypatch.setattr(workers, "available_memory", lambda: 5 << 30)
+    assert workers.default_workers(2 << 30) == min(cores, 2)
+    monkeypatch.setattr(workers, "available_memory", lambda: 1 << 20)
+    assert workers.default_workers(2 << 30) == 1
+    monkeypatch.setattr(workers, "available_memory", lambda: None)
+    assert workers.default_workers(2 << 30) == cores
