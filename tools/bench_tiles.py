@@ -182,8 +182,12 @@ def report(rows: list[dict], machine: str) -> str:
             f"{e['cpu']:.0f} | {e['rss_mb']:.0f} ({e['largest_mb']:.0f}) | {d['wall']:.1f} | "
             f"{d['rss_mb']:.0f} ({d['largest_mb']:.0f}) |"
         )
-    variants = sorted({r["variant"] for r in rows if r["variant"] != "one block"})
-    ratios = [(v, equal_psnr_ratio(rows, v)) for v in variants]
+    # Each scene's variants against its own one block (a scene without one, a scale run, has no ratio).
+    ratios = []
+    for scene in sorted({r["scene"] for r in rows}):
+        own = [r for r in rows if r["scene"] == scene]
+        for v in sorted({r["variant"] for r in own if r["variant"] != "one block"}):
+            ratios.append((f"{scene}, {v}", equal_psnr_ratio(own, v)))
     if any(x is not None for _, x in ratios):
         lines += ["", "Bytes at equal PSNR against one block (each variant's middle point, off its curve):"]
         lines += [f"- {v}: {x:.4f}" for v, x in ratios if x is not None]
