@@ -283,8 +283,9 @@ class DecodeBudget:
 
 # --- worker processes (gspc/workers.py) --------------------------------------------------------------------
 
-# The memory one worker may need, for the default number of workers: no more start than the memory available
-# holds. A worker coding a tile of the default size holds its measure, search and tuning (the largest process
-# of the tiled encodes in bench/tiles.md, with a margin); one decoding a tile holds its chunks and Gaussians.
+# The memory one worker may need, for the default number of workers: no more are started than the available
+# memory holds. A worker coding a tile of the default size holds its measure, search and tuning (the
+# largest process of the tiled encodes in bench/tiles.md, with a margin); one decoding a tile, its chunks
+# and Gaussians.
 ENCODE_WORKER_BYTES = 2 << 30
 DECODE_WORKER_BYTES = 512 << 20
