@@ -12,20 +12,14 @@ cameras, which the encoder does not see.
 from __future__ import annotations
 
 import argparse
-import sys
 import time
-from pathlib import Path
 
 import torch
+from bench_setups import bench_scene, float_psnr, held_out
 
-REPO = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(REPO / "tools"))
-
-from bench_sh_choices import psnr, scene_and_cameras  # noqa: E402
-
-from gspc.options import EncodeOptions  # noqa: E402
-from gspc.pipeline import decode_bytes, encode_scene  # noqa: E402
-from gspc.reconstruct import render_images  # noqa: E402
+from gspc.options import EncodeOptions
+from gspc.pipeline import decode_bytes, encode_scene
+from gspc.reconstruct import render_images
 
 
 def main() -> None:
@@ -37,9 +31,8 @@ def main() -> None:
     print("| scene | target dB | reached dB (its views) | held-out dB | bytes | lambda | codings | seconds |")
     print("|---|---:|---:|---:|---:|---:|---:|---:|")
     for name in args.scenes.split(","):
-        scene, cams, bg = scene_and_cameras(name)
-        train = [c for i, c in enumerate(cams) if i % 8]
-        held = cams[::8]
+        scene, cams, bg = bench_scene(name)
+        train, held = held_out(cams)
         refs = render_images(scene, held, bg)
         for target in (float(t) for t in args.targets.split(",")):
             opts = EncodeOptions(side_info=False, background=bg, target_psnr=target)
@@ -48,7 +41,7 @@ def main() -> None:
             seconds = time.perf_counter() - t0
             fid = rep.decisions.fidelity
             dec, _ = decode_bytes(data)
-            held_db = psnr(render_images(dec, held, bg), refs)
+            held_db = float_psnr(render_images(dec, held, bg), refs)
             print(
                 f"| {name} | {target:g} | {fid.psnr_db:.2f} | {held_db:.2f} | {len(data):,} | "
                 f"{fid.encoded.lam:.3g} | {fid.codings} | {seconds:.1f} |",

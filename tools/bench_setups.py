@@ -1,5 +1,6 @@
 """What the bench_* tools share: the benchmark scenes and their cameras (a fit's folder, or a scene with
-synthesised views), scoring a decoded scene at held-out views, one encode-decode point, the peers' writer
+synthesised views; :func:`bench_scene` by name, every eighth camera held out), scoring a decoded scene at
+held-out views, one encode-decode point, the peers' writer
 (PlayCanvas splat-transform) and bytes at equal PSNR on a rate curve.
 
 The tools run as scripts (``python tools/bench_x.py``), so this module is importable beside them.
@@ -8,16 +9,19 @@ The tools run as scripts (``python tools/bench_x.py``), so this module is import
 from __future__ import annotations
 
 import json
+import math
 import os
 import platform
 import subprocess
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import imagecodecs
 import numpy as np
 import torch
+from scenes import glossy_scene
 
 from gspc.cameras import Camera
 from gspc.encoder.prepare import encoder_cameras
@@ -29,10 +33,11 @@ from gspc.format.side_chunk import read_side_views
 from gspc.io import read_scene
 from gspc.io.camera_files import load_cameras
 from gspc.io.cameras_json import save_cameras_json
-from gspc.metrics import mean_psnr, quantize8, ssim
+from gspc.metrics import mean_psnr, mse, quantize8, ssim
 from gspc.pipeline import DecodeOptions, EncodeOptions, decode, encode
 from gspc.reconstruct import render_images
-from gspc.views import sample_views, split_test_views, synthesize_views
+from gspc.scene import GaussianScene
+from gspc.views import limit_size, sample_views, split_test_views, synthesize_views
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
 
@@ -234,3 +239,23 @@ def _residual_scale(path: Path) -> int | None:
     side = read_side_views(legacy, c.chunks, path.stat().st_size)
     scales = {v.residual.scale for v in side.views if v.residual is not None}
     return scales.pop() if len(scales) == 1 else None
+
+
+def bench_scene(name: str) -> tuple[GaussianScene, list[Camera], tuple[float, float, float]]:
+    """(scene, cameras, background) of ``name``: "lego", "glossy" or a statue of ../shared/data/statues."""
+    if name == "lego":
+        d = Path(__file__).resolve().parents[1] / "examples" / "lego"
+        return read_scene(d / "point_cloud.ply"), limit_size(load_cameras(d / "cameras.json"), 400), (1, 1, 1)
+    s = glossy_scene() if name == "glossy" else read_scene(SHARED / "statues" / f"{name}.sog")
+    return s, synthesize_views(s, 64, 320, 320), (0, 0, 0)
+
+
+def held_out(cams: Sequence[Camera]) -> tuple[list[Camera], list[Camera]]:
+    """(the encoder's cameras, the held-out ones): every eighth in the cameras' order (not by name, as
+    split_test_views does) is held out."""
+    return [c for i, c in enumerate(cams) if i % 8], list(cams[::8])
+
+
+def float_psnr(images: Sequence[torch.Tensor], refs: Sequence[torch.Tensor]) -> float:
+    """Mean PSNR in float (no 8-bit rounding: at high fidelity it hides most of the error)."""
+    return float(np.mean([-10 * math.log10(max(float(mse(a, b)), 1e-12)) for a, b in zip(images, refs)]))

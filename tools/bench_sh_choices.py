@@ -11,45 +11,16 @@ renders at held-out views (every eighth of the scene's cameras, which the encode
 from __future__ import annotations
 
 import argparse
-import math
-import sys
 import time
 from dataclasses import replace
-from pathlib import Path
 
-import numpy as np
 import torch
+from bench_setups import bench_scene, float_psnr, held_out
 
-REPO = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(REPO / "tools"))
-
-from scenes import glossy_scene  # noqa: E402
-
-import gspc.encoder.decisions as decisions  # noqa: E402
-from gspc.io import read_scene  # noqa: E402
-from gspc.io.camera_files import load_cameras  # noqa: E402
-from gspc.metrics import mse  # noqa: E402
-from gspc.options import EncodeOptions  # noqa: E402
-from gspc.pipeline import decode_bytes, encode_scene  # noqa: E402
-from gspc.reconstruct import render_images  # noqa: E402
-from gspc.views import limit_size, synthesize_views  # noqa: E402
-
-SHARED = REPO.parent / "shared" / "data"
-
-
-def scene_and_cameras(name: str):
-    if name == "lego":
-        d = REPO / "examples" / "lego"
-        return read_scene(d / "point_cloud.ply"), limit_size(load_cameras(d / "cameras.json"), 400), (1, 1, 1)
-    if name == "glossy":
-        s = glossy_scene()
-        return s, synthesize_views(s, 64, 320, 320), (0, 0, 0)
-    s = read_scene(SHARED / "statues" / f"{name}.sog")
-    return s, synthesize_views(s, 64, 320, 320), (0, 0, 0)
-
-
-def psnr(a, b) -> float:
-    return float(np.mean([-10 * math.log10(max(float(mse(x, y)), 1e-12)) for x, y in zip(a, b)]))
+import gspc.encoder.decisions as decisions
+from gspc.options import EncodeOptions
+from gspc.pipeline import decode_bytes, encode_scene
+from gspc.reconstruct import render_images
 
 
 def main() -> None:
@@ -61,9 +32,8 @@ def main() -> None:
     print("|---|---|---|---:|---:|---|---:|")
     real = decisions.removal_params
     for name in args.scenes.split(","):
-        scene, cams, bg = scene_and_cameras(name)
-        train = [c for i, c in enumerate(cams) if i % 8]
-        held = cams[::8]
+        scene, cams, bg = bench_scene(name)
+        train, held = held_out(cams)
         refs = render_images(scene, held, bg)
         for quality in ("low", "high"):
             for trial in (True, False):
@@ -77,7 +47,7 @@ def main() -> None:
                 data, rep = encode_scene(scene, train, opts)
                 seconds = time.perf_counter() - t0
                 dec, _ = decode_bytes(data)
-                p = psnr(render_images(dec, held, bg), refs)
+                p = float_psnr(render_images(dec, held, bg), refs)
                 kept = rep.decisions.removal.chosen() if rep.decisions.removal else "no search"
                 print(
                     f"| {name} | {quality} | {'on' if trial else 'off'} | {len(data):,} | {p:.2f} | {kept} | "

@@ -13,46 +13,25 @@ the same original, read back by gspc's readers and rendered by gspc's renderer.
 from __future__ import annotations
 
 import argparse
-import math
-import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
 import torch
+from bench_setups import bench_scene, float_psnr, held_out, splat_transform
 
-REPO = Path(__file__).resolve().parent.parent
-
-from gspc.io import read_scene, write_ply  # noqa: E402
-from gspc.io.camera_files import load_cameras  # noqa: E402
-from gspc.metrics import mean_psnr, mse  # noqa: E402
-from gspc.options import DecodeOptions, EncodeOptions  # noqa: E402
-from gspc.pipeline import decode_bytes, encode_scene  # noqa: E402
-from gspc.reconstruct import render_images  # noqa: E402
-from gspc.views import limit_size, synthesize_views  # noqa: E402
-
-SHARED = REPO.parent / "shared" / "data"
-
-
-def scene_and_cameras(name: str):
-    if name == "lego":
-        d = REPO / "examples" / "lego"
-        return read_scene(d / "point_cloud.ply"), limit_size(load_cameras(d / "cameras.json"), 400), (1, 1, 1)
-    s = read_scene(SHARED / "statues" / f"{name}.sog")
-    return s, synthesize_views(s, 64, 320, 320), (0, 0, 0)
+from gspc.io import read_scene, write_ply
+from gspc.metrics import mean_psnr
+from gspc.options import DecodeOptions, EncodeOptions
+from gspc.pipeline import decode_bytes, encode_scene
+from gspc.reconstruct import render_images
 
 
 def scores(scene, held, refs, bg) -> tuple[float, float]:
+    """(float, 8-bit) PSNR of ``scene`` against ``refs`` at the held-out cameras."""
     imgs = render_images(scene, held, bg)
-    fl = float(np.mean([-10 * math.log10(max(float(mse(a, b)), 1e-12)) for a, b in zip(imgs, refs)]))
-    return fl, mean_psnr(imgs, refs)
-
-
-def splat_transform(npm: Path, src: Path, out: Path) -> None:
-    tool = npm / "node_modules" / ".bin" / "splat-transform"
-    subprocess.run([str(tool), "-w", "-g", "cpu", str(src), str(out)], check=True, capture_output=True)
+    return float_psnr(imgs, refs), mean_psnr(imgs, refs)
 
 
 def main() -> None:
@@ -65,8 +44,8 @@ def main() -> None:
     print("| scene | what | bytes | B/Gaussian | held-out PSNR dB (float / 8-bit) | seconds |")
     print("|---|---|---:|---:|---|---:|")
     for name in args.scenes.split(","):
-        scene, cams, bg = scene_and_cameras(name)
-        train, held = [c for i, c in enumerate(cams) if i % 8], cams[::8]
+        scene, cams, bg = bench_scene(name)
+        train, held = held_out(cams)
         refs = render_images(scene, held, bg)
         n = scene.num_gaussians
 
@@ -97,7 +76,9 @@ def main() -> None:
                     continue
                 out = Path(tmp) / f"out.{ext}"
                 t0 = time.perf_counter()
-                splat_transform(args.npm_dir, src, out)
+                res, _ = splat_transform(args.npm_dir, src, out, "-g", "cpu")
+                if res.returncode:
+                    raise SystemExit(f"splat-transform failed on {out.name}: {res.stderr.strip()[-300:]}")
                 row(
                     f"{ext.upper()} (splat-transform)",
                     out.stat().st_size,
