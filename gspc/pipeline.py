@@ -347,7 +347,7 @@ def decode_bytes(
     restorer = load_restorer(restorer_name, device=device)
     rep.info["restorer"] = restorer_name
     scene = _restore_and_refine(
-        scene.to(device), file, restorer, iterations, opts, stages, rep, decoded.precision
+        scene.to(device), file, cams, restorer, iterations, opts, stages, rep, decoded.precision
     )
     scene.coordinates = coordinates
     return scene, rep
@@ -366,8 +366,8 @@ def _decode_attributes(file: GspcFile) -> DecodedSection:
 
 
 def _refine_iterations(file: GspcFile, num_gaussians: int, opts: DecodeOptions) -> int:
-    """``--iterations``, else the file's number bounded by the Gaussians it codes (gspc/limits.py); a decode
-    that renders bounds it by the work its bytes pay for too (spec 10.8)."""
+    """``--iterations``, else the file's number bounded by the Gaussians it codes (gspc/limits.py); the
+    work its bytes pay for bounds it further once the views are projected (decode_bytes, spec 10.8)."""
     if opts.iterations is not None:
         return opts.iterations
     return default_refine_iterations(file.header.side_info.refine_iterations, num_gaussians)
@@ -392,6 +392,7 @@ def _no_refinement(side: SideViews, opts: DecodeOptions, iterations: int) -> str
 def _restore_and_refine(
     scene: GaussianScene,
     file: GspcFile,
+    cams: list[Camera],
     restorer,
     iterations: int,
     opts: DecodeOptions,
@@ -402,7 +403,6 @@ def _restore_and_refine(
     """Render G~ at the stored views, restore them with their residuals and refine G~ against them."""
     header: FileHeader = file.header
     background = header.side_info.background
-    cams = [v.camera.to_camera() for v in file.side.views]
     with stages.stage("render", announce=False):
         degraded = render_images(scene, cams, background, stages.progress, "render coded")
     with stages.stage("restore", announce=False):
