@@ -182,8 +182,14 @@ def _per_preset(attr: str) -> str:
 
 @dataclass
 class EncodeOptions:
-    quality: str = knob("low", f"rate preset: {' or '.join(QUALITY)} (gspc/presets.py)")
-    lam: float | None = knob(None, "continuous rate knob (overrides the preset's)", "--lambda")
+    quality: str = knob(
+        "low",
+        f"preset: {', '.join(QUALITY)}, each a fidelity its attributes aim at within a size "
+        f"({', '.join(f'{n} {p.target_db:g} dB' for n, p in QUALITY.items())}; gspc/presets.py)",
+    )
+    lam: float | None = knob(
+        None, "continuous rate knob: code at this rate instead of the preset's fidelity target", "--lambda"
+    )
     target_size: int | None = knob(
         None, "the file's size at most, side information included (searches lambda)"
     )

@@ -20,7 +20,15 @@ DEFAULT_RESTORER = "nafnet-s16-v3"
 
 @dataclass(frozen=True)
 class Preset:
+    # The rate its search starts at, and the rate --lambda replaces (which then codes at the rate, no search).
     attributes: CodecParams
+    # The fidelity its attributes are coded to: PSNR in dB of the attributes as they decode against the
+    # original's renders at views between the encoder's cameras (gspc/encoder/fidelity.py), searched for the
+    # fewest bytes that reach it; None: coded at the rate.
+    target_db: float | None = None
+    # The size the search stays within, in bytes per Gaussian given: a scene whose target needs more is coded
+    # at the closest fidelity within it, and its summary says so.
+    max_bytes_per_gaussian: float = 64.0
     residual_codec: str = "jxl"  # one of gspc.codec.residuals.IMAGE_CODECS
     residual_distance: float = 4.0  # the residual image codecs' rate knob (larger is coarser)
     # Residuals coded at 1/scale resolution; the encoder's check also weighs them at twice this scale
@@ -67,14 +75,34 @@ LOW_PRECISION = PrecisionParams(exponents=(-7, 2), bias=1.5, sh_keep=4.0, prune=
 HIGH_PRECISION = PrecisionParams(
     exponents=(-7, 2), bias=1.0, sh_keep=2.0, prune=0.0, min_class=256, per_component=False, tail=-3
 )
-# Rate points lam 8 and lam 1 (11 and 14 position bits per axis: gspc/encoder/params.py). At the low preset,
-# residuals at half resolution and distance 8 buy more than the same bytes spent on attributes; at the high
-# preset most fall under the skip threshold (bench/pipeline.md, "Moved from code comments"). The low
-# preset's 300 refinement iterations follow gspc/reconstruct.py's schedule (bench/refine.md, "Summary"); the
-# high preset has little side information to refine on, so it refines for a third as long.
+# Each preset aims at a fidelity (PSNR of the attributes as they decode, against the original's renders at
+# views between the encoder's cameras): at one rate the scenes of the benches span 42-57 dB at lambda 8 and
+# more at lambda 1 (bench/precision.md, "Presets that aim at a fidelity"). The measure is the attributes'
+# because every decoder shows them (a viewer draws them as they decode; gspc's refinement only adds), and
+# the views lie between the cameras because the encoder's choices are fitted to the cameras themselves.
+# Targets 6 dB apart: each halves the previous one's RMS error. The stated size is about SPZ v4's at SH 3
+# (26 B per Gaussian) for medium, half that for low, twice for high.
+#
+# The rates the searches start at, and what --lambda replaces: lam 8, 3 and 1 (11 and 14 position bits per
+# axis at 8 and 1: gspc/encoder/params.py). At the low preset's rate, residuals at half resolution and
+# distance 8 buy more than the same bytes spent on attributes; at the high preset's most fall under the skip
+# threshold (bench/pipeline.md, "Moved from code comments"). The low preset's 300 refinement iterations
+# follow gspc/reconstruct.py's schedule (bench/refine.md, "Summary"); the high preset has little side
+# information to refine on, so it refines for a third as long. Medium is low's configuration aimed higher.
 QUALITY: dict[str, Preset] = {
     "low": Preset(
         attributes=CodecParams(lam=8.0, precision=LOW_PRECISION),
+        target_db=44.0,
+        max_bytes_per_gaussian=16.0,
+        residual_codec="jxl",
+        residual_distance=8.0,
+        residual_scale=2,
+        refine_iterations=300,
+    ),
+    "medium": Preset(
+        attributes=CodecParams(lam=3.0, precision=LOW_PRECISION),
+        target_db=50.0,
+        max_bytes_per_gaussian=32.0,
         residual_codec="jxl",
         residual_distance=8.0,
         residual_scale=2,
@@ -82,6 +110,8 @@ QUALITY: dict[str, Preset] = {
     ),
     "high": Preset(
         attributes=CodecParams(lam=1.0, precision=HIGH_PRECISION),
+        target_db=56.0,
+        max_bytes_per_gaussian=64.0,
         residual_codec="jxl",
         residual_distance=4.0,
         residual_scale=1,
@@ -89,11 +119,18 @@ QUALITY: dict[str, Preset] = {
         position_offsets=(1.0,),
         sh_options=(),
     ),
-    # The low preset's rate for viewers (web/, SPZ and glb outputs): what a viewer shows is the attributes
-    # as they decode, so no side information and the values tuned for that (bench/web.md, "What a viewer
-    # shows").
-    "web": Preset(attributes=CodecParams(lam=8.0, precision=LOW_PRECISION), side_info=False),
+    # The low preset for viewers (web/, SPZ and glb outputs): what a viewer shows is the attributes as they
+    # decode, so no side information and the values tuned for that (bench/web.md, "What a viewer shows").
+    "web": Preset(
+        attributes=CodecParams(lam=8.0, precision=LOW_PRECISION),
+        target_db=44.0,
+        max_bytes_per_gaussian=16.0,
+        side_info=False,
+    ),
 }
+# A preset's search ends at a coding this far above its target: within half a dB, in fewer codings than
+# --target-psnr's tenth.
+PRESET_TOLERANCE_DB = 0.5
 
 
 # Refinement costs about Gaussians x iterations (an iteration renders every Gaussian a view holds, and Adam

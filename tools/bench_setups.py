@@ -242,11 +242,17 @@ def _residual_scale(path: Path) -> int | None:
 
 
 def bench_scene(name: str) -> tuple[GaussianScene, list[Camera], tuple[float, float, float]]:
-    """(scene, cameras, background) of ``name``: "lego", "glossy" or a statue of ../shared/data/statues."""
+    """(scene, cameras, background) of ``name``: "lego", "glossy", "donut" or a statue of
+    ../shared/data/statues."""
     if name == "lego":
         d = Path(__file__).resolve().parents[1] / "examples" / "lego"
         return read_scene(d / "point_cloud.ply"), limit_size(load_cameras(d / "cameras.json"), 400), (1, 1, 1)
-    s = glossy_scene() if name == "glossy" else read_scene(SHARED / "statues" / f"{name}.sog")
+    if name == "glossy":
+        s = glossy_scene()
+    elif name == "donut":
+        s = read_scene(SHARED / "donut" / "fused.ply")
+    else:
+        s = read_scene(SHARED / "statues" / f"{name}.sog")
     return s, synthesize_views(s, 64, 320, 320), (0, 0, 0)
 
 

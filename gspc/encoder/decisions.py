@@ -25,7 +25,7 @@ import numpy as np
 from gspc import __version__
 from gspc.cameras import Camera
 from gspc.encoder.coding import EncodedAttributes, prune_mask
-from gspc.encoder.fidelity import Fidelity, FidelityParams, code_to_fidelity
+from gspc.encoder.fidelity import Fidelity, code_to_fidelity
 from gspc.encoder.policy import CheckInputs, Outcome, SideInfoDecision, check_cameras, check_side_info
 from gspc.encoder.prepare import (
     CodedAttributes,
@@ -33,6 +33,7 @@ from gspc.encoder.prepare import (
     code_attributes,
     codec_params,
     encoder_cameras,
+    fidelity_params,
     iteration_counts,
     measure_scene,
     removal_params,
@@ -107,8 +108,8 @@ class EncoderDecisions:
     check: SideInfoDecision | None = None  # the side-information check, where it ran
     tuning: TuningReport | None = None  # the tuning of the coded values, where it ran
     target_size: int | None = None
-    fidelity: Fidelity | None = None  # the fidelity search, where --target-psnr asked for one
-    target_psnr: float | None = None
+    fidelity: Fidelity | None = None  # the fidelity search, where --target-psnr or the preset asked for one
+    target_psnr: float | None = None  # a tiled scene's: each tile's target
     tiles: tuple[TileCoding, ...] = ()  # a scene coded as spatial tiles (gspc/encoder/tiles.py), in order
     ran_on: str = "1 worker"  # where the tiles were coded (gspc/workers.py Executor.describe)
     coordinates: str | None = None  # the axes the input stated (spec 10.8)
@@ -125,6 +126,7 @@ class EncoderDecisions:
         out["side info"] = self.side_info
         if self.check is not None:
             out.update(self.check.summary())
+            out["side info"] = self.side_info  # the decisions' line: what happened to its bytes too
         if self.tuning is not None:
             out["tuning"] = self.tuning.summary()
         out["decoder refines"] = (
@@ -153,9 +155,14 @@ class EncoderDecisions:
             chosen[key] = chosen.get(key, 0) + 1
         out["removal"] = "; ".join(f"{k}: {v} tile{'s' if v > 1 else ''}" for k, v in chosen.items())
         if self.target_psnr is not None:
+            scores = [t.fidelity_db for t in tiles if t.fidelity_db is not None]
+            short = sum(not t.fidelity_reached for t in tiles)
             out["fidelity"] = (
-                f"each tile coded to {self.target_psnr:g} dB at views between the cameras that see it"
+                f"each tile coded to {self.target_psnr:g} dB at views between the cameras that see it: "
+                f"{min(scores):.2f}-{max(scores):.2f} dB"
             )
+            if short:
+                out["fidelity"] += f"; {short} of {len(tiles)} tiles short of it within the preset's size"
         tuned = [t.tuning for t in tiles if t.tuning is not None and t.tuning.kept]
         if any(t.tuning is not None for t in tiles):
             gain = sum(t.after_db - t.before_db for t in tuned) / max(1, len(tuned))
@@ -235,8 +242,9 @@ def _decide_tiled_on(
 ) -> EncoderDecisions:
     cams = encoder_cameras(_camera_sample(source), cameras, opts)
     params = codec_params(opts)
+    fp = fidelity_params(opts)
     settings = TileSettings(
-        tuple(cams), params, opts.background, removal_params(opts), tuning_params(opts), opts.target_psnr
+        tuple(cams), params, opts.background, removal_params(opts), tuning_params(opts), fp
     )
     target = None if opts.target_size is None else opts.target_size
     for _ in range(TARGET_RETRIES + 1):
@@ -262,7 +270,7 @@ def _decide_tiled_on(
             target_size=opts.target_size,
             tiles=tuple(codings),
             ran_on=ex.describe(),
-            target_psnr=opts.target_psnr,
+            target_psnr=None if fp is None else fp.target_db,
             coordinates=source.coordinates,
         )
         if target is None:
@@ -315,7 +323,8 @@ def _decide_at(
             measure,
         )
     fidelity = None
-    if opts.target_psnr is not None:  # the fewest bytes that reach the fidelity, with the choices kept
+    fp = fidelity_params(opts)
+    if fp is not None:  # the fewest bytes that reach the fidelity, with the choices kept
         # A file that cannot carry side information is coded with the parameters for no refinement: the
         # search reaches the target with those, not with others re-searched in the same bytes after.
         no_side = not (opts.side_info and quality_preset(opts.quality).side_info)
@@ -327,7 +336,7 @@ def _decide_at(
                 coded.significance,
                 cams,
                 opts.background,
-                FidelityParams(opts.target_psnr),
+                fp,
                 removal_params(opts) or RemovalParams(),
                 progress=stages.progress,
             )
@@ -340,7 +349,9 @@ def _decide_at(
             )
     if attribute_budget is not None and fidelity is None:
         _refuse_missed_target(coded.encoded, attribute_budget, opts.target_size)
-    side = _side_information(scene, cams, coded, restorer, opts, device, stages, attribute_budget)
+    side = _side_information(
+        scene, cams, coded, restorer, opts, device, stages, attribute_budget, fidelity is not None
+    )
     attributes = side.attributes
     tuning = None
     if side.side is None:  # a file the decoder does not refine: its coded values are tuned
@@ -411,10 +422,12 @@ def _side_information(
     device,
     stages: Stages,
     attribute_budget: int | None,
+    at_fidelity: bool = False,
 ) -> _Side:
     """Render the sampled views, code their residuals and, where the check runs, keep the side information
     only if it pays for its bytes (gspc/encoder/policy.py). With a byte budget, the attributes are coded
-    again in what the side information leaves (its residuals made again for that coding) first."""
+    again in what the side information leaves (its residuals made again for that coding) first. Coded to a
+    fidelity (``at_fidelity``), side information that does not pay costs no bytes at all."""
     enc = coded.encoded
     runs = iteration_counts(opts, enc.decoded.num_gaussians)
     view_indices, view_cams = sample_side_views(cams, opts)
@@ -483,9 +496,11 @@ def _side_information(
             result.attributes, result.side, d.iterations, _sent(result.side, "the check found it pays"), d
         )
     attributes = result.attributes
-    if d.outcome is Outcome.DROPPED:
+    if d.outcome is Outcome.DROPPED or (at_fidelity and d.outcome is Outcome.SPENT_ON_ATTRIBUTES):
+        # Coded to a fidelity, the attributes already reach it: side information that does not pay
+        # leaves its bytes unspent rather than on attributes past the target.
         attributes = _unrefined(scene, coded, stages)
-    return _Side(attributes, None, runs.refine, _not_sent(d), d)
+    return _Side(attributes, None, runs.refine, _not_sent(d, at_fidelity), d)
 
 
 def _candidates(
@@ -521,11 +536,16 @@ def _sent(side: SideCandidate, why: str) -> str:
     )
 
 
-def _not_sent(d: SideInfoDecision) -> str:
+def _not_sent(d: SideInfoDecision, at_fidelity: bool = False) -> str:
     if d.outcome is Outcome.SPENT_ON_ATTRIBUTES:
+        where = (
+            "left unspent (the attributes reach the fidelity)"
+            if at_fidelity
+            else "spent on attributes instead"
+        )
         return (
-            f"none: its bytes spent on attributes instead, {d.rival_db:.2f} dB at {d.check_views} views "
-            f"carrying none against {d.refined_db:.2f} dB refined with it"
+            f"none: the same bytes on attributes measured better, {d.rival_db:.2f} dB at {d.check_views} "
+            f"views carrying none against {d.refined_db:.2f} dB refined with it; its bytes {where}"
         )
     return (
         f"none: refinement did not improve the {d.check_views} views carrying none ({d.coded_db:.2f} dB "

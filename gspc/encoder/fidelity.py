@@ -5,6 +5,10 @@ The measure is the one the encoder's removal search scores with (gspc/encoder/re
 between some of its cameras and their nearest others, which its cameras do not hold and its choices are not
 fitted to, in float (at high fidelity an 8-bit render rounds most of the error away). It is the fidelity of
 the attributes as they decode; a file with side information decodes closer still after refinement.
+
+The quality presets aim at a fidelity too (gspc/presets.py), within a size they state in bytes per Gaussian
+given: a coding over it counts as too fine, and where no coding within it reaches the target the search ends
+at the closest one within it, which :attr:`Fidelity.reached` says.
 """
 
 from __future__ import annotations
@@ -38,6 +42,9 @@ class FidelityParams:
     target_db: float
     tolerance_db: float = 0.1  # a coding this far above the target ends the search
     max_codings: int = 10
+    # The most bytes a coding may take per Gaussian given (None: any): a preset's stated size. With it, a
+    # target the search cannot reach ends at the closest coding within it instead of an error.
+    max_bytes_per_gaussian: float | None = None
 
 
 @dataclass(frozen=True)
@@ -50,15 +57,22 @@ class Fidelity:
     views: int
     codings: int
     seconds: float
+    max_bytes: int | None = None  # the size the search stayed within (None: any)
     # The coding's PSNR at the same views: the encoder scores the file it writes with it (the coding for no
     # side information, the tuned values) and reports that.
     score: Callable[[EncodedAttributes], float] = field(repr=False, compare=False, default=None)
 
+    @property
+    def reached(self) -> bool:
+        return self.psnr_db >= self.target_db - 0.005  # what the summary shows as the target
+
     def summary(self) -> str:
+        target = f"target {self.target_db:g} dB"
+        if not self.reached and self.max_bytes is not None:
+            target += f", not reached within the preset's size, {self.max_bytes:,} B"
         return (
-            f"{self.psnr_db:.2f} dB at {self.views} views between the encoder's cameras (target "
-            f"{self.target_db:g} dB; lambda {self.encoded.lam:.3g}, {self.codings} codings, "
-            f"{self.seconds:.1f} s)"
+            f"{self.psnr_db:.2f} dB at {self.views} views between the encoder's cameras ({target}; lambda "
+            f"{self.encoded.lam:.3g}, {self.codings} codings, {self.seconds:.1f} s)"
         )
 
 
@@ -75,15 +89,20 @@ def code_to_fidelity(
     progress: Progress | None = None,
 ) -> Fidelity:
     """The coding of ``scene`` with ``params`` (at another lambda) of the fewest bytes whose PSNR at the
-    scoring views is at least ``fp.target_db``: secant steps on log lambda inside a bracket that bisection
-    narrows. InputError where even the finest lambda stays under the target."""
+    scoring views is at least ``fp.target_db`` (and whose bytes are within ``fp.max_bytes_per_gaussian``):
+    secant steps on log lambda inside a bracket that bisection narrows. Where no coding reaches the target:
+    the closest within that size, or InputError without one."""
     t0 = time.perf_counter()
+    max_bytes = None
+    if fp.max_bytes_per_gaussian is not None:
+        max_bytes = int(fp.max_bytes_per_gaussian * scene.num_gaussians)
     views = scoring_views(cameras, scene.num_gaussians, rp)
     score = scorer(scene, views, background)
     lo, hi = math.log(MIN_LAMBDA), math.log(MAX_LAMBDA)  # finer (closer) at lo, coarser at hi
     best: tuple[EncodedAttributes, float] | None = None
     closest: tuple[EncodedAttributes, float] | None = None
     tried: list[tuple[float, float]] = []
+    codings = 0
     x = math.log(params.lam)
     for k in range(fp.max_codings):
         if progress:
@@ -98,7 +117,15 @@ def code_to_fidelity(
             hi = min(hi, x)  # so coarse that nothing is left: finer
             x = 0.5 * (lo + hi)
             continue
+        if max_bytes is not None and enc.num_bytes > max_bytes:
+            lo = max(lo, x)  # over the size: coarser, whatever it renders
+            codings += 1
+            if hi - lo < STOP_LOG_WIDTH:
+                break
+            x = _towards_size(lo, hi, x, enc.num_bytes / max_bytes)
+            continue
         p = score(enc)
+        codings += 1
         tried.append((x, p))
         if closest is None or p > closest[1]:
             closest = (enc, p)
@@ -115,6 +142,8 @@ def code_to_fidelity(
         x = _next(lo, hi, tried, fp.target_db + 0.5 * fp.tolerance_db)
     if progress:
         progress("fidelity", fp.max_codings, fp.max_codings)
+    if best is None and max_bytes is not None and closest is not None:
+        best = closest  # the preset's size reached first: the closest coding within it
     if best is None:
         enc, p = closest if closest is not None else (None, float("nan"))
         raise InputError(
@@ -122,7 +151,15 @@ def code_to_fidelity(
             f"{p:.2f} dB" + (f" at lambda {enc.lam:.3g} ({enc.num_bytes:,} B)" if enc is not None else "")
         )
     seconds = time.perf_counter() - t0
-    return Fidelity(best[0], best[1], fp.target_db, len(views), len(tried), seconds, score)
+    return Fidelity(best[0], best[1], fp.target_db, len(views), codings, seconds, max_bytes, score)
+
+
+def _towards_size(lo: float, hi: float, x: float, excess: float) -> float:
+    """The next log lambda after a coding ``excess`` times over the size: bytes fall about as lambda's
+    square root (bench/precision.md, "Presets that aim at a fidelity"), so twice the log excess and a
+    margin on, inside the bracket."""
+    guess = x + 2.0 * math.log(excess) + 0.05
+    return guess if guess < hi else 0.5 * (lo + hi)
 
 
 def _next(lo: float, hi: float, tried: list[tuple[float, float]], goal: float) -> float:

@@ -12,6 +12,7 @@ import numpy as np
 from gspc.cameras import Camera
 from gspc.codec import residuals
 from gspc.encoder.coding import EncodedAttributes, SharedGrid, encode_attributes
+from gspc.encoder.fidelity import FidelityParams
 from gspc.encoder.params import CodecParams
 from gspc.encoder.precision_plan import Significance
 from gspc.encoder.rate import search_lambda
@@ -21,7 +22,7 @@ from gspc.encoder.significance import encoder_significance
 from gspc.encoder.tuning import TuningParams
 from gspc.limits import default_refine_iterations
 from gspc.options import EncodeOptions
-from gspc.presets import quality_preset, refine_iterations_for
+from gspc.presets import PRESET_TOLERANCE_DB, quality_preset, refine_iterations_for
 from gspc.progress import Progress
 from gspc.scene import GaussianScene
 from gspc.views import limit_size, sample_views, synthesize_views
@@ -44,6 +45,19 @@ def codec_params(opts: EncodeOptions) -> CodecParams:
     if not opts.precision:
         params = replace(params, precision=None)
     return params
+
+
+def fidelity_params(opts: EncodeOptions) -> FidelityParams | None:
+    """The fidelity the attributes are coded to: ``--target-psnr``'s, or the preset's within its size where
+    neither ``--lambda`` nor ``--target-size`` names the rate (None: coded at the rate)."""
+    if opts.target_psnr is not None:
+        return FidelityParams(opts.target_psnr)
+    preset = quality_preset(opts.quality)
+    if preset.target_db is None or opts.lam is not None or opts.target_size is not None:
+        return None
+    return FidelityParams(
+        preset.target_db, PRESET_TOLERANCE_DB, max_bytes_per_gaussian=preset.max_bytes_per_gaussian
+    )
 
 
 def removal_params(opts: EncodeOptions) -> RemovalParams | None:

@@ -136,7 +136,7 @@ class TileJob:
     removal: RemovalParams | None
     tuning: TuningParams | None
     byte_target: int | None = None  # code in at most this many bytes (None: at the rate)
-    target_psnr: float | None = None  # code to this fidelity (gspc/encoder/fidelity.py; None: at the rate)
+    fidelity: FidelityParams | None = None  # code to this fidelity (gspc/encoder/fidelity.py; None: the rate)
 
 
 @dataclass(frozen=True)
@@ -154,6 +154,10 @@ class TileCoding:
     removal: RemovalChoice | None
     tuning: TuningReport | None
     seconds: float
+    # Where a fidelity search ran: the tile's PSNR at its views between the cameras, and whether it reached
+    # the target (a preset's size can stop it first).
+    fidelity_db: float | None = None
+    fidelity_reached: bool = True
 
 
 def code_tile(job: TileJob) -> TileCoding:
@@ -168,7 +172,8 @@ def code_tile(job: TileJob) -> TileCoding:
     coded = code_attributes(
         scene, cams, job.params, job.byte_target, job.background, None, removal, None, measure, job.shared
     )
-    if job.target_psnr is not None:  # the tile's fewest bytes that reach the fidelity, its choices kept
+    fidelity = None
+    if job.fidelity is not None:  # the tile's fewest bytes that reach the fidelity, its choices kept
         fidelity = code_to_fidelity(
             scene,
             coded.params,
@@ -176,7 +181,7 @@ def code_tile(job: TileJob) -> TileCoding:
             coded.significance,
             cams,
             job.background,
-            FidelityParams(job.target_psnr),
+            job.fidelity,
             job.removal or RemovalParams(),
             grid=job.shared,
         )
@@ -213,6 +218,8 @@ def code_tile(job: TileJob) -> TileCoding:
         removal_choice,
         tuning,
         time.perf_counter() - t0,
+        None if fidelity is None else fidelity.score(enc),
+        fidelity is None or fidelity.reached,
     )
 
 
@@ -238,7 +245,7 @@ class TileSettings:
     background: tuple[float, float, float]
     removal: RemovalParams | None
     tuning: TuningParams | None
-    target_psnr: float | None = None
+    fidelity: FidelityParams | None = None
 
 
 def code_tiles(
@@ -268,7 +275,7 @@ def code_tiles(
                 settings.removal,
                 settings.tuning,
                 None if targets is None else targets[k],
-                settings.target_psnr if targets is None else None,
+                settings.fidelity if targets is None else None,
             )
 
     def run(targets: list[int] | None, stage: str) -> list[TileCoding]:
