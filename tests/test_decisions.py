@@ -4,6 +4,7 @@ them, and the decoder's stage list (gspc/pipeline.py): what runs, what is read o
 import os
 import subprocess
 import sys
+from dataclasses import replace
 
 import pytest
 from cli_runs import run
@@ -197,3 +198,47 @@ def test_a_fidelity_no_lambda_reaches_is_refused_in_one_line():
         encode_scene(scene(), opts=small(side_info=False, target_psnr=119.0))
     with pytest.raises(InputError, match="--target-psnr"):
         EncodeOptions(target_psnr=5.0).validate()
+
+
+def test_a_preset_aims_at_its_fidelity_and_lambda_codes_at_the_rate():
+    # gspc/presets.py: each preset names a fidelity its attributes are searched for; --lambda and
+    # --target-size name the rate instead, and the preset's search does not run.
+    from gspc.encoder.prepare import fidelity_params
+    from gspc.presets import QUALITY
+
+    for name, preset in QUALITY.items():
+        fp = fidelity_params(EncodeOptions(quality=name))
+        assert fp.target_db == preset.target_db and fp.max_bytes_per_gaussian == preset.max_bytes_per_gaussian
+    assert [QUALITY[q].target_db for q in ("low", "medium", "high")] == sorted(
+        QUALITY[q].target_db for q in ("low", "medium", "high")
+    )
+    assert fidelity_params(EncodeOptions(lam=8.0)) is None
+    assert fidelity_params(EncodeOptions(target_size=100_000)) is None
+    assert fidelity_params(EncodeOptions(target_psnr=40.0)).max_bytes_per_gaussian is None
+    _, rep = encode_scene(scene(seed=3), opts=small(side_info=False))
+    assert f"searched for the {QUALITY['low'].target_db:g} dB target" in rep.info["lambda"], rep.info
+    _, at_rate = encode_scene(scene(seed=3), opts=small(side_info=False, lam=8.0))
+    assert "fidelity" not in at_rate.info
+
+
+def test_a_preset_whose_target_needs_more_than_its_size_says_so_in_one_line():
+    # A preset's stated size bounds its search: the closest coding within it is written, and the summary
+    # says the target was not reached there (the file's header holds what it reaches).
+    from gspc.encoder.fidelity import FidelityParams, code_to_fidelity
+    from gspc.encoder.params import CodecParams
+    from gspc.format.file import read_file
+    from gspc.views import synthesize_views
+
+    s = scene(seed=3)
+    cams = synthesize_views(s, 6, 40, 40)
+    fp = FidelityParams(119.0, 0.5, max_bytes_per_gaussian=25.0)
+    fid = code_to_fidelity(s, CodecParams(lam=8.0), None, None, cams, (0, 0, 0), fp)
+    assert fid.encoded.num_bytes <= 25 * s.num_gaussians and not fid.reached
+    assert f"not reached within the preset's size, {25 * s.num_gaussians:,} B" in fid.summary()
+    # A size no coding fits (the models alone are more): the smallest coding tried, said the same way.
+    tight = code_to_fidelity(
+        s, CodecParams(lam=8.0), None, None, cams, (0, 0, 0), replace(fp, max_bytes_per_gaussian=1.0)
+    )
+    assert not tight.reached and "not reached within the preset's size" in tight.summary()
+    data, rep = encode_scene(s, opts=small(side_info=False, quality="high"))
+    assert read_file(data).header.scene.psnr_db is not None and rep.info["fidelity"].endswith("s)")

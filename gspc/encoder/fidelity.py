@@ -103,6 +103,7 @@ def code_to_fidelity(
     closest: tuple[EncodedAttributes, float] | None = None
     tried: list[tuple[float, float]] = []
     codings = 0
+    smallest: EncodedAttributes | None = None  # the fewest bytes of the codings over the size
     x = math.log(params.lam)
     for k in range(fp.max_codings):
         if progress:
@@ -120,6 +121,8 @@ def code_to_fidelity(
         if max_bytes is not None and enc.num_bytes > max_bytes:
             lo = max(lo, x)  # over the size: coarser, whatever it renders
             codings += 1
+            if smallest is None or enc.num_bytes < smallest.num_bytes:
+                smallest = enc
             if hi - lo < STOP_LOG_WIDTH:
                 break
             x = _towards_size(lo, hi, x, enc.num_bytes / max_bytes)
@@ -142,8 +145,9 @@ def code_to_fidelity(
         x = _next(lo, hi, tried, fp.target_db + 0.5 * fp.tolerance_db)
     if progress:
         progress("fidelity", fp.max_codings, fp.max_codings)
-    if best is None and max_bytes is not None and closest is not None:
-        best = closest  # the preset's size reached first: the closest coding within it
+    if best is None and max_bytes is not None:
+        # The preset's size reached first: the closest coding within it, or none fits it the smallest.
+        best = closest if closest is not None else (smallest, score(smallest)) if smallest else None
     if best is None:
         enc, p = closest if closest is not None else (None, float("nan"))
         raise InputError(
