@@ -100,7 +100,7 @@ def test_the_side_information_line_gives_the_checks_figures():
 
 
 def test_a_lambda_the_encoder_moved_is_explained():
-    _, rep = encode_scene(scene(seed=5), opts=small(side_info=False))
+    _, rep = encode_scene(scene(seed=5), opts=small(side_info=False, lam=8.0))  # at the rate
     line = rep.info["lambda"]
     if rep.decisions.lambda_reasons:
         assert "asked (it sets the bytes), coded at" in line, line

@@ -219,6 +219,8 @@ def test_the_whole_method_runs_per_tile_and_the_target_holds(tmp_path):
     opts = EncodeOptions(tile_size=MIN_TILE_SIZE, synth_views=6, max_side=48, workers=2)
     rep = encode(src, out, opts=opts)
     assert "removal" in rep.info and "tuning" in rep.info, rep.info
+    # The preset's fidelity, per tile at the cameras that see it (gspc/presets.py).
+    assert rep.info["fidelity"].startswith("each tile coded to 44 dB at views between the cameras"), rep.info
     target = int(0.8 * out.stat().st_size)
     encode(src, out, opts=replace(opts, target_size=target))
     assert out.stat().st_size <= target

@@ -25,7 +25,8 @@ import numpy as np
 from gspc import __version__
 from gspc.cameras import Camera
 from gspc.encoder.coding import EncodedAttributes, prune_mask
-from gspc.encoder.fidelity import Fidelity, code_to_fidelity
+from gspc.encoder.fidelity import Fidelity, FidelityParams, code_to_fidelity, tuned_to_fidelity
+from gspc.encoder.params import CodecParams
 from gspc.encoder.policy import CheckInputs, Outcome, SideInfoDecision, check_cameras, check_side_info
 from gspc.encoder.prepare import (
     CodedAttributes,
@@ -328,18 +329,8 @@ def _decide_at(
         # A file that cannot carry side information is coded with the parameters for no refinement: the
         # search reaches the target with those, not with others re-searched in the same bytes after.
         no_side = not (opts.side_info and quality_preset(opts.quality).side_info)
-        with stages.stage("fidelity", announce=False):
-            fidelity = code_to_fidelity(
-                scene.to("cpu"),
-                coded.params.unrefined() if no_side else coded.params,
-                coded.visible,
-                coded.significance,
-                cams,
-                opts.background,
-                fp,
-                removal_params(opts) or RemovalParams(),
-                progress=stages.progress,
-            )
+        params = coded.params.unrefined() if no_side else coded.params
+        fidelity = _fidelity_search(scene, coded, params, cams, opts, fp, stages, stages.progress)
         reached = fidelity.encoded
         coded = replace(coded, encoded=reached, params=coded.params.with_lambda(reached.lam))
         if attribute_budget is not None and reached.num_bytes > attribute_budget:
@@ -354,9 +345,22 @@ def _decide_at(
     )
     attributes = side.attributes
     tuning = None
-    if side.side is None:  # a file the decoder does not refine: its coded values are tuned
-        attributes, tuning = _tuned(scene, attributes, coded, cams, opts, stages, attribute_budget)
-    if fidelity is not None:  # what the file itself renders at the fidelity's views
+
+    def tune(enc: EncodedAttributes) -> tuple[EncodedAttributes, TuningReport | None]:
+        return _tuned(scene, enc, coded, cams, opts, stages, attribute_budget)
+
+    def search(target_db: float, lam: float) -> EncodedAttributes:
+        params = coded.params.unrefined().with_lambda(lam)
+        lower = replace(fp, target_db=target_db)
+        return _fidelity_search(scene, coded, params, cams, opts, lower, stages).encoded
+
+    if side.side is None and fidelity is not None:  # tuned, and brought back near the target
+        tolerance = fp.tolerance_db
+        attributes, tuning, reached_db = tuned_to_fidelity(attributes, fidelity, tolerance, tune, search)
+        fidelity = replace(fidelity, encoded=attributes, psnr_db=reached_db)
+    elif side.side is None:  # a file the decoder does not refine: its coded values are tuned
+        attributes, tuning = tune(attributes)
+    elif fidelity is not None:  # what the file itself renders at the fidelity's views
         fidelity = replace(fidelity, encoded=attributes, psnr_db=fidelity.score(attributes))
     return EncoderDecisions(
         attributes=attributes,
@@ -372,6 +376,32 @@ def _decide_at(
         target_size=opts.target_size,
         fidelity=fidelity,
     )
+
+
+def _fidelity_search(
+    scene: GaussianScene,
+    coded: CodedAttributes,
+    params: CodecParams,
+    cams: list[Camera],
+    opts: EncodeOptions,
+    fp: FidelityParams,
+    stages: Stages,
+    progress=None,
+) -> Fidelity:
+    """The fidelity search (gspc/encoder/fidelity.py) over ``coded``'s visibility and measure, from
+    ``params``, with the options' removal kept."""
+    with stages.stage("fidelity", announce=False):
+        return code_to_fidelity(
+            scene.to("cpu"),
+            params,
+            coded.visible,
+            coded.significance,
+            cams,
+            opts.background,
+            fp,
+            removal_params(opts) or RemovalParams(),
+            progress=progress,
+        )
 
 
 def _lambda_reasons(coded: CodedAttributes, side: _Side, enc: EncodedAttributes) -> tuple[str, ...]:

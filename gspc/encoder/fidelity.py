@@ -6,6 +6,10 @@ between some of its cameras and their nearest others, which its cameras do not h
 fitted to, in float (at high fidelity an 8-bit render rounds most of the error away). It is the fidelity of
 the attributes as they decode; a file with side information decodes closer still after refinement.
 
+A file without side information has its coded values tuned after the search (gspc/encoder/tuning.py), which
+lifts the same bytes past the target: :func:`tuned_to_fidelity` then searches once more, for the target less
+what the tuning added, so the tuned file lands near its target in fewer bytes.
+
 The quality presets aim at a fidelity too (gspc/presets.py), within a size they state in bytes per Gaussian
 given: a coding over it counts as too fine, and where no coding within it reaches the target the search ends
 at the closest one within it, which :attr:`Fidelity.reached` says.
@@ -17,6 +21,7 @@ import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from typing import TypeVar
 
 import numpy as np
 
@@ -29,6 +34,8 @@ from gspc.errors import InputError, NothingCodedError, ValueRangeError
 from gspc.limits import MAX_LAMBDA, MIN_LAMBDA
 from gspc.progress import Progress
 from gspc.scene import GaussianScene
+
+T = TypeVar("T")
 
 # PSNR against log lambda is close to a line: the first guess's slope (dB per e-fold of lambda), before two
 # codings measure it (bench/precision.md, "Coding to a fidelity").
@@ -156,6 +163,30 @@ def code_to_fidelity(
         )
     seconds = time.perf_counter() - t0
     return Fidelity(best[0], best[1], fp.target_db, len(views), codings, seconds, max_bytes, score)
+
+
+def tuned_to_fidelity(
+    first: EncodedAttributes,
+    fidelity: Fidelity,
+    tolerance_db: float,
+    tune: Callable[[EncodedAttributes], tuple[EncodedAttributes, T]],
+    search: Callable[[float, float], EncodedAttributes],
+) -> tuple[EncodedAttributes, T, float]:
+    """(coding, its tuning's report, PSNR) of ``first`` (the search's coding, or one for no side
+    information in its bytes) tuned by ``tune``; where the tuned
+    coding renders more than ``tolerance_db`` past the target, ``search(target_db, lam)`` codes for the
+    target less the tuning's gain (from lambda ``lam``) and that is tuned too, kept if it still reaches the
+    target in fewer bytes (module docstring)."""
+    tuned, report = tune(first)
+    got = fidelity.score(tuned)
+    gain = got - fidelity.score(first)
+    if not fidelity.reached or got <= fidelity.target_db + tolerance_db or gain <= 0:
+        return tuned, report, got
+    again, report2 = tune(search(fidelity.target_db - gain, first.lam))
+    got2 = fidelity.score(again)
+    if got2 >= fidelity.target_db and again.num_bytes < tuned.num_bytes:
+        return again, report2, got2
+    return tuned, report, got
 
 
 def _towards_size(lo: float, hi: float, x: float, excess: float) -> float:

@@ -23,7 +23,7 @@ import numpy as np
 from gspc.cameras import Camera
 from gspc.codec import positions as pos
 from gspc.encoder.coding import EncodedAttributes, SharedGrid, prune_mask
-from gspc.encoder.fidelity import FidelityParams, code_to_fidelity
+from gspc.encoder.fidelity import FidelityParams, code_to_fidelity, tuned_to_fidelity
 from gspc.encoder.params import CodecParams
 from gspc.encoder.prepare import code_attributes, measure_scene
 from gspc.encoder.removal import RemovalChoice, RemovalParams
@@ -188,9 +188,10 @@ def code_tile(job: TileJob) -> TileCoding:
         coded = replace(
             coded, encoded=fidelity.encoded, params=coded.params.with_lambda(fidelity.encoded.lam)
         )
-    enc = coded.encoded
-    tuning = None
-    if job.tuning is not None:
+
+    def tune(enc: EncodedAttributes) -> tuple[EncodedAttributes, TuningReport | None]:
+        if job.tuning is None:
+            return enc, None
         tuned = tune_coding(
             scene,
             enc,
@@ -203,7 +204,23 @@ def code_tile(job: TileJob) -> TileCoding:
             byte_limit=job.byte_target,
             grid=job.shared,
         )
-        enc, tuning = tuned.encoded, tuned.report
+        return tuned.encoded, tuned.report
+
+    def search(target_db: float, lam: float) -> EncodedAttributes:
+        lower = replace(job.fidelity, target_db=target_db)
+        params = coded.params.with_lambda(lam)
+        rp = job.removal or RemovalParams()
+        return code_to_fidelity(
+            scene, params, coded.visible, coded.significance, cams, job.background, lower, rp, grid=job.shared
+        ).encoded
+
+    fidelity_db = None
+    if fidelity is not None:  # tuned, and brought back near the target
+        enc, tuning, fidelity_db = tuned_to_fidelity(
+            coded.encoded, fidelity, job.fidelity.tolerance_db, tune, search
+        )
+    else:
+        enc, tuning = tune(coded.encoded)
     candidates = int(prune_mask(scene, coded.params, coded.visible).sum())
     removal_choice = coded.removal if coded.removal is not None and coded.removal.base is not None else None
     return TileCoding(
@@ -218,7 +235,7 @@ def code_tile(job: TileJob) -> TileCoding:
         removal_choice,
         tuning,
         time.perf_counter() - t0,
-        None if fidelity is None else fidelity.score(enc),
+        fidelity_db,
         fidelity is None or fidelity.reached,
     )
 
