@@ -242,3 +242,33 @@ def test_a_preset_whose_target_needs_more_than_its_size_says_so_in_one_line():
     assert not tight.reached and "not reached within the preset's size" in tight.summary()
     data, rep = encode_scene(s, opts=small(side_info=False, quality="high"))
     assert read_file(data).header.scene.psnr_db is not None and rep.info["fidelity"].endswith("s)")
+
+
+def test_a_tuned_coding_past_its_target_is_searched_again_for_fewer_bytes():
+    # gspc/encoder/fidelity.py tuned_to_fidelity: tuning lifts the search's coding past the target, so
+    # the search runs once more for the target less the tuning's gain, kept where it still reaches it.
+    from types import SimpleNamespace as NS
+
+    from gspc.encoder.fidelity import Fidelity, tuned_to_fidelity
+
+    db = {100: 44.2, 110: 45.4, 80: 43.0, 88: 44.1}  # bytes -> PSNR at the search's views
+
+    def coding(n):
+        return NS(num_bytes=n, lam=8.0 * 100 / n)
+
+    def tune(enc):
+        return coding(enc.num_bytes + 10 if enc.num_bytes == 100 else 88), "report"
+
+    searched = []
+
+    def search(target, lam):
+        searched.append(round(target, 2))
+        return coding(80)
+
+    fid = Fidelity(coding(100), 44.2, 44.0, 16, 3, 1.0, None, lambda e: db[e.num_bytes])
+    enc, report, got = tuned_to_fidelity(coding(100), fid, 0.5, tune, search)
+    assert searched == [42.8] and enc.num_bytes == 88 and got == 44.1
+    # Within the band already: no second search.
+    near = Fidelity(coding(100), 44.2, 45.0, 16, 3, 1.0, None, lambda e: db[e.num_bytes])
+    searched.clear()
+    assert tuned_to_fidelity(coding(100), near, 0.5, tune, search)[0].num_bytes == 110 and not searched
