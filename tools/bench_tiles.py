@@ -10,9 +10,10 @@ as a district, with its cameras). PSNR is of the decoded attributes (``decode``:
 information) against the original's renders at every eighth of the scene's cameras, in float (8-bit
 rounding hides sub-level differences at these rates), by gspc's renderer on one thread. ``--plan compare``:
 one block and tiles of several sizes at three lambdas each (bytes at equal PSNR off each one's own curve);
-``--plan scale``: the default tiles at the preset's lambda, on 1 and 2 workers. Results are appended as
-JSON lines to ``--log`` as they come (a long run can be read while it runs) and the report is written from
-all of them at the end.
+``--plan scale``: the default tiles at the low preset's lambda, 8, on 1 and 2 workers; ``--plan preset``:
+the default tiles as the low preset codes them (each tile aimed at its fidelity, no ``--lambda``). Results
+are appended as JSON lines to ``--log`` as they come (a long run can be read while it runs) and the report
+is written from all of them at the end.
 """
 
 from __future__ import annotations
@@ -105,13 +106,14 @@ def psnr(original: Path, decoded: Path, cameras: Path, every: int = 8) -> float:
 
 
 def one(
-    scene_dir: Path, work: Path, log: Path, variant: str, lam: float, tile_size: int, workers: int
+    scene_dir: Path, work: Path, log: Path, variant: str, lam: float | None, tile_size: int, workers: int
 ) -> dict:
-    """Encode, decode and score one variant; its row."""
+    """Encode, decode and score one variant (``lam`` None: as the preset codes it); its row."""
     ply, cams = scene_dir / "point_cloud.ply", scene_dir / "cameras.json"
-    out = work / f"{scene_dir.name}-{variant}-{lam:g}-{workers}.gspc"
+    out = work / f"{scene_dir.name}-{variant}-{'preset' if lam is None else f'{lam:g}'}-{workers}.gspc"
     dec = out.with_suffix(".ply")
-    common = ["--cameras", str(cams), "--no-side-info", "--lambda", str(lam), "--workers", str(workers)]
+    rate = [] if lam is None else ["--lambda", str(lam)]
+    common = ["--cameras", str(cams), "--no-side-info", *rate, "--workers", str(workers)]
     enc = run_gspc(["encode", str(ply), "-o", str(out), "--tile-size", str(tile_size), *common], log)
     dcd = run_gspc(["decode", str(out), "-o", str(dec), "--workers", str(workers)], log)
     row = {
@@ -119,7 +121,7 @@ def one(
         "gaussians": int(json.loads((scene_dir / "scene.json").read_text())["gaussians"]),
         "variant": variant,
         "tile_size": tile_size,
-        "lambda": lam,
+        "lambda": "the preset's" if lam is None else lam,
         "workers": workers,
         "bytes": out.stat().st_size,
         "psnr": psnr(ply, dec, cams),
@@ -132,7 +134,7 @@ def one(
 
 def plan_rows(
     plan: str, sizes: list[int], workers: tuple[int, ...] = (1, 2)
-) -> list[tuple[int, str, float, int, int]]:
+) -> list[tuple[int, str, float | None, int, int]]:
     """(size, variant, lambda, tile size, workers) of every run of a plan."""
     rows = []
     if plan == "compare":
@@ -141,11 +143,19 @@ def plan_rows(
                 rows.append((n, "one block", lam, 0, 1))
                 for tile in (1 << 16, 1 << 18):
                     rows.append((n, f"tiles of {tile:,}", lam, tile, 2))
+    elif plan == "preset":
+        for n in sizes:
+            for w in workers:
+                rows.append((n, f"tiles of {1 << 18:,}, the low preset", None, 1 << 18, w))
     else:
         for n in sizes:
             for w in workers:
                 rows.append((n, f"tiles of {1 << 18:,}", 8.0, 1 << 18, w))
     return rows
+
+
+def _lam(x) -> str:
+    return f"{x:g}" if isinstance(x, (int, float)) else str(x)
 
 
 def equal_psnr_ratio(rows: list[dict], variant: str, base: str = "one block") -> float | None:
@@ -177,7 +187,7 @@ def report(rows: list[dict], machine: str) -> str:
     for r in rows:
         e, d = r["encode"], r["decode"]
         lines.append(
-            f"| {r['scene']} | {r['gaussians']:,} | {r['variant']} | {r['lambda']:g} | {r['workers']} | "
+            f"| {r['scene']} | {r['gaussians']:,} | {r['variant']} | {_lam(r['lambda'])} | {r['workers']} | "
             f"{r['bytes']:,} | {r['bytes'] / r['gaussians']:.2f} | {r['psnr']:.2f} | {e['wall']:.0f} | "
             f"{e['cpu']:.0f} | {e['rss_mb']:.0f} ({e['largest_mb']:.0f}) | {d['wall']:.1f} | "
             f"{d['rss_mb']:.0f} ({d['largest_mb']:.0f}) |"
@@ -198,8 +208,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scenes", type=Path, default=Path("/work/district"))
     ap.add_argument("--sizes", default="1000000")
-    ap.add_argument("--plan", choices=("compare", "scale"), default="compare")
-    ap.add_argument("--workers", default="1,2", help="--plan scale: the worker counts to run")
+    ap.add_argument("--plan", choices=("compare", "scale", "preset"), default="compare")
+    ap.add_argument("--workers", default="1,2", help="--plan scale, preset: the worker counts to run")
     ap.add_argument("--work", type=Path, default=Path("/work/bench_tiles"))
     ap.add_argument("--log", type=Path, default=None, help="rows as JSON lines (default: WORK/rows.jsonl)")
     ap.add_argument("-o", "--out", type=Path, default=None, help="the report (default: print it)")
