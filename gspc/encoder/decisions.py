@@ -574,8 +574,9 @@ def _not_sent(d: SideInfoDecision, at_fidelity: bool = False) -> str:
             else "spent on attributes instead"
         )
         return (
-            f"none: the same bytes on attributes measured better, {d.rival_db:.2f} dB at {d.check_views} "
-            f"views carrying none against {d.refined_db:.2f} dB refined with it; its bytes {where}"
+            f"none: it did not beat the same bytes on attributes by the check's margin, {d.rival_db:.2f} dB "
+            f"at {d.check_views} views carrying none against {d.refined_db:.2f} dB refined with it; its "
+            f"bytes {where}"
         )
     return (
         f"none: refinement did not improve the {d.check_views} views carrying none ({d.coded_db:.2f} dB "
