@@ -222,7 +222,7 @@ def main() -> None:
     sizes, counts = [int(s) for s in args.sizes.split(",")], tuple(int(w) for w in args.workers.split(","))
     for n, variant, lam, tile, workers in plan_rows(args.plan, sizes, counts):
         scene_dir = args.scenes / f"district_{n}"
-        if (scene_dir.name, variant, lam, workers) in done:
+        if (scene_dir.name, variant, "the preset's" if lam is None else lam, workers) in done:
             continue
         row = one(scene_dir, args.work, args.work / "gspc.log", variant, lam, tile, workers)
         rows.append(row)
