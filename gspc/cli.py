@@ -399,6 +399,7 @@ def info(
         )
         if summary is not None and summary.coordinates is not None:
             out.print(f"coordinates: {summary.coordinates} (as the source stated them)")
+        _fidelity_line(summary)
         out.print(_position_grid_line(fields.attributes.position))
         if fields.attributes.precision:
             out.print(_precision_line(fields.attributes))
@@ -416,6 +417,15 @@ def info(
     for k, v in _flatten(st):
         t.add_row(k, _fmt(v))
     out.print(t)
+
+
+def _fidelity_line(summary, which: str = "") -> None:
+    """The fidelity the encoder coded to, where the header states one (spec 10.8 ``scene.psnr_db``)."""
+    if summary is not None and summary.psnr_db is not None:
+        out.print(
+            f"fidelity: {summary.psnr_db:.2f} dB{which}, the decoded attributes against the original's "
+            "renders at views between the encoder's cameras"
+        )
 
 
 def _budget_table(budget: dict[str, int], chunks, n: int) -> None:
@@ -452,6 +462,7 @@ def _tiled_info(path: Path, reader) -> None:
     )
     if summary is not None and summary.coordinates is not None:
         out.print(f"coordinates: {summary.coordinates} (as the source stated them)")
+    _fidelity_line(summary, " (its lowest tile's)")
     _budget_table(reader.budget, head.entries, max(n, 1))
     sizes = reader.tile_bytes()
     t = Table(show_header=True)

@@ -62,6 +62,10 @@ def test_a_scene_larger_than_a_tile_is_a_tiled_file(tiled):
     assert f.header.attributes is None and rep.num_gaussians_out == f.num_gaussians
     assert all(t.n <= MIN_TILE_SIZE for t in f.tiles.tiles)
     assert "tiles" in rep.info and rep.info["side info"].startswith("none (a tiled file")
+    # Each tile aimed at the preset's fidelity: the header states the lowest tile's, and `gspc info` says it.
+    lowest = min(t.fidelity_db for t in rep.decisions.tiles)
+    assert f.header.scene.psnr_db == pytest.approx(lowest)
+    assert f"fidelity: {lowest:.2f} dB (its lowest tile's)" in " ".join(run("info", out).stdout.split())
     small = random_scene(300, sh_degree=1, seed=1)  # no larger than a tile: the untiled format, as before
     data, _ = encode_scene(small, opts=EncodeOptions(**QUICK))
     assert read_file(data).version == (1, 4) and read_file(data).tiles is None

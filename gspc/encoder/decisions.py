@@ -676,6 +676,12 @@ def file_bytes(decisions: EncoderDecisions, scene: GaussianScene | None, opts: E
     return data
 
 
+def _lowest_fidelity(tiles: tuple[TileCoding, ...]) -> float | None:
+    """A tiled file's fidelity: its lowest tile's, where every tile was coded to one (None: not)."""
+    scores = [t.fidelity_db for t in tiles]
+    return None if any(x is None for x in scores) else min(scores)
+
+
 def _tiled_file_bytes(decisions: EncoderDecisions, opts: EncodeOptions) -> bytes:
     """A tiled file (spec 10.14): its header names no attribute section, its tile index holds the tiles'."""
     tiles = decisions.tiles
@@ -686,6 +692,7 @@ def _tiled_file_bytes(decisions: EncoderDecisions, opts: EncodeOptions) -> bytes
             tiles[0].tile.section.sh_degree,
             decisions.counts.given,
             decisions.coordinates,
+            _lowest_fidelity(tiles),
         ),
         attributes=None,
         side_info=SideInfoHeader(opts.background, opts.restorer, 0),
