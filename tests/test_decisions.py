@@ -268,6 +268,12 @@ def test_a_tuned_coding_past_its_target_is_searched_again_for_fewer_bytes():
     fid = Fidelity(coding(100), 44.2, 44.0, 16, 3, 1.0, None, lambda e: db[e.num_bytes])
     enc, report, got = tuned_to_fidelity(coding(100), fid, 0.5, tune, search)
     assert searched == [42.8] and enc.num_bytes == 88 and got == 44.1
+    # Tuning that takes the coding under the target (it tunes at the cameras): the untuned coding is kept.
+    fid_low = Fidelity(
+        coding(100), 44.2, 44.0, 16, 3, 1.0, None, lambda e: {100: 44.2, 110: 43.8}[e.num_bytes]
+    )
+    kept = tuned_to_fidelity(coding(100), fid_low, 0.5, lambda e: (coding(110), "report"), search)
+    assert kept[0].num_bytes == 100 and kept[1] is None and kept[2] == 44.2
     # Within the band already: no second search.
     near = Fidelity(coding(100), 44.2, 45.0, 16, 3, 1.0, None, lambda e: db[e.num_bytes])
     searched.clear()

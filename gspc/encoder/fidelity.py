@@ -176,10 +176,13 @@ def tuned_to_fidelity(
     information in its bytes) tuned by ``tune``; where the tuned
     coding renders more than ``tolerance_db`` past the target, ``search(target_db, lam)`` codes for the
     target less the tuning's gain (from lambda ``lam``) and that is tuned too, kept if it still reaches the
-    target in fewer bytes (module docstring)."""
+    target in fewer bytes (module docstring). Where tuning takes a coding that reached the target under it,
+    the untuned coding is kept (no report: the tuning's values are not in the file)."""
     tuned, report = tune(first)
-    got = fidelity.score(tuned)
-    gain = got - fidelity.score(first)
+    got, untuned = fidelity.score(tuned), fidelity.score(first)
+    if got < fidelity.target_db <= untuned:  # tuned at the cameras, it fell short between them
+        return first, None, untuned
+    gain = got - untuned
     if not fidelity.reached or got <= fidelity.target_db + tolerance_db or gain <= 0:
         return tuned, report, got
     again, report2 = tune(search(fidelity.target_db - gain, first.lam))
