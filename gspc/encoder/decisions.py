@@ -158,9 +158,11 @@ class EncoderDecisions:
         if self.target_psnr is not None:
             scores = [t.fidelity_db for t in tiles if t.fidelity_db is not None]
             short = sum(not t.fidelity_reached for t in tiles)
+            shares = [t.share_db for t in tiles]
             out["fidelity"] = (
-                f"each tile coded to {self.target_psnr:g} dB at views between the cameras that see it: "
-                f"{min(scores):.2f}-{max(scores):.2f} dB"
+                f"each tile coded to its share of {self.target_psnr:g} dB at views between the cameras that "
+                f"see it (the target +{min(shares):.1f} to +{max(shares):.1f} dB, for the tiles those "
+                f"cameras see): {min(scores):.2f}-{max(scores):.2f} dB less its share"
             )
             if short:
                 out["fidelity"] += f"; {short} of {len(tiles)} tiles short of it within the preset's size"

@@ -10,6 +10,11 @@ worker's (gspc/workers.py), with the same bytes either way.
 
 Each tile is measured, searched and tuned with its own Gaussians alone: the Gaussians of other tiles that
 occlude it are not drawn (bench/tiles.md measures what that costs against one block).
+
+Coded to a fidelity, a tile gets its share of the scene's error: a view's squared error is the sum of the
+tiles' it shows, each scored over the whole image, so tiles coded to the target each left a scene of N tiles
+in view about 10 log10 N dB under it (bench/tiles.md, "The low preset on tiles"). Each tile's target is
+raised by the mean, over the cameras that see it, of 10 log10 of the tiles each of them sees.
 """
 
 from __future__ import annotations
@@ -137,6 +142,7 @@ class TileJob:
     tuning: TuningParams | None
     byte_target: int | None = None  # code in at most this many bytes (None: at the rate)
     fidelity: FidelityParams | None = None  # code to this fidelity (gspc/encoder/fidelity.py; None: the rate)
+    share_db: float = 0.0  # what the fidelity's target was raised by: the tile's share of the views' error
 
 
 @dataclass(frozen=True)
@@ -154,10 +160,12 @@ class TileCoding:
     removal: RemovalChoice | None
     tuning: TuningReport | None
     seconds: float
-    # Where a fidelity search ran: the tile's PSNR at its views between the cameras, and whether it reached
+    # Where a fidelity search ran: the tile's PSNR at its views between the cameras less its share (what the
+    # scene's views are at least, where every tile is; module docstring), and whether it reached
     # the target (a preset's size can stop it first).
     fidelity_db: float | None = None
     fidelity_reached: bool = True
+    share_db: float = 0.0
 
 
 def code_tile(job: TileJob) -> TileCoding:
@@ -235,8 +243,9 @@ def code_tile(job: TileJob) -> TileCoding:
         removal_choice,
         tuning,
         time.perf_counter() - t0,
-        fidelity_db,
+        None if fidelity_db is None else fidelity_db - job.share_db,
         fidelity is None or fidelity.reached,
+        job.share_db,
     )
 
 
@@ -276,7 +285,12 @@ def code_tiles(
     """The tiles of ``source`` (gspc/io/ply.py PlyRows, or :class:`SceneRows`) and each one's coding, on
     ``workers`` processes. With ``byte_target``, the tiles' attribute bytes in all are brought under it:
     each tile gets its share, in proportion to what it codes at the rate, and is coded again in it."""
-    plan = plan_tiles(source.positions(), source.log_scales(), settings.params.position_precision, tile_size)
+    positions, log_scales = source.positions(), source.log_scales()
+    plan = plan_tiles(positions, log_scales, settings.params.position_precision, tile_size)
+    shares = np.zeros(len(plan.rows))
+    if settings.fidelity is not None:
+        shares = error_shares(plan.rows, positions, log_scales, list(settings.cameras))
+    del positions, log_scales
 
     def jobs(targets: list[int] | None):
         for k, rows in enumerate(plan.rows):
@@ -292,7 +306,8 @@ def code_tiles(
                 settings.removal,
                 settings.tuning,
                 None if targets is None else targets[k],
-                settings.fidelity if targets is None else None,
+                _raised(settings.fidelity, shares[k]) if targets is None else None,
+                float(shares[k]),
             )
 
     def run(targets: list[int] | None, stage: str) -> list[TileCoding]:
@@ -302,6 +317,22 @@ def code_tiles(
     if byte_target is not None:
         codings = run(retarget(codings, byte_target), "tiles in the target")
     return plan, codings
+
+
+def error_shares(
+    rows: Sequence[np.ndarray], positions: np.ndarray, log_scales: np.ndarray, cameras: list[Camera]
+) -> np.ndarray:
+    """Per tile, the dB its fidelity target is raised by: the mean over the cameras that see it of 10 log10
+    of how many tiles each of them sees (module docstring)."""
+    seen = [seeing_cameras(positions[r], log_scales[r], cameras) for r in rows]
+    tiles_in_view = np.zeros(len(cameras))
+    for s in seen:
+        tiles_in_view[s] += 1
+    return np.array([float(np.mean(10 * np.log10(tiles_in_view[s]))) if s else 0.0 for s in seen])
+
+
+def _raised(fp: FidelityParams | None, db: float) -> FidelityParams | None:
+    return None if fp is None else replace(fp, target_db=fp.target_db + db)
 
 
 def _job_name(job: TileJob) -> str:
