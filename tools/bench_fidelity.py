@@ -3,7 +3,7 @@ what held-out views show, the bytes and the codings it took (bench/precision.md,
 with ``--presets``, each preset at its rate (``--lambda``, what it coded before it aimed at a fidelity) and
 as it is, side by side (bench/precision.md, "Presets that aim at a fidelity").
 
-    GSPC_THREADS=1 python tools/bench_fidelity.py [--scenes lego,massa] [--targets 36,40,44]
+    GSPC_THREADS=1 python tools/bench_fidelity.py [--scenes lego,massa] [--targets 36,40,44] [--starts 8,30]
     GSPC_THREADS=1 python tools/bench_fidelity.py --presets low,medium,high [--scenes ...]
 
 Per scene and target: an encode without side information (what a file for viewers holds, and the measure
@@ -32,27 +32,36 @@ def main() -> None:
     ap.add_argument("--scenes", default="lego,massa")
     ap.add_argument("--targets", default="36,40,44")
     ap.add_argument("--presets", default="", help="compare these presets at their rate and as they are")
+    ap.add_argument(
+        "--starts", default="", help="lambdas each search starts from (the removal and grid trials run there)"
+    )
     args = ap.parse_args()
     torch.set_num_threads(1)
     if args.presets:
         return presets(args.scenes.split(","), args.presets.split(","))
-    print("| scene | target dB | reached dB (its views) | held-out dB | bytes | lambda | codings | seconds |")
-    print("|---|---:|---:|---:|---:|---:|---:|---:|")
+    starts = [float(x) for x in args.starts.split(",")] if args.starts else [None]
+    print(
+        "| scene | target dB | started at | reached dB (its views) | held-out dB | bytes | lambda | codings | "
+        "seconds | trials kept |"
+    )
+    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---|")
     for name in args.scenes.split(","):
         scene, cams, bg = bench_scene(name)
         train, held = held_out(cams)
         refs = render_images(scene, held, bg)
-        for target in (float(t) for t in args.targets.split(",")):
-            opts = EncodeOptions(side_info=False, background=bg, target_psnr=target)
+        for target, start in ((float(t), x) for t in args.targets.split(",") for x in starts):
+            opts = EncodeOptions(side_info=False, background=bg, target_psnr=target, lam=start)
             t0 = time.perf_counter()
             data, rep = encode_scene(scene, train, opts)
             seconds = time.perf_counter() - t0
             fid = rep.decisions.fidelity
             dec, _ = decode_bytes(data)
             held_db = float_psnr(render_images(dec, held, bg), refs)
+            kept = rep.info.get("removal", "no search").split(":")[0]
             print(
-                f"| {name} | {target:g} | {fid.psnr_db:.2f} | {held_db:.2f} | {len(data):,} | "
-                f"{fid.encoded.lam:.3g} | {fid.codings} | {seconds:.1f} |",
+                f"| {name} | {target:g} | {'the preset' if start is None else f'lambda {start:g}'} | "
+                f"{fid.psnr_db:.2f} | {held_db:.2f} | {len(data):,} | {fid.encoded.lam:.3g} | {fid.codings} | "
+                f"{seconds:.1f} | {kept} |",
                 flush=True,
             )
 
