@@ -41,8 +41,8 @@ def main() -> None:
         return presets(args.scenes.split(","), args.presets.split(","))
     starts = [float(x) for x in args.starts.split(",")] if args.starts else [None]
     print(
-        "| scene | target dB | started at | reached dB (its views) | held-out dB | bytes | lambda | codings | "
-        "seconds | trials kept |"
+        "| scene | target dB | started at | reached dB (its views) | held-out dB | bytes | lambda | "
+        "codings | seconds | trials kept |"
     )
     print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---|")
     for name in args.scenes.split(","):
@@ -60,8 +60,8 @@ def main() -> None:
             kept = rep.info.get("removal", "no search").split(":")[0]
             print(
                 f"| {name} | {target:g} | {'the preset' if start is None else f'lambda {start:g}'} | "
-                f"{fid.psnr_db:.2f} | {held_db:.2f} | {len(data):,} | {fid.encoded.lam:.3g} | {fid.codings} | "
-                f"{seconds:.1f} | {kept} |",
+                f"{fid.psnr_db:.2f} | {held_db:.2f} | {len(data):,} | {fid.encoded.lam:.3g} | "
+                f"{fid.codings} | {seconds:.1f} | {kept} |",
                 flush=True,
             )
 
