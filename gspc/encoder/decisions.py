@@ -150,6 +150,8 @@ class EncoderDecisions:
             f"{max(lams):.3g} with their own removal and grid, in those bytes"
             + (f", then each in its share of the {self.target_size:,} B target" if self.target_size else ""),
         }
+        if self.target_psnr is not None:
+            out["lambda"] = f"each tile's searched for its fidelity: {min(lams):.3g}-{max(lams):.3g}"
         chosen: dict[str, int] = {}
         for t in tiles:
             key = t.removal.chosen() if t.removal is not None else "the preset's removal and grid (no search)"
