@@ -6,7 +6,7 @@ command line's options override single fields (gspc/options.py). This module imp
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from gspc.encoder.params import CodecParams
 from gspc.encoder.precision_plan import PrecisionParams
@@ -90,24 +90,19 @@ HIGH_PRECISION = PrecisionParams(
 # threshold (bench/pipeline.md, "Moved from code comments"). The low preset's 300 refinement iterations
 # follow gspc/reconstruct.py's schedule (bench/refine.md, "Summary"); the high preset has little side
 # information to refine on, so it refines for a third as long. Medium is low's configuration aimed higher.
+LOW = Preset(
+    attributes=CodecParams(lam=8.0, precision=LOW_PRECISION),
+    target_db=44.0,
+    max_bytes_per_gaussian=32.0,
+    residual_codec="jxl",
+    residual_distance=8.0,
+    residual_scale=2,
+    refine_iterations=300,
+)
 QUALITY: dict[str, Preset] = {
-    "low": Preset(
-        attributes=CodecParams(lam=8.0, precision=LOW_PRECISION),
-        target_db=44.0,
-        max_bytes_per_gaussian=32.0,
-        residual_codec="jxl",
-        residual_distance=8.0,
-        residual_scale=2,
-        refine_iterations=300,
-    ),
-    "medium": Preset(
-        attributes=CodecParams(lam=3.0, precision=LOW_PRECISION),
-        target_db=50.0,
-        max_bytes_per_gaussian=64.0,
-        residual_codec="jxl",
-        residual_distance=8.0,
-        residual_scale=2,
-        refine_iterations=300,
+    "low": LOW,
+    "medium": replace(
+        LOW, attributes=replace(LOW.attributes, lam=3.0), target_db=50.0, max_bytes_per_gaussian=64.0
     ),
     "high": Preset(
         attributes=CodecParams(lam=1.0, precision=HIGH_PRECISION),
@@ -122,12 +117,7 @@ QUALITY: dict[str, Preset] = {
     ),
     # The low preset for viewers (web/, SPZ and glb outputs): what a viewer shows is the attributes as they
     # decode, so no side information and the values tuned for that (bench/web.md, "What a viewer shows").
-    "web": Preset(
-        attributes=CodecParams(lam=8.0, precision=LOW_PRECISION),
-        target_db=44.0,
-        max_bytes_per_gaussian=32.0,
-        side_info=False,
-    ),
+    "web": replace(LOW, side_info=False),
 }
 # A preset's search ends at a coding this far above its target: within half a dB, in fewer codings than
 # --target-psnr's tenth.

@@ -51,12 +51,8 @@ def main() -> None:
         refs = render_images(scene, held, bg)
         for target, start in ((float(t), x) for t in args.targets.split(",") for x in starts):
             opts = EncodeOptions(side_info=False, background=bg, target_psnr=target, lam=start)
-            t0 = time.perf_counter()
-            data, rep = encode_scene(scene, train, opts)
-            seconds = time.perf_counter() - t0
+            data, rep, held_db, seconds = coded_point(scene, train, held, refs, opts)
             fid = rep.decisions.fidelity
-            dec, _ = decode_bytes(data)
-            held_db = float_psnr(render_images(dec, held, bg), refs)
             kept = rep.info.get("removal", "no search").split(":")[0]
             print(
                 f"| {name} | {target:g} | {'the preset' if start is None else f'lambda {start:g}'} | "
@@ -64,6 +60,15 @@ def main() -> None:
                 f"{fid.codings} | {seconds:.1f} | {kept} |",
                 flush=True,
             )
+
+
+def coded_point(scene, train, held, refs, opts: EncodeOptions) -> tuple[bytes, object, float, float]:
+    """(file, report, held-out PSNR, encode seconds) of ``scene`` encoded at ``train`` with ``opts``."""
+    t0 = time.perf_counter()
+    data, rep = encode_scene(scene, train, opts)
+    seconds = time.perf_counter() - t0
+    dec, _ = decode_bytes(data)
+    return data, rep, float_psnr(render_images(dec, held, opts.background), refs), seconds
 
 
 def presets(names: list[str], qualities: list[str]) -> None:
@@ -82,12 +87,8 @@ def presets(names: list[str], qualities: list[str]) -> None:
             preset = quality_preset(q)
             for lam in (preset.attributes.lam, None):
                 opts = EncodeOptions(quality=q, side_info=False, background=bg, lam=lam)
-                t0 = time.perf_counter()
-                data, rep = encode_scene(scene, train, opts)
-                seconds = time.perf_counter() - t0
+                data, rep, held_db, seconds = coded_point(scene, train, held, refs, opts)
                 enc = rep.decisions.attributes
-                dec, _ = decode_bytes(data)
-                held_db = float_psnr(render_images(dec, held, bg), refs)
                 how = f"lambda {lam:g}" if lam is not None else f"{preset.target_db:g} dB"
                 per = len(data) / scene.num_gaussians
                 print(
