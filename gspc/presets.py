@@ -76,13 +76,12 @@ HIGH_PRECISION = PrecisionParams(
     exponents=(-7, 2), bias=1.0, sh_keep=2.0, prune=0.0, min_class=256, per_component=False, tail=-3
 )
 # Each preset aims at a fidelity (PSNR of the attributes as they decode, against the original's renders at
-# views between the encoder's cameras): at one rate the scenes of the benches span 42-57 dB at lambda 8 and
-# more at lambda 1 (bench/precision.md, "Presets that aim at a fidelity"). The measure is the attributes'
-# because every decoder shows them (a viewer draws them as they decode; gspc's refinement only adds), and
-# the views lie between the cameras because the encoder's choices are fitted to the cameras themselves.
-# Targets 6 dB apart: each halves the previous one's RMS error. The stated sizes: low within about SPZ v4's
-# bytes at SH 3 (26 B per Gaussian), where a glossy SH-3 object needs more than 16 B to reach its target
-# (bench/precision.md, "Presets that aim at a fidelity"); medium and high twice and four times that.
+# views between the encoder's cameras): at one rate the benches' scenes lie far apart in it (bench/
+# precision.md, "Presets that aim at a fidelity"). The measure is the attributes' because every decoder shows
+# them (a viewer draws them as they decode; gspc's refinement only adds), and the views lie between the
+# cameras because the encoder's choices are fitted to the cameras themselves. Targets 6 dB apart: each
+# halves the previous one's RMS error. The stated sizes: low's about SPZ v4's bytes at SH 3, above what the
+# glossy SH-3 object needs for its target (ibid.); medium's and high's twice and four times it.
 #
 # The rates the searches start at, and what --lambda replaces: lam 8, 3 and 1 (11 and 14 position bits per
 # axis at 8 and 1: gspc/encoder/params.py). At the low preset's rate, residuals at half resolution and

@@ -193,9 +193,9 @@ def tuned_to_fidelity(
 
 
 def _towards_size(lo: float, hi: float, x: float, excess: float) -> float:
-    """The next log lambda after a coding ``excess`` times over the size: bytes fall about as lambda's
-    square root (bench/precision.md, "Presets that aim at a fidelity"), so twice the log excess and a
-    margin on, inside the bracket."""
+    """The next log lambda after a coding ``excess`` times over the size: bytes fall about as a power of
+    lambda near -1/2 on the benches' scenes (bench/precision.md, "Presets that aim at a fidelity"), so
+    twice the log excess and a margin on, inside the bracket."""
     guess = x + 2.0 * math.log(excess) + 0.05
     return guess if guess < hi else 0.5 * (lo + hi)
 
