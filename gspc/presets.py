@@ -76,12 +76,13 @@ HIGH_PRECISION = PrecisionParams(
     exponents=(-7, 2), bias=1.0, sh_keep=2.0, prune=0.0, min_class=256, per_component=False, tail=-3
 )
 # Each preset aims at a fidelity (PSNR of the attributes as they decode, against the original's renders at
-# views between the encoder's cameras): at one rate the benches' scenes lie far apart in it (bench/
-# precision.md, "Presets that aim at a fidelity"). The measure is the attributes' because every decoder shows
-# them (a viewer draws them as they decode; gspc's refinement only adds), and the views lie between the
-# cameras because the encoder's choices are fitted to the cameras themselves. Targets 6 dB apart: each
-# halves the previous one's RMS error. The stated sizes: low's about SPZ v4's bytes at SH 3, above what the
-# glossy SH-3 object needs for its target (ibid.); medium's and high's twice and four times it.
+# views between the encoder's cameras): at one rate the benches' scenes lie far apart in it
+# (bench/precision.md, "Presets that aim at a fidelity"). The measure is the attributes' because every
+# decoder shows them (a viewer draws them as they decode; gspc's refinement only adds), and the views lie
+# between the cameras because the encoder's choices are fitted to the cameras themselves. Targets 6 dB
+# apart: each halves the previous one's RMS error. The stated sizes: low's about SPZ v4's bytes at SH 3,
+# above what the glossy SH-3 object needs for its target (the same section); medium's and high's twice and
+# four times it.
 #
 # The rates the searches start at, and what --lambda replaces: lam 8, 3 and 1 (11 and 14 position bits per
 # axis at 8 and 1: gspc/encoder/params.py). At the low preset's rate, residuals at half resolution and
