@@ -142,16 +142,21 @@ class EncoderDecisions:
         tiles = self.tiles
         lams = [t.lam for t in tiles]
         sizes = [t.tile.n for t in tiles]
+        if self.target_psnr is not None:
+            lam_line = f"each tile's searched for its fidelity: {min(lams):.3g}-{max(lams):.3g}"
+        else:
+            lam_line = (
+                f"{self.lam_asked:.4g} asked (it sets the bytes); tiles coded at {min(lams):.3g}-"
+                f"{max(lams):.3g} with their own removal and grid, in those bytes"
+            )
+            if self.target_size:
+                lam_line += f", then each in its share of the {self.target_size:,} B target"
         out = {
             "Gaussians": self.counts.summary(),
             "tiles": f"{len(tiles)} of {min(sizes):,}-{max(sizes):,} Gaussians, coded on {self.ran_on} "
             f"({sum(t.seconds for t in tiles):.1f} s of tile work)",
-            "lambda": f"{self.lam_asked:.4g} asked (it sets the bytes); tiles coded at {min(lams):.3g}-"
-            f"{max(lams):.3g} with their own removal and grid, in those bytes"
-            + (f", then each in its share of the {self.target_size:,} B target" if self.target_size else ""),
+            "lambda": lam_line,
         }
-        if self.target_psnr is not None:
-            out["lambda"] = f"each tile's searched for its fidelity: {min(lams):.3g}-{max(lams):.3g}"
         chosen: dict[str, int] = {}
         for t in tiles:
             key = t.removal.chosen() if t.removal is not None else "the preset's removal and grid (no search)"

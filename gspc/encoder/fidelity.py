@@ -152,9 +152,10 @@ def code_to_fidelity(
         x = _next(lo, hi, tried, fp.target_db + 0.5 * fp.tolerance_db)
     if progress:
         progress("fidelity", fp.max_codings, fp.max_codings)
-    if best is None and max_bytes is not None:
-        # The preset's size reached first: the closest coding within it, or none fits it the smallest.
-        best = closest if closest is not None else (smallest, score(smallest)) if smallest else None
+    if best is None and max_bytes is not None:  # the preset's size reached first
+        best = closest  # the closest coding within it
+        if best is None and smallest is not None:  # none fits it: the smallest tried
+            best = (smallest, score(smallest))
     if best is None:
         enc, p = closest if closest is not None else (None, float("nan"))
         raise InputError(
@@ -179,7 +180,8 @@ def tuned_to_fidelity(
     target in fewer bytes (module docstring). Where tuning takes a coding that reached the target under it,
     the untuned coding is kept (no report: the tuning's values are not in the file)."""
     tuned, report = tune(first)
-    got, untuned = fidelity.score(tuned), fidelity.score(first)
+    untuned = fidelity.psnr_db if first is fidelity.encoded else fidelity.score(first)
+    got = fidelity.score(tuned)
     if got < fidelity.target_db <= untuned:  # tuned at the cameras, it fell short between them
         return first, None, untuned
     gain = got - untuned
