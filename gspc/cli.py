@@ -448,16 +448,19 @@ INFO_TILES = 32
 
 def _tiled_info(path: Path, reader) -> None:
     """``gspc info`` of a tiled file, from its head and tile index alone (spec 10.14)."""
+    from gspc.format.chunks import TSID
+
     tiles, head = reader.tiles, reader.head
     summary = reader.header.scene
     n = tiles.num_gaussians
     source = (
         f", {summary.source_gaussians:,} given to the encoder" if summary and summary.source_gaussians else ""
     )
+    sides = {e.index: e.length for e in head.entries if e.type == TSID}  # each tile's own (spec 10.15)
+    views = "side information per tile" if sides else f"{len(reader.side.views)} side-information views"
     out.print(
         f"{path}: gspc format {head.version[0]}.{head.version[1]}, {head.file_size:,} bytes, {n:,} Gaussians"
-        f"{source} in {len(tiles.tiles)} tiles, SH degree {tiles.sh_degree}, "
-        f"{len(reader.side.views)} side-information views",
+        f"{source} in {len(tiles.tiles)} tiles, SH degree {tiles.sh_degree}, {views}",
         markup=False,
     )
     if summary is not None and summary.coordinates is not None:
@@ -465,8 +468,12 @@ def _tiled_info(path: Path, reader) -> None:
     _fidelity_line(summary, " (its lowest tile's)")
     _budget_table(reader.budget, head.entries, max(n, 1))
     sizes = reader.tile_bytes()
+    if sides:
+        own = f"{len(sides)} of {len(tiles.tiles)} tiles, {sum(sides.values()):,} B"
+        out.print(f"side information of their own (refined tile by tile): {own}")
     t = Table(show_header=True)
-    for col in ("tile", "Gaussians", "bytes", "B/Gaussian", "box (x, y, z from .. to)", "grid", "classes"):
+    box_col = "box (x, y, z from .. to)"
+    for col in ("tile", "Gaussians", "bytes", "B/Gaussian", box_col, "grid", "classes", "side B"):
         t.add_column(col, justify="left" if col.startswith("box") else "right")
     for k, tile in enumerate(tiles.tiles[:INFO_TILES]):
         b = tile.box
@@ -474,7 +481,7 @@ def _tiled_info(path: Path, reader) -> None:
         grid = f"{tile.section.position.bits} bits" + (", far set" if tile.section.position.far else "")
         t.add_row(
             str(k), f"{tile.n:,}", f"{sizes[k]:,}", f"{sizes[k] / tile.n:.2f}", box, grid,
-            str(len(tile.section.all_classes)),
+            str(len(tile.section.all_classes)), f"{sides[k]:,}" if k in sides else "-",
         )  # fmt: skip
     out.print(t)
     if len(tiles.tiles) > INFO_TILES:

@@ -6,6 +6,8 @@ or allocation (issue 15), so the spec can cite one list. Each limit says why it 
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 # --- decoding a .gspc file --------------------------------------------------------------------------------
 # The measurements behind the per-byte rules (what real files of each kind ask for, and the work and memory of
 # files crafted at each limit) are in bench/robustness.md: "What real files ask of a decoder" and "Work asked
@@ -153,11 +155,56 @@ def decode_work_budget(file_size: int) -> int:
     return max(WORK_FLOOR, WORK_PER_FILE_BYTE * file_size)
 
 
-def refine_work_iterations(first_work: int, heaviest_view: int, file_size: int) -> int:
-    """The refinement iterations a file's budget pays for after ``first_work`` (its first renders and
-    restoration), each costing ``heaviest_view``."""
-    left = decode_work_budget(file_size) - first_work
+def refine_work_iterations(first_work: int, heaviest_view: int, file_size: int | RenderAllowance) -> int:
+    """The refinement iterations a file's budget (or a tile's share: :class:`RenderAllowance`) pays for
+    after ``first_work`` (its first renders and restoration), each costing ``heaviest_view``."""
+    left = allowance(file_size).work - first_work
     return max(0, left) // max(1, heaviest_view)
+
+
+@dataclass(frozen=True)
+class RenderAllowance:
+    """What the side views of a file, or of one tile of a tiled file, may ask a decoder for: pixels over
+    the views, Gaussian-tile pairs per view and work (spec 10.8). A tile's is its share of one file's floors,
+    in proportion to its bytes (spec 10.15), so that a file of many small tiles asks for no more floors than
+    one file, while each tile is bounded, and refined, alone."""
+
+    pixels: int
+    pairs: int
+    work: int
+    of: str  # what it belongs to, for refusals: "a 1,024-byte file", "tile 3"
+    rule: str  # the rule's words, for refusals
+
+    @classmethod
+    def of_file(cls, file_size: int) -> RenderAllowance:
+        return cls(
+            view_pixel_budget(file_size),
+            view_pair_budget(file_size),
+            decode_work_budget(file_size),
+            f"a {file_size:,}-byte file",
+            "spec 10.8",
+        )
+
+    @classmethod
+    def of_tile(cls, number: int, tile_bytes: int, all_bytes: int) -> RenderAllowance:
+        """Tile ``number``'s share: ``tile_bytes`` its attribute and TSID payloads, ``all_bytes`` every
+        tile's."""
+
+        def share(floor: int, per_byte: int) -> int:
+            return max(floor * tile_bytes // max(all_bytes, 1), per_byte * tile_bytes)
+
+        return cls(
+            min(MAX_TOTAL_PIXELS, share(PIXEL_FLOOR, PIXELS_PER_FILE_BYTE)),
+            min(MAX_VIEW_PAIRS, share(PAIR_FLOOR, PAIRS_PER_FILE_BYTE)),
+            share(WORK_FLOOR, WORK_PER_FILE_BYTE),
+            f"tile {number} ({tile_bytes:,} of the tiles' {all_bytes:,} bytes)",
+            "its share of the file's, spec 10.15",
+        )
+
+
+def allowance(size: int | RenderAllowance) -> RenderAllowance:
+    """``size`` as an allowance: a file's size in bytes, or a tile's allowance as it is."""
+    return size if isinstance(size, RenderAllowance) else RenderAllowance.of_file(size)
 
 
 # The memory a decode takes (the whole process's peak resident memory: Python, torch and the restorer's

@@ -49,6 +49,13 @@ from gspc.reconstruct import (
 from gspc.restore.restorer import load_restorer
 from gspc.scene import GaussianScene
 from gspc.stages import Stages
+from gspc.tile_reconstruct import (
+    TileOutcome,
+    TileReconstruction,
+    TileReconstructJob,
+    TileSideSettings,
+    reconstruct_tile,
+)
 from gspc.workers import DriverReads, Executor, open_executor, run_tasks
 
 
@@ -174,7 +181,7 @@ def _encode_with(decide_fn, scene: GaussianScene | None, opts: EncodeOptions, pr
         data = file_bytes(decisions, scene, opts)
     side = decisions.side
     if decisions.tiles:  # the chunks the file was packed from: it is not parsed again
-        chunks = tiled_file_chunks([(t.tile, t.chunks) for t in decisions.tiles], None)
+        chunks = tiled_file_chunks([(t.tile, t.chunks) for t in decisions.tiles], None, decisions.tile_sides)
     else:
         chunks = file_chunks(decisions.attributes.chunks, side and side.payload)
     rep.bytes = byte_budget(len(data), chunks)
@@ -229,7 +236,9 @@ def decode_tiles(
 ) -> Iterator[DecodedTile]:
     """The tiles of the .gspc file at ``in_path`` that meet ``region`` (every tile for None), decoded one
     at a time in file order, on ``workers`` processes (or an executor: gspc/workers.py open_executor):
-    memory follows the tiles, not the file. An untiled file is one tile, its box that of its Gaussians."""
+    memory follows the tiles, not the file. An untiled file is one tile, its box that of its Gaussians.
+    The tiles' attributes as they decode: :func:`decode` also restores and refines the tiles that carry side
+    information of their own (spec 10.15)."""
     region = check_region(region)
     with FileReader(in_path) as reader:
         if reader.tiles is None:
@@ -238,28 +247,72 @@ def decode_tiles(
             yield DecodedTile(0, tuple(float(x) for x in (*m.min(0), *m.max(0))), scene)
             return
         chosen = reader.tiles.meeting(region)
-        for k, scene in zip(chosen, _tile_scenes(reader, chosen, workers, None)):
-            yield DecodedTile(k, reader.tiles.tiles[k].box, scene)
+        for k, tile in zip(chosen, _tile_scenes(reader, chosen, workers, None, None)):
+            yield DecodedTile(k, reader.tiles.tiles[k].box, tile.scene)
         if region is None:
             reader.check_trailer()
 
 
 def _tile_scenes(
-    reader: FileReader, chosen: list[int], workers: int | Executor, progress: Progress | None
-) -> Iterator[GaussianScene]:
-    """The ``chosen`` tiles decoded, in order, on ``workers`` (gspc/codec/tiles.py): each job carries its
-    tile's chunks, read here."""
+    reader: FileReader,
+    chosen: list[int],
+    workers: int | Executor,
+    progress: Progress | None,
+    settings: TileSideSettings | None,
+) -> Iterator[TileReconstruction]:
+    """The ``chosen`` tiles decoded, in order, on ``workers`` (gspc/tile_reconstruct.py), each restored and
+    refined with its own side information where ``settings`` are given: each job carries its tile's
+    chunks, read here."""
     total = sum(reader.tile_bytes())
     coordinates = reader.header.scene.coordinates if reader.header.scene else None
     tiles = reader.tiles.tiles
-    jobs = (TileDecodeJob(k, reader.tile(k), tiles[k].section, tiles[k].box, total) for k in chosen)
-    for scene in run_tasks(decode_tile, jobs, workers, _tile_name, len(chosen), progress, "tiles"):
-        scene.coordinates = coordinates
-        yield scene
+    jobs = (
+        TileReconstructJob(
+            TileDecodeJob(k, reader.tile(k), tiles[k].section, tiles[k].box, total),
+            reader.tile_side(k) if settings is not None else None,
+            reader.tile_allowances[k],
+            settings,
+        )
+        for k in chosen
+    )
+    stage = "tiles" if settings is None else "tiles with their side information"
+    for tile in run_tasks(reconstruct_tile, jobs, workers, _tile_name, len(chosen), progress, stage):
+        tile.scene.coordinates = coordinates
+        yield tile
 
 
-def _tile_name(job: TileDecodeJob) -> str:
-    return f"tile {job.number}"
+def _tile_name(job: TileReconstructJob) -> str:
+    return f"tile {job.attributes.number}"
+
+
+def _tile_settings(header: FileHeader, has_sides: bool, opts: DecodeOptions) -> TileSideSettings | None:
+    """What each tile's reconstruction needs where a tile of the file carries side information (None: the
+    tiles' attributes are decoded as they are)."""
+    if not has_sides:
+        return None
+    side_info = header.side_info
+    restorer = opts.restorer if opts.restorer is not None else side_info.restorer
+    background = tuple(float(x) for x in side_info.background)
+    return TileSideSettings(background, restorer, side_info.refine_iterations, opts)
+
+
+def _tiles_refined(parts: Iterator[TileReconstruction], log: list[TileOutcome]) -> Iterator[GaussianScene]:
+    """The tiles' scenes, what each reconstruction did kept in ``log`` for the report."""
+    for part in parts:
+        log.append(part.outcome)
+        yield part.scene
+
+
+def _refine_line(log: list[TileOutcome]) -> str:
+    """The report's refine line of a tiled decode."""
+    refined = [t.iterations for t in log if t.iterations > 0]
+    if not refined:
+        reasons = sorted({t.why_not or "" for t in log})
+        return f"none (tiles: {'; '.join(reasons)})"
+    return (
+        f"{len(refined)} of {len(log)} tiles refined with their own side information, "
+        f"{min(refined)}-{max(refined)} iterations"
+    )
 
 
 def _decode_tiles_to(
@@ -268,7 +321,7 @@ def _decode_tiles_to(
     """Decode a tiled file's tiles that meet ``opts.region`` (all of them by default) into ``out_path``:
     a PLY is written tile by tile (memory follows the tiles); another format takes the scene whole. A
     decode of every tile checks the whole file's trailer before its output is in place; a tiled file's
-    side information is not used (its attributes are decoded as they are)."""
+    whole-scene side information is not used; each tile's own (spec 10.15) restores and refines that tile."""
     tiles = reader.tiles
     chosen = tiles.meeting(opts.region)
     if not chosen:
@@ -280,9 +333,9 @@ def _decode_tiles_to(
         rep.num_gaussians_in = rep.num_gaussians_out = n
         region = "" if opts.region is None else ", those meeting the region"
         rep.info["tiles"] = f"{len(chosen)} of {len(tiles.tiles)}{region}, decoded on {ex.describe()}"
-        rep.num_views = rep.info["views"] = len(reader.side.views)
-        rep.info["refine"] = "none (a tiled file's attributes are decoded as they are)"
-        parts = _tile_scenes(reader, chosen, ex, stages.progress)
+        settings = _tile_settings(reader.header, reader.has_tile_sides, opts)
+        log: list[TileOutcome] = []
+        parts = _tiles_refined(_tile_scenes(reader, chosen, ex, stages.progress, settings), log)
         if write is write_ply:
 
             def body(f) -> None:
@@ -291,11 +344,13 @@ def _decode_tiles_to(
                     reader.check_trailer()
 
             atomic_write(out_path, body)
-            return
-        scene = GaussianScene.concat(list(parts))
-        if opts.region is None:
-            reader.check_trailer()
-        write(scene, out_path)
+        else:
+            scene = GaussianScene.concat(list(parts))
+            if opts.region is None:
+                reader.check_trailer()
+            write(scene, out_path)
+        rep.info["refine"] = _refine_line(log)
+        rep.num_views = rep.info["views"] = len(reader.side.views) + sum(t.views for t in log)
 
 
 def decode_bytes(
@@ -313,6 +368,8 @@ def decode_bytes(
     with stages.stage("read"):
         file = read_file(data)
     rep.bytes = file.budget
+    if file.tiles is not None:
+        return _decode_tiled_bytes(file, opts, stages, rep), rep
     with stages.stage("attributes"):
         decoded = _decode_attributes(file)
     scene = decoded.scene
@@ -324,8 +381,6 @@ def decode_bytes(
     rep.num_views_with_residual = len(side.images)
     iterations = _refine_iterations(file, scene.num_gaussians, opts)
     reason = _no_refinement(side, opts, iterations)
-    if file.tiles is not None:
-        reason = "none (a tiled file's attributes are decoded as they are)"
     if reason is not None:
         rep.info["refine"] = reason
         return scene, rep
@@ -363,6 +418,33 @@ def _decode_attributes(file: GspcFile) -> DecodedSection:
         for k, (t, c) in enumerate(zip(file.tiles.tiles, file.tile_chunks))
     ]
     return DecodedSection(GaussianScene.concat(parts), None)
+
+
+def _decode_tiled_bytes(file: GspcFile, opts: DecodeOptions, stages: Stages, rep: Report) -> GaussianScene:
+    """A tiled file in memory: every tile decoded in this process, and restored and refined with its own
+    side information where it carries some (spec 10.15)."""
+    has_sides = any(side is not None for side in file.tile_sides)
+    settings = _tile_settings(file.header, has_sides, opts)
+    total = sum(sum(len(p) for p in c.values()) for c in file.tile_chunks)
+    log: list[TileOutcome] = []
+    parts = []
+    with stages.stage("tiles"):
+        for k, (t, c) in enumerate(zip(file.tiles.tiles, file.tile_chunks)):
+            job = TileReconstructJob(
+                TileDecodeJob(k, c, t.section, t.box, total),
+                file.tile_sides[k] if has_sides else None,
+                file.tile_allowances[k],
+                settings,
+            )
+            tile = reconstruct_tile(job)
+            log.append(tile.outcome)
+            parts.append(tile.scene)
+    scene = GaussianScene.concat(parts)
+    scene.coordinates = file.header.scene.coordinates if file.header.scene else None
+    rep.num_gaussians_in = rep.num_gaussians_out = scene.num_gaussians
+    rep.num_views = rep.info["views"] = len(file.side.views) + sum(t.views for t in log)
+    rep.info["refine"] = _refine_line(log)
+    return scene
 
 
 def _refine_iterations(file: GspcFile, num_gaussians: int, opts: DecodeOptions) -> int:

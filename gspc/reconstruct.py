@@ -25,10 +25,10 @@ from gspc.limits import (
     RESTORE_PIXEL_WORK,
     WORK_FLOOR,
     WORK_PER_FILE_BYTE,
-    decode_work_budget,
+    RenderAllowance,
+    allowance,
     default_refine_iterations,
     refine_work_iterations,
-    view_pair_budget,
     view_work,
 )
 from gspc.progress import Progress
@@ -67,55 +67,61 @@ class DecodeWork:
 
 
 def decode_work(
-    scene: GaussianScene, cameras: Sequence[Camera], restored: Collection[int], file_size: int | None
+    scene: GaussianScene,
+    cameras: Sequence[Camera],
+    restored: Collection[int],
+    file_size: int | RenderAllowance | None,
 ) -> DecodeWork:
     """The work of rendering ``scene`` at every camera and restoring the views ``restored`` (view numbers),
-    each view's pairs counted from its projection alone; with a ``file_size``, refused (CodecError) as soon
-    as a view is beyond the pair budget of a file of that many bytes, before anything else is projected."""
+    each view's pairs counted from its projection alone; with a ``file_size`` (or a tile's allowance),
+    refused (CodecError) as soon as a view is beyond its pair budget, before anything else is projected."""
     pairs = []
     for k, cam in enumerate(cameras):
         pairs.append(view_pairs(scene, cam))
         if file_size is not None:
-            _check_view_pairs(k, pairs[-1], file_size)
+            _check_view_pairs(k, pairs[-1], allowance(file_size))
     pixels = tuple(c.width * c.height for c in cameras)
     return DecodeWork(scene.num_gaussians, tuple(pairs), pixels, sum(pixels[k] for k in restored))
 
 
-def _check_view_pairs(k: int, pairs: int, file_size: int) -> None:
-    budget = view_pair_budget(file_size)
-    if pairs > budget:
+def _check_view_pairs(k: int, pairs: int, budget: RenderAllowance) -> None:
+    if pairs > budget.pairs:
         raise CodecError(
-            f"side-information view {k} asks for {pairs:,} Gaussian-tile pairs in a {file_size:,}-byte file; "
-            f"the limit is {budget:,} (max({PAIR_FLOOR:,}, {PAIRS_PER_FILE_BYTE} per file byte), spec 10.8)"
+            f"side-information view {k} asks for {pairs:,} Gaussian-tile pairs in {budget.of}; the limit is "
+            f"{budget.pairs:,} (max({PAIR_FLOOR:,}, {PAIRS_PER_FILE_BYTE} per file byte), {budget.rule})"
         )
 
 
-def check_decode_work(work: DecodeWork, file_size: int) -> None:
-    """Refuse (CodecError) a file with a view beyond its pair budget, or whose first renders and restoration
-    alone pass its work budget."""
+def check_decode_work(work: DecodeWork, file_size: int | RenderAllowance) -> None:
+    """Refuse (CodecError) a file (or a tile, by its allowance) with a view beyond its pair budget, or whose
+    first renders and restoration alone pass its work budget."""
+    budget = allowance(file_size)
     for k, pairs in enumerate(work.pairs):
-        _check_view_pairs(k, pairs, file_size)
-    budget = decode_work_budget(file_size)
-    if work.first > budget:
+        _check_view_pairs(k, pairs, budget)
+    if work.first > budget.work:
         raise CodecError(
-            f"rendering and restoring the file's {len(work.pixels)} views asks for {work.first:,} units of "
-            f"work in a {file_size:,}-byte file; the limit is {budget:,} (max({WORK_FLOOR:,}, "
-            f"{WORK_PER_FILE_BYTE} per file byte), spec 10.8)"
+            f"rendering and restoring the {len(work.pixels)} views asks for {work.first:,} units of work in "
+            f"{budget.of}; the limit is {budget.work:,} (max({WORK_FLOOR:,}, {WORK_PER_FILE_BYTE} per file "
+            f"byte), {budget.rule})"
         )
 
 
 def work_bound(
-    scene: GaussianScene, cameras: Sequence[Camera], restored: Collection[int], file_size: int
+    scene: GaussianScene,
+    cameras: Sequence[Camera],
+    restored: Collection[int],
+    file_size: int | RenderAllowance,
 ) -> int:
-    """The refinement iterations the work budget of a file of at least ``file_size`` bytes pays for, with
-    ``scene`` at ``cameras`` restored at the views ``restored``: the encoder's check runs no more."""
+    """The refinement iterations the work budget of a file of at least ``file_size`` bytes (or a tile's
+    allowance) pays for, with ``scene`` at ``cameras`` restored at the views ``restored``: the encoder's
+    check runs no more."""
     work = decode_work(scene, cameras, restored, None)
     return refine_work_iterations(work.first, work.heaviest, file_size)
 
 
-def refine_iterations(file_iterations: int, work: DecodeWork, file_size: int) -> int:
+def refine_iterations(file_iterations: int, work: DecodeWork, file_size: int | RenderAllowance) -> int:
     """The refinement a decode runs without --iterations: the file's number, bounded by its Gaussians and by
-    what its work budget pays for after the first renders and restoration."""
+    what its work budget (or a tile's allowance) pays for after the first renders and restoration."""
     by_work = refine_work_iterations(work.first, work.heaviest, file_size)
     return min(default_refine_iterations(file_iterations, work.num_gaussians), by_work)
 

@@ -1,4 +1,4 @@
-"""A gspc 1.5 reader written from spec/gspc-format.md alone, as an outside implementer would write one.
+"""A gspc 1.6 reader written from spec/gspc-format.md alone, as an outside implementer would write one.
 
 It imports numpy, msgpack, zstandard and imagecodecs only, never gspc: the range decoder, the probability
 tables, the matrix coder and every payload layout follow the spec's words (section numbers in comments), in
@@ -782,10 +782,29 @@ def check_meta(meta: dict, tiled: bool = False) -> None:
 
 
 ATTRIBUTE_TYPES = ("POSN", "PREC", "OPAC", "SCAL", "ROTN", "SHDC", "SHRS")
+TILE_TYPES = (*ATTRIBUTE_TYPES, "TSID")  # 10.15: a tile's TSID is one of its chunks for 10.14's layout rules
 
 
-def read_tiles(meta: dict, chunks: list[tuple[str, int, bytes]]) -> dict[str, np.ndarray]:
-    """10.14: a tiled file's attributes, its tiles' Gaussians one after another."""
+def tile_share(floor: int, per_byte: int, tile_bytes: int, all_bytes: int) -> int:
+    """10.15: a tile's share of one file's floor, max(floor(floor x Q_k / Q), per_byte x Q_k)."""
+    return max(floor * tile_bytes // max(all_bytes, 1), per_byte * tile_bytes)
+
+
+def tile_sizes(chunks: list[tuple[str, int, bytes]], count: int) -> list[int]:
+    """10.15: Q_k, the bytes of tile k's attribute payloads and of its TSID payload (the layout checked)."""
+    q = [0] * count
+    for t, i, p in chunks:
+        if t in TILE_TYPES:
+            q[i] += len(p)
+    return q
+
+
+def read_tiles(
+    meta: dict, chunks: list[tuple[str, int, bytes]]
+) -> tuple[dict[str, np.ndarray], list[list[dict] | None]]:
+    """10.14: a tiled file's attributes, its tiles' Gaussians one after another; 10.15: each tile's own
+    side-information views (parse_side's dicts; None: the tile has no TSID), their pixels within the tile's
+    share and their images not yet looked at."""
     need("attributes" not in meta, "a tiled file has no attributes section")
     index = [(i, p) for t, i, p in chunks if t == "TIDX"]
     need(len(index) == 1 and index[0][0] == 0, "one TIDX chunk, of index 0")
@@ -812,21 +831,39 @@ def read_tiles(meta: dict, chunks: list[tuple[str, int, bytes]]) -> dict[str, np
         need(all(box[a] <= box[a + 3] for a in range(3)), "tile box low above high")
     degrees = {t["attributes"].get("sh_degree") for t in tiles}
     need(len(degrees) == 1, "tiles of different SH degrees")
-    # The index first; each attribute chunk names a tile; a tile's chunks after the one before's.
+    # The index first; each attribute chunk (and each TSID, 10.15) names a tile; a tile's chunks after the
+    # one before's.
     per_tile: list[dict[str, bytes]] = [{} for _ in tiles]
+    sides: dict[int, bytes] = {}
     seen_index, last = False, -1
     for t, i, p in chunks:
         if t == "TIDX":
             seen_index = True
-        elif t in ATTRIBUTE_TYPES:
-            need(seen_index, "an attribute chunk before the tile index")
-            need(0 <= i < len(tiles), "an attribute chunk names no tile")
-            need(i >= last, "a tile's chunk comes after a later tile's")
+        elif t in TILE_TYPES:
+            need(seen_index, f"a {t} chunk before the tile index")
+            need(0 <= i < len(tiles), f"a {t} chunk names no tile")
+            need(i >= last, f"a tile's {t} chunk comes after a later tile's")
             last = i
-            per_tile[i][t] = p
+            if t == "TSID":
+                need(i not in sides, "two TSID chunks of one tile")
+                sides[i] = p
+            else:
+                per_tile[i][t] = p
     total = sum(len(p) for c in per_tile for p in c.values())
     count = sum(t["attributes"].get("n", 0) for t in tiles if is_int(t["attributes"].get("n", 0)))
     need(count <= max(GAUSSIAN_FLOOR, 8 * total // MIN_CODED_BITS), "Gaussians in all past the tiles' bytes")
+    # 10.15: each TSID in the SIDE layout (10.9), its views' pixels within the tile's share of the file's
+    # floor, Q_k / Q, when the chunk is read.
+    q = tile_sizes(chunks, len(tiles))
+    tile_views: list[list[dict] | None] = []
+    for k in range(len(tiles)):
+        if k not in sides:
+            tile_views.append(None)
+            continue
+        views = parse_side(sides[k])
+        share = min(MAX_TOTAL_PIXELS, tile_share(PIXEL_FLOOR, PIXELS_PER_BYTE, q[k], sum(q)))
+        need(sum(v["width"] * v["height"] for v in views) <= share, f"tile {k}'s views pass its pixel share")
+        tile_views.append(views)
     parts = []
     for t, c in zip(tiles, per_tile):
         tile_bytes = sum(len(p) for p in c.values())
@@ -834,22 +871,29 @@ def read_tiles(meta: dict, chunks: list[tuple[str, int, bytes]]) -> dict[str, np
         lo, hi = np.array(t["box"][:3], np.float32), np.array(t["box"][3:], np.float32)
         need(bool(((a["means"] >= lo) & (a["means"] <= hi)).all()), "a tile's position outside its box")
         parts.append(a)
-    return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+    return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}, tile_views
 
 
 def read_scene(data: bytes, residuals: bool = True) -> tuple[dict[str, np.ndarray], list[dict]]:
-    """A whole file's codec layer: the attributes, and the side-information views with residual R. With
-    ``residuals`` False, a decoder that does not use the residual images (10.7): each image's signature and
-    declared size are checked, its pixels are not decoded."""
+    """A whole file's codec layer: the attributes, and the side-information views with residual R: the whole
+    scene's (SIDE or RESI), then, in a tiled file, each tile's own (TSID, 10.15) in tile order, each of those
+    marked with its tile's number (key ``tile``). With ``residuals`` False, a decoder that does not use the
+    residual images (10.7): each image's signature and declared size are checked, its pixels are not
+    decoded."""
     version, meta, chunks = read_container(data)
     tiled = any(t == "TIDX" for t, _, _ in chunks)
     check_meta(meta, tiled)
     attr = {}
     for t, index, payload in chunks:
+        need(t != "TSID" or tiled, "a TSID chunk in a file without a tile index (10.15)")
         if t in ATTRIBUTE_TYPES and not tiled:
             need(index == 0, f"{t} index")
             attr[t] = payload
-    attributes = read_tiles(meta, chunks) if tiled else decode_attributes(meta, attr)
+    tile_views: list[list[dict] | None] = []
+    if tiled:
+        attributes, tile_views = read_tiles(meta, chunks)
+    else:
+        attributes = decode_attributes(meta, attr)
     side = [(i, p) for t, i, p in chunks if t == "SIDE"]
     resi = {i: p for t, i, p in chunks if t == "RESI"}
     records = meta["side_info"].get("views", [])
@@ -870,6 +914,9 @@ def read_scene(data: bytes, residuals: bool = True) -> tuple[dict[str, np.ndarra
     # 10.8: all views together within the file's pixel budget, before anything is rendered or decoded.
     budget = min(MAX_TOTAL_PIXELS, max(PIXEL_FLOOR, PIXELS_PER_BYTE * len(data)))
     need(sum(v["width"] * v["height"] for v in views) <= budget, "pixels beyond the file's budget")
+    # 10.15: each tile's own views, their pixels already held to the tile's share (read_tiles).
+    for k, tv in enumerate(tile_views):
+        views += [dict(v, tile=k) for v in tv or ()]
     for v in views:
         if v["length"]:
             check_image_header(v)
@@ -888,7 +935,7 @@ RESTORED_PIXEL = 8
 
 def view_pairs(attributes: dict[str, np.ndarray], view: dict) -> int:
     """10.8 "The decoder's work": the Gaussian-tile pairs P_v of one view, from the projection of 10.12
-    rules 1 and 2 (binary64)."""
+    rules 1 and 2 (binary64), over the Gaussians ``attributes`` (a tile's alone for its own views, 10.15)."""
     fx, fy, cx, cy = (float(v) for v in view["intrinsics"])
     w, h = view["width"], view["height"]
     pose = np.array(view["pose"], np.float64).reshape(3, 4)
@@ -933,22 +980,52 @@ def view_pairs(attributes: dict[str, np.ndarray], view: dict) -> int:
     return int(count[drawn & np.isfinite(count)].sum())
 
 
-def decoder_work(data: bytes, restore: bool = True) -> int:
-    """10.8: check a file's work as a decoder that renders (and, with ``restore``, restores) does, and return
-    the refinement iterations its default runs."""
-    attributes, views = read_scene(data, residuals=restore)
-    size, n = len(data), len(attributes["means"])
+def view_work(
+    attributes: dict[str, np.ndarray], views: list[dict], restore: bool, pair_budget: int, what: str
+) -> tuple[int, int]:
+    """10.8 "The decoder's work" of rendering ``views`` of the Gaussians ``attributes`` (a whole scene, or one
+    tile's alone, 10.15): each view's pairs checked against ``pair_budget`` before the next is counted;
+    (the first work F, the heaviest view's work max_v w_v)."""
+    n = len(attributes["means"])
     work = []
     for k, v in enumerate(views):
         pairs = view_pairs(attributes, v)
-        need(
-            pairs <= max(PAIR_FLOOR, PAIRS_PER_BYTE * size), f"view {k}: Gaussian-tile pairs past the budget"
-        )
+        need(pairs <= pair_budget, f"{what}view {k}: Gaussian-tile pairs past the budget")
         work.append(n + pairs + v["width"] * v["height"])
     restored = sum(v["width"] * v["height"] for v in views if v["length"]) if restore else 0
-    first = sum(work) + RESTORED_PIXEL * restored
+    return sum(work) + RESTORED_PIXEL * restored, max(work, default=1)
+
+
+def decoder_work(data: bytes, restore: bool = True) -> int | list[int | None]:
+    """10.8: check a file's work as a decoder that renders (and, with ``restore``, restores) does, and return
+    the refinement iterations its default runs. A tiled file (10.15): each tile's own views checked against
+    the tile's share of the file's budgets, counted over the tile's Gaussians alone, and the iterations of
+    each tile's default refinement returned, tile by tile (None: the tile has no TSID); the whole scene's
+    views, where it has any, are checked as 10.8 says."""
+    attributes, views = read_scene(data, residuals=restore)
+    meta, chunks = read_container(data)[1:]
+    iterations = meta["side_info"].get("refine_iterations", 300)
+    size, n = len(data), len(attributes["means"])
+    scene_views = [v for v in views if "tile" not in v]
+    first, heaviest = view_work(attributes, scene_views, restore, max(PAIR_FLOOR, PAIRS_PER_BYTE * size), "")
     budget = max(WORK_FLOOR, WORK_PER_BYTE * size)
     need(first <= budget, "first renders and restoration past the work budget")
-    meta = read_container(data)[1]
-    iterations = meta["side_info"].get("refine_iterations", 300)
-    return min(iterations, max(1000, n), (budget - first) // max(work, default=1))
+    runs = min(iterations, max(1000, n), (budget - first) // heaviest)
+    index = [p for t, _, p in chunks if t == "TIDX"]
+    if not index:
+        return runs
+    counts = [t["attributes"]["n"] for t in msgpack.unpackb(index[0], raw=False)]
+    q = tile_sizes(chunks, len(counts))
+    out: list[int | None] = []
+    for k, (start, n_k) in enumerate(zip(np.cumsum([0, *counts]).tolist(), counts)):
+        mine = [v for v in views if v.get("tile") == k]
+        if not mine:  # no TSID (a TSID holds at least one view, 10.9)
+            out.append(None)
+            continue
+        tile = {name: a[start : start + n_k] for name, a in attributes.items()}
+        pairs = tile_share(PAIR_FLOOR, PAIRS_PER_BYTE, q[k], sum(q))
+        first, heaviest = view_work(tile, mine, restore, pairs, f"tile {k}'s ")
+        budget = tile_share(WORK_FLOOR, WORK_PER_BYTE, q[k], sum(q))
+        need(first <= budget, f"tile {k}'s first renders and restoration past its share of the work budget")
+        out.append(min(iterations, max(1000, n_k), (budget - first) // heaviest))
+    return out

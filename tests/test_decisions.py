@@ -93,7 +93,7 @@ def test_the_side_information_line_gives_the_checks_figures():
         100,
         (CandidateScore(2, 1000, None, 41.0),),
     )
-    from gspc.encoder.decisions import _not_sent
+    from gspc.encoder.side_decision import _not_sent
 
     said = _not_sent(d)
     assert "41.00 dB at 8 views carrying none against 40.30 dB refined with it" in said

@@ -43,6 +43,20 @@ def test_a_views_pairs_and_the_decoders_work_grow_with_the_file():
     assert limits.view_work(10, 20, 30) == 60
 
 
+def test_tiles_share_one_files_floors_in_proportion_to_their_bytes():
+    """Spec 10.15: each tile's pixels, pairs and work are its share of one file's floors, or per byte."""
+    sizes = [1, 1000, 3000, 12]
+    shares = [limits.RenderAllowance.of_tile(k, q, sum(sizes)) for k, q in enumerate(sizes)]
+    floors = (limits.PIXEL_FLOOR, limits.PAIR_FLOOR, limits.WORK_FLOOR)
+    for field, floor in zip(("pixels", "pairs", "work"), floors):
+        assert sum(getattr(a, field) for a in shares) <= floor + 4096 * sum(sizes)
+    big = limits.RenderAllowance.of_tile(0, 1 << 30, 1 << 31)
+    assert big.pixels == limits.MAX_TOTAL_PIXELS and big.pairs == limits.MAX_VIEW_PAIRS
+    assert big.work == 4096 << 30
+    assert limits.allowance(1000) == limits.RenderAllowance.of_file(1000)
+    assert limits.refine_work_iterations(0, 1 << 10, shares[1]) == shares[1].work >> 10
+
+
 @pytest.mark.parametrize(
     ("first", "heaviest", "size", "runs"),
     [(0, 1 << 16, 1000, 1024), ((1 << 26) - 5, 1, 1000, 5), (1 << 27, 100, 1000, 0), (0, 0, 1000, 1 << 26)],

@@ -252,6 +252,51 @@ def test_spec_reader_decodes_a_gspc_encode_file(tmp_path):
             assert v["residual"].tobytes() == decode_residual(side.images[k], ref.residual).tobytes()
 
 
+def test_spec_reader_decodes_each_tiles_own_side_information():
+    """Spec 10.15: the conformance vector with a TSID on tiles 0 and 2 decodes in both decoders to the same
+    attributes and the same views per tile (cameras, residual records, images and residuals R), and each
+    tile's default refinement is the same length in both (its share of the file's budgets)."""
+    from gspc.codec.residuals import decode_residual
+    from gspc.codec.tiles import TileDecodeJob, decode_tile
+    from gspc.format.file import read_file
+    from gspc.pipeline import DecodeOptions, decode_bytes
+    from gspc.reconstruct import decode_work, refine_iterations
+
+    data = (ROOT / "spec" / "vectors" / "codec_tile_sides.gspc").read_bytes()
+    attrs, views = sr.read_scene(data)
+    assert_same(attrs, decode_bytes(data, DecodeOptions(refine=False))[0])
+    f = read_file(data)
+    assert f.version == (1, 6) and [s is not None for s in f.tile_sides] == [True, False, True]
+    ref = [(k, v, s.images.get(i)) for k, s in enumerate(f.tile_sides) if s for i, v in enumerate(s.views)]
+    assert [v["tile"] for v in views] == [k for k, _, _ in ref] == [0, 0, 2]
+    for got, (_, v, image) in zip(views, ref):
+        cam = v.camera
+        assert (got["width"], got["height"]) == (cam.width, cam.height)
+        assert struct.pack("<4f", *got["intrinsics"]) == cam.intrinsics
+        assert struct.pack("<12f", *got["pose"]) == cam.pose
+        assert got["length"] == len(image or b"") and ("residual" in got) == (image is not None)
+        if image is not None:
+            r = v.residual
+            assert got["image"] == image
+            codec = ["jxl", "webp", "avif"][got["codec"]]
+            assert (codec, got["bits"], got["scale"]) == (r.codec, r.bits, r.scale)
+            assert np.float32(got["gain"]) == np.float32(r.gain)
+            assert got["residual"].tobytes() == decode_residual(image, r).tobytes()
+    # The decoder's work (10.8, per tile by 10.15): each tile's Gaussians alone at its own views.
+    total = sum(sum(len(p) for p in c.values()) for c in f.tile_chunks)
+    runs = []
+    for k, (t, c) in enumerate(zip(f.tiles.tiles, f.tile_chunks)):
+        side = f.tile_sides[k]
+        if side is None:
+            runs.append(None)
+            continue
+        scene = decode_tile(TileDecodeJob(k, c, t.section, t.box, total))
+        cams = [v.camera.to_camera() for v in side.views]
+        work = decode_work(scene, cams, side.images, f.tile_allowances[k])
+        runs.append(refine_iterations(f.header.side_info.refine_iterations, work, f.tile_allowances[k]))
+    assert sr.decoder_work(data) == runs == [300, None, 300]
+
+
 # ------------------------------------------------------------------ section 10.11 in the reference decoder
 
 

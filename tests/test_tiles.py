@@ -1,11 +1,13 @@
 """Spatial tiles (format 1.5, spec 10.14): a scene larger than a tile coded as tiles a decoder reads one at a
-time, with the same bytes for any number of workers; a region decoded alone; hostile tile indexes refused."""
+time, with the same bytes for any number of workers; a region decoded alone; hostile tile indexes refused;
+each tile's own side information (format 1.6, 10.15) refining it alone."""
 
 from dataclasses import replace
 
 import msgpack
 import numpy as np
 import pytest
+import torch
 from cli_runs import assert_one_line_error, run
 from scenes import random_scene, unbounded
 
@@ -20,7 +22,16 @@ from gspc.options import DecodeOptions, EncodeOptions, check_region
 from gspc.pipeline import decode, decode_bytes, decode_tiles, encode, encode_scene
 
 # Small and quick: two or three tiles, few small views, the searches off (the slow test runs the method).
-QUICK = dict(tile_size=MIN_TILE_SIZE, synth_views=4, max_side=32, removal_search=False, tune_iterations=0)
+QUICK = dict(
+    tile_size=MIN_TILE_SIZE,
+    synth_views=4,
+    max_side=32,
+    removal_search=False,
+    tune_iterations=0,
+    side_info=False,
+)
+# ... and with each tile's own side information, sent unchecked at a coarse rate (spec 10.15).
+SIDED = {**QUICK, "side_info": True, "check_iterations": 0, "lam": 40.0}
 
 
 def scene(n=2500, seed=3):
@@ -61,7 +72,7 @@ def test_a_scene_larger_than_a_tile_is_a_tiled_file(tiled):
     assert f.version == (1, 5) and f.tiles is not None and len(f.tiles.tiles) >= 2
     assert f.header.attributes is None and rep.num_gaussians_out == f.num_gaussians
     assert all(t.n <= MIN_TILE_SIZE for t in f.tiles.tiles)
-    assert "tiles" in rep.info and rep.info["side info"].startswith("none (a tiled file")
+    assert "tiles" in rep.info and rep.info["side info"] == "none (--no-side-info)"
     # Each tile aimed at the preset's fidelity: the header states the lowest tile's, and `gspc info` says it.
     lowest = min(t.fidelity_db for t in rep.decisions.tiles)
     assert f.header.scene.psnr_db == pytest.approx(lowest)
@@ -222,12 +233,57 @@ def test_the_whole_method_runs_per_tile_and_the_target_holds(tmp_path):
     write_ply(scene(3000, seed=4), src)
     opts = EncodeOptions(tile_size=MIN_TILE_SIZE, synth_views=6, max_side=48, workers=2)
     rep = encode(src, out, opts=opts)
-    assert "removal" in rep.info and "tuning" in rep.info, rep.info
+    # Each tile weighs side information of its own; those that send none have their values tuned.
+    assert "removal" in rep.info and rep.info["side info"], rep.info
+    assert "tuning" in rep.info or rep.info["side info"].startswith("each tile's own: sent for"), rep.info
     # The preset's fidelity, per tile at the cameras that see it (gspc/presets.py).
     assert rep.info["fidelity"].startswith("each tile coded to its share of 44 dB at views"), rep.info
     target = int(0.8 * out.stat().st_size)
     encode(src, out, opts=replace(opts, target_size=target))
     assert out.stat().st_size <= target
+
+
+@pytest.fixture(scope="module")
+def sided(tmp_path_factory):
+    d = tmp_path_factory.mktemp("sided")
+    src, out = d / "in.ply", d / "s.gspc"
+    write_ply(scene(), src)
+    rep = encode(src, out, opts=EncodeOptions(**SIDED, workers=1))
+    return src, out, rep
+
+
+def test_tiles_carry_their_own_side_information_and_refine_alone(sided, tmp_path):
+    src, out, rep = sided
+    f = read_file(out.read_bytes())
+    assert f.version == (1, 6) and len(f.tile_sides) == len(f.tiles.tiles) >= 2
+    assert all(s is not None and s.images for s in f.tile_sides), rep.info
+    assert all(not c.required for c in f.chunks if c.type == "TSID")  # a 1.5 reader skips them
+    assert rep.info["side info"].startswith(f"each tile's own: sent for {len(f.tiles.tiles)} of"), rep.info
+    assert rep.info["decoder refines"].startswith(f"each of {len(f.tiles.tiles)} tiles against its own views")
+    # The same bytes on two workers, and the same bits decoded there.
+    two = tmp_path / "two.gspc"
+    encode(src, two, opts=EncodeOptions(**SIDED, workers=2))
+    assert two.read_bytes() == out.read_bytes()
+    opts = DecodeOptions(iterations=3, workers=1)
+    whole, drep = decode_bytes(out.read_bytes(), opts)
+    assert drep.info["refine"].startswith(f"{len(f.tiles.tiles)} of {len(f.tiles.tiles)} tiles refined")
+    plain, _ = decode_bytes(out.read_bytes(), replace(opts, refine=False))
+    assert not torch.equal(whole.sh_dc, plain.sh_dc)  # refinement moved the values
+    a, b = tmp_path / "a.ply", tmp_path / "b.ply"
+    decode(out, a, opts)
+    decode(out, b, replace(opts, workers=2))
+    assert a.read_bytes() == b.read_bytes()
+    # A tile refines alone: decoded as part of a region, it comes out as in the whole scene.
+    box = f.tiles.tiles[1].box
+    inner = tuple((box[i] + box[i + 3]) / 2 for i in range(3))
+    part = tmp_path / "part.ply"
+    decode(out, part, replace(opts, region=(*inner, *inner)))
+    ours = read_scene(part)
+    rows = f.tiles.meeting((*inner, *inner))
+    start = [0, *np.cumsum([t.n for t in f.tiles.tiles])]
+    for name in ("means", "sh_dc", "opacities", "log_scales"):
+        expect = torch.cat([getattr(whole, name)[start[k] : start[k + 1]] for k in rows])
+        assert torch.equal(getattr(ours, name), expect), name
 
 
 @pytest.mark.slow

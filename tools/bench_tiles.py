@@ -11,7 +11,10 @@ information) against the original's renders at every eighth of the scene's camer
 rounding hides sub-level differences at these rates), by gspc's renderer on one thread. ``--plan compare``:
 one block and tiles of several sizes at three lambdas each (bytes at equal PSNR off each one's own curve);
 ``--plan scale``: the default tiles at the low preset's lambda, 8, on 1 and 2 workers; ``--plan preset``:
-the default tiles as the low preset codes them (each tile aimed at its fidelity, no ``--lambda``). Results
+the default tiles as the low preset codes them (each tile aimed at its fidelity, no ``--lambda``); ``--plan
+side``: the preset with each tile's own side information (spec 10.15) against the attributes alone, both at
+the preset and in the same bytes, every eighth camera held out of the encoder and scored (the others are
+where side information may be sent, so scoring there would flatter it). Results
 are appended as JSON lines to ``--log`` as they come (a long run can be read while it runs) and the report
 is written from all of them at the end.
 """
@@ -105,15 +108,39 @@ def psnr(original: Path, decoded: Path, cameras: Path, every: int = 8) -> float:
     return float(np.mean([-10 * math.log10(max(float(mse(x, y)), 1e-12)) for x, y in zip(a, b)]))
 
 
+HELD_OUT_EVERY = 8  # --plan side: every eighth camera held out of the encoder, and scored
+
+
+def held_out_cameras(scene_dir: Path, work: Path) -> Path:
+    """The scene's cameras less every HELD_OUT_EVERY-th (those the PSNR scores), as a file for --cameras."""
+    cams = json.loads((scene_dir / "cameras.json").read_text())
+    out = work / f"{scene_dir.name}-train-cameras.json"
+    out.write_text(json.dumps([c for k, c in enumerate(cams) if k % HELD_OUT_EVERY]))
+    return out
+
+
 def one(
-    scene_dir: Path, work: Path, log: Path, variant: str, lam: float | None, tile_size: int, workers: int
+    scene_dir: Path,
+    work: Path,
+    log: Path,
+    variant: str,
+    lam: float | None,
+    tile_size: int,
+    workers: int,
+    side: bool = False,
+    target: int | None = None,
 ) -> dict:
-    """Encode, decode and score one variant (``lam`` None: as the preset codes it); its row."""
+    """Encode, decode and score one variant (``lam`` None: as the preset codes it; ``side``: with side
+    information, the scored cameras held out; ``target``: in at most that many bytes); its row."""
     ply, cams = scene_dir / "point_cloud.ply", scene_dir / "cameras.json"
-    out = work / f"{scene_dir.name}-{variant}-{'preset' if lam is None else f'{lam:g}'}-{workers}.gspc"
+    name = variant.replace(" ", "_").replace(",", "").replace("'", "")
+    out = work / f"{scene_dir.name}-{name}-{'preset' if lam is None else f'{lam:g}'}-{workers}.gspc"
     dec = out.with_suffix(".ply")
     rate = [] if lam is None else ["--lambda", str(lam)]
-    common = ["--cameras", str(cams), "--no-side-info", *rate, "--workers", str(workers)]
+    rate += [] if target is None else ["--target-size", str(target)]
+    train = held_out_cameras(scene_dir, work) if variant.startswith("held out") else cams
+    common = ["--cameras", str(train), *rate, "--workers", str(workers)]
+    common += [] if side else ["--no-side-info"]
     enc = run_gspc(["encode", str(ply), "-o", str(out), "--tile-size", str(tile_size), *common], log)
     dcd = run_gspc(["decode", str(out), "-o", str(dec), "--workers", str(workers)], log)
     row = {
@@ -124,7 +151,7 @@ def one(
         "lambda": "the preset's" if lam is None else lam,
         "workers": workers,
         "bytes": out.stat().st_size,
-        "psnr": psnr(ply, dec, cams),
+        "psnr": psnr(ply, dec, cams, HELD_OUT_EVERY),
         "encode": enc,
         "decode": dcd,
     }
@@ -143,6 +170,12 @@ def plan_rows(
                 rows.append((n, "one block", lam, 0, 1))
                 for tile in (1 << 16, 1 << 18):
                     rows.append((n, f"tiles of {tile:,}", lam, tile, 2))
+    elif plan == "side":
+        for n in sizes:
+            for w in workers:
+                rows.append((n, "held out, with each tile's side information", None, 1 << 18, w))
+                rows.append((n, "held out, attributes in the same bytes", None, 1 << 18, w))
+                rows.append((n, "held out, attributes at the preset", None, 1 << 18, w))
     elif plan == "preset":
         for n in sizes:
             for w in workers:
@@ -208,7 +241,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scenes", type=Path, default=Path("/work/district"))
     ap.add_argument("--sizes", default="1000000")
-    ap.add_argument("--plan", choices=("compare", "scale", "preset"), default="compare")
+    ap.add_argument("--plan", choices=("compare", "scale", "preset", "side"), default="compare")
     ap.add_argument("--workers", default="1,2", help="--plan scale, preset: the worker counts to run")
     ap.add_argument("--work", type=Path, default=Path("/work/bench_tiles"))
     ap.add_argument("--log", type=Path, default=None, help="rows as JSON lines (default: WORK/rows.jsonl)")
@@ -224,7 +257,12 @@ def main() -> None:
         scene_dir = args.scenes / f"district_{n}"
         if (scene_dir.name, variant, "the preset's" if lam is None else lam, workers) in done:
             continue
-        row = one(scene_dir, args.work, args.work / "gspc.log", variant, lam, tile, workers)
+        side = variant.endswith("side information")
+        target = None
+        if variant.endswith("same bytes"):  # the side-information row's bytes, spent on attributes alone
+            own = [r for r in rows if r["scene"] == scene_dir.name]
+            target = [r for r in own if r["variant"].endswith("side information")][-1]["bytes"]
+        row = one(scene_dir, args.work, args.work / "gspc.log", variant, lam, tile, workers, side, target)
         rows.append(row)
         with open(log, "a") as f:
             f.write(json.dumps(row) + "\n")

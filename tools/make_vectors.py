@@ -826,25 +826,34 @@ def reference_decode(data: bytes, residuals: bool = True) -> tuple[dict[str, np.
     from gspc.format import container
     from gspc.format.attribute_section import AttributeSection, attribute_chunks
     from gspc.format.side_chunk import legacy_views, read_side_views
+    from gspc.format.tiles import refuse_untiled_sides
+
+    def listed(side, **extra) -> list[dict]:
+        out = []
+        for k, v in enumerate(side.views):
+            view = {"width": v.camera.width, "height": v.camera.height, **extra}
+            if k in side.images and residuals:
+                view["residual"] = decode_residual(side.images[k], v.residual)
+            out.append(view)
+        return out
 
     c = container.unpack(data)
     if c.find("TIDX", 0) is not None:  # a tiled file (spec 10.14): gspc's whole decode of its tiles
+        from gspc.format.file import read_file
         from gspc.pipeline import DecodeOptions, decode_bytes
 
+        file = read_file(data)  # the tiles' own side information (10.15) read and checked
         scene = decode_bytes(data, DecodeOptions(refine=False))[0]
-        return {name: getattr(scene, name).numpy() for name in ATTRS}, []
+        views = listed(file.side)  # the whole scene's, then each tile's own in tile order
+        for k, side in enumerate(file.tile_sides):
+            views += listed(side, tile=k) if side is not None else []
+        return {name: getattr(scene, name).numpy() for name in ATTRS}, views
+    refuse_untiled_sides(c.chunks)
     if not isinstance(c.header.get("attributes"), dict) or not isinstance(c.header.get("side_info"), dict):
         raise CodecError("meta lacks attributes or side_info")
     side = read_side_views(legacy_views(c.header["side_info"].get("views", [])), c.chunks, len(data))
     scene = decode_attributes(attribute_chunks(c.chunks), AttributeSection.from_dict(c.header["attributes"]))
-    attrs = {name: getattr(scene, name).numpy() for name in ATTRS}
-    out = []
-    for k, v in enumerate(side.views):
-        view = {"width": v.camera.width, "height": v.camera.height}
-        if k in side.images and residuals:
-            view["residual"] = decode_residual(side.images[k], v.residual)
-        out.append(view)
-    return attrs, out
+    return {name: getattr(scene, name).numpy() for name in ATTRS}, listed(side)
 
 
 def codec_expectation(data: bytes, residuals: bool = True) -> dict:
@@ -856,6 +865,8 @@ def codec_expectation(data: bytes, residuals: bool = True) -> dict:
         out["residuals"] = "refused"
     for v in views:
         rec = {"width": v["width"], "height": v["height"]}
+        if "tile" in v:  # a tile's own view (spec 10.15)
+            rec["tile"] = v["tile"]
         if "residual" in v:
             rec["residual"] = digest(v["residual"])
         out["views"].append(rec)
@@ -1509,6 +1520,85 @@ def tile_vectors(ok, bad_codec) -> None:
     ]  # fmt: skip
     for name, desc, needle, (m, chs) in cases:
         bad_codec(name, desc, m, chs, *([needle] if needle else []), minor=5)
+    tile_side_vectors(ok, bad_codec, sections, tiles, tiled)
+
+
+def tile_side_chunk() -> bytes:
+    """A TSID payload (10.15, the SIDE layout of 10.9): one 16x12 view with a lossless WebP residual at full
+    resolution."""
+    from gspc.format.side_chunk import pack_side
+    from gspc.format.view_records import ViewRecord
+
+    w, h = 16, 12
+    image, gain = residual_image(h, w, 9, "webp")
+    residual = {"codec": "webp", "shape": [h, w], "bits": 8, "gain": gain, "offset": 128}
+    return pack_side([ViewRecord.from_dict({"camera": camera(2, w, h), "residual": residual})], {0: image})
+
+
+def tile_side_vectors(ok, bad_codec, sections: list, tiles: list, tiled) -> None:
+    """Side information per tile (format 1.6, spec 10.15): tile_vectors' three tiles with a TSID on tiles 0
+    and 2, decoded with their views, and one refused file for each rule of 10.15."""
+    from gspc.format.side_chunk import pack_side
+    from gspc.format.view_records import ViewRecord
+    from gspc.limits import PIXEL_FLOOR, PIXELS_PER_FILE_BYTE
+
+    meta, base = tiled(tiles)
+
+    def tsid(payload: bytes, k: int) -> tuple[dict, bytes]:
+        return entry("TSID", payload, index=k, flags=0), payload  # optional (spec section 6)
+
+    def placed(chunks: list, item: tuple, before: int | None = None) -> list:
+        """``chunks`` with ``item`` before the first chunk of tile ``before`` (None: at the end)."""
+        ours = [i for i, (e, _) in enumerate(chunks) if e["type"] != "TIDX" and e["index"] == before]
+        at = ours[0] if ours else len(chunks)
+        return [*chunks[:at], item, *chunks[at:]]
+
+    side0, side2 = side_chunk(), tile_side_chunk()
+    ok(
+        "codec_tile_sides",
+        "format 1.6: codec_tiles' three tiles, tile 0 with a TSID of two 24x20 views (a lossless JPEG XL "
+        "residual at half resolution on view 1) after its attribute chunks, tile 2 with a TSID of one 16x12 "
+        "view (a lossless WebP residual) before its attribute chunks, tile 1 with none",
+        meta,
+        placed(placed(base, tsid(side0, 0), before=1), tsid(side2, 2), before=2),
+        minor=6,
+    )
+
+    # One view (no residual) of tile 1 within the file's floor of 2^22 pixels but past the tile's share of
+    # it, Q_1 / Q: the TSID's length does not depend on the view's size.
+    def one_view(w: int, h: int) -> bytes:
+        return pack_side([ViewRecord.from_dict({"camera": camera(1, w, h)})], {})
+
+    q = [sum(len(p) for e, p in base if e["type"] != "TIDX" and e["index"] == k) for k in range(3)]
+    q[1] += len(one_view(1, 1))
+    share = min(1 << 28, max(PIXEL_FLOOR * q[1] // sum(q), PIXELS_PER_FILE_BYTE * q[1]))
+    w = 4096
+    h = share // w + 1
+    assert share < w * h <= PIXEL_FLOOR and h <= 65536
+    big = one_view(w, h)
+    cases = [
+        ("codec_invalid_tsid_names_none", "a TSID chunk naming tile 3 of 3", "names no tile",
+         placed(base, tsid(side0, 3))),
+        ("codec_invalid_tsid_order", "tile 0's TSID after tile 2's chunks", "comes after",
+         placed(base, tsid(side0, 0))),
+        ("codec_invalid_tsid_side", "tile 0's TSID a byte longer than its SIDE layout (10.9) ends",
+         "images need", placed(base, tsid(side0 + b"\0", 0), before=1)),
+        ("codec_invalid_tsid_pixels",
+         f"tile 1's TSID: one view of {w}x{h} = {w * h:,} pixels, within the file's floor of 2^22 but past "
+         f"the tile's share of it ({share:,}: {q[1]:,} of the tiles' {sum(q):,} bytes)",
+         "pixels", placed(base, tsid(big, 1), before=2)),
+    ]  # fmt: skip
+    for name, desc, needle, chs in cases:
+        bad_codec(name, desc, meta, chs, needle, minor=6)
+    a, c = sections[0]
+    bad_codec(
+        "codec_invalid_tsid_untiled",
+        "an untiled file of 30 Gaussians with a TSID chunk (index 0)",
+        scene_meta(a),
+        [*attribute_entries(c), tsid(side0, 0)],
+        "without a tile index",
+        minor=6,
+    )
 
 
 def all_vectors() -> list[Vector]:
@@ -1611,7 +1701,9 @@ def manifest(vs: list[Vector]) -> dict:
             "names the FormatError subclass of the reference reader and 'message_contains' words its "
             "message holds. 'codec' (codec_* files, section 10): expect 'ok': the decoded attributes "
             "(binary32 little-endian arrays in curve order: shape, SHA-256 of the bytes, row 0's values) "
-            "and per side-information view its size and decoded residual R (H x W x 3, after upsampling); "
+            "and per side-information view its size and decoded residual R (H x W x 3, after upsampling), "
+            "the whole scene's views first, then each tile's own (a TSID, spec 10.15) with its tile's number "
+            "('tile'); "
             "with 'residuals': 'refused', those of a decoder that does not decode the residual images, while "
             "one that decodes them refuses the file (spec 10.7); "
             "expect 'error': a decoder refuses the payloads (the reference raises CodecError)."

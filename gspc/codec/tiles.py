@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from gspc.codec.attributes import decode_section
+from gspc.codec.attributes import DecodedSection, decode_section
 from gspc.errors import CodecError
 from gspc.format.attribute_section import AttributeSection
 from gspc.format.tiles import Box
@@ -26,9 +26,14 @@ class TileDecodeJob:
 
 def decode_tile(job: TileDecodeJob) -> GaussianScene:
     """The tile's Gaussians in its decoded order, each position checked inside the tile's box."""
+    return decode_tile_section(job).scene
+
+
+def decode_tile_section(job: TileDecodeJob) -> DecodedSection:
+    """:func:`decode_tile`, with the precision map its refinement keeps each value's cell by."""
     tile_bytes = sum(len(p) for p in job.chunks.values())
-    decoded = decode_section(job.chunks, job.section, DecodeBudget(tile_bytes, job.file_bytes)).scene
-    m = decoded.means.numpy()
+    decoded = decode_section(job.chunks, job.section, DecodeBudget(tile_bytes, job.file_bytes))
+    m = decoded.scene.means.numpy()
     lo, hi = np.asarray(job.box[:3], np.float32), np.asarray(job.box[3:], np.float32)
     if ((m < lo) | (m > hi)).any():
         raise CodecError(f"tile {job.number} decodes positions outside its box")

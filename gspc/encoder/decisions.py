@@ -27,7 +27,7 @@ from gspc.cameras import Camera
 from gspc.encoder.coding import EncodedAttributes, prune_mask
 from gspc.encoder.fidelity import Fidelity, FidelityParams, code_to_fidelity, tuned_to_fidelity
 from gspc.encoder.params import CodecParams
-from gspc.encoder.policy import CheckInputs, Outcome, SideInfoDecision, check_cameras, check_side_info
+from gspc.encoder.policy import Outcome, SideInfoDecision
 from gspc.encoder.prepare import (
     CodedAttributes,
     Measure,
@@ -35,34 +35,29 @@ from gspc.encoder.prepare import (
     codec_params,
     encoder_cameras,
     fidelity_params,
-    iteration_counts,
     measure_scene,
     removal_params,
-    sample_side_views,
-    side_candidates,
     tuning_params,
 )
-from gspc.encoder.rate import coded_with, search_lambda
+from gspc.encoder.rate import coded_with
 from gspc.encoder.removal import RemovalChoice, RemovalParams
-from gspc.encoder.side import SideCandidate, view_residuals
+from gspc.encoder.side import SideCandidate
+from gspc.encoder.side_decision import CHUNK_ENTRY_BYTES, SideChoice, side_information
 from gspc.encoder.tiles import SceneRows, TileCoding, TileSettings, code_tiles
 from gspc.encoder.tuning import TuningReport, tune_coding
 from gspc.errors import CodecError, InputError
 from gspc.format.file import pack_file, pack_tiled_file
 from gspc.format.header import FileHeader, SceneSummary, SideInfoHeader
 from gspc.format.view_records import check_view_pixels
-from gspc.limits import ENCODE_WORKER_BYTES
+from gspc.limits import ENCODE_WORKER_BYTES, RenderAllowance
 from gspc.options import EncodeOptions
 from gspc.presets import quality_preset
-from gspc.reconstruct import check_decode_work, decode_work, refine_iterations, render_images, work_bound
+from gspc.reconstruct import check_decode_work, decode_work, refine_iterations
 from gspc.restore.restorer import load_restorer
 from gspc.scene import GaussianScene
 from gspc.stages import Stages
 from gspc.workers import Executor, executor_for
 
-# A SIDE chunk's table entry and padding, about (spec section 5): what side information adds to a file
-# beyond its payload, so that attributes and side information share a --target-size.
-CHUNK_ENTRY_BYTES = 48
 # The file's bytes around the attributes' own (preamble, the header beyond the attribute section, the
 # chunk table, padding and trailer: spec sections 2 and 5), about: a --target-size's first share for them.
 FRAMING_BYTES = 448
@@ -137,6 +132,11 @@ class EncoderDecisions:
         )
         return out
 
+    @property
+    def tile_sides(self) -> list[bytes | None]:
+        """Each tile's own side information as it goes into the file (spec 10.15; None: none)."""
+        return [t.side.payload if _sends(t) else None for t in self.tiles]
+
     def _tiled_summary(self) -> dict[str, str]:
         """A tiled scene's decisions: each tile took its own, as a scene of its own would."""
         tiles = self.tiles
@@ -180,7 +180,13 @@ class EncoderDecisions:
                 f"{len(tuned)} of {len(tiles)} tiles kept their tuned values ({gain:+.2f} dB mean)"
             )
         out["side info"] = self.side_info
-        out["decoder refines"] = "nothing (no side information)"
+        sent = sum(_sends(t) for t in tiles)
+        out["decoder refines"] = (
+            f"each of {sent} tiles against its own views, up to {self.refine_iterations} iterations by "
+            "default"
+            if sent
+            else "nothing (no side information)"
+        )
         return out
 
     def _lambda_line(self) -> str:
@@ -253,8 +259,10 @@ def _decide_tiled_on(
     cams = encoder_cameras(_camera_sample(source), cameras, opts)
     params = codec_params(opts)
     fp = fidelity_params(opts)
+    # Each tile weighs side information of its own (spec 10.15) where the options and preset ask for any.
+    side = opts if opts.side_info and quality_preset(opts.quality).side_info else None
     settings = TileSettings(
-        tuple(cams), params, opts.background, removal_params(opts), tuning_params(opts), fp
+        tuple(cams), params, opts.background, removal_params(opts), tuning_params(opts), fp, side
     )
     target = None if opts.target_size is None else opts.target_size
     for _ in range(TARGET_RETRIES + 1):
@@ -264,19 +272,14 @@ def _decide_tiled_on(
         given = sum(c.given for c in codings)
         candidates = sum(c.candidates for c in codings)
         coded = sum(c.tile.n for c in codings)
-        reason = (
-            "none (a tiled file carries no side information yet)"
-            if opts.side_info
-            else "none (--no-side-info)"
-        )
         decisions = EncoderDecisions(
             attributes=None,
             side=None,
-            refine_iterations=0,
+            refine_iterations=max((c.side.refine_iterations for c in codings if _sends(c)), default=0),
             counts=GaussianCounts(given, given - candidates, candidates - coded, coded),
             lam_asked=params.lam,
             lambda_reasons=(),
-            side_info=reason,
+            side_info=_tiles_side_line(codings, opts),
             target_size=opts.target_size,
             tiles=tuple(codings),
             ran_on=ex.describe(),
@@ -292,6 +295,43 @@ def _decide_tiled_on(
     raise InputError(
         f"--target-size {opts.target_size:,} B cannot be reached: the tiled file stays at {size:,} B"
     )
+
+
+def _sends(coding: TileCoding) -> bool:
+    return coding.side is not None and coding.side.payload is not None
+
+
+def _tiles_side_line(codings: list[TileCoding], opts: EncodeOptions) -> str:
+    """The summary's side-information line of a tiled file: how many tiles carry their own (spec 10.15)."""
+    if not opts.side_info:
+        return "none (--no-side-info)"
+    if all(c.side is None for c in codings):
+        return f"none (the {opts.quality} preset: a file for viewers, which do not refine)"
+    sent = [c for c in codings if _sends(c)]
+    weighed = [c for c in codings if c.side is not None]
+    if not sent:
+        return f"none sent: {_reasons(weighed)}"
+    size = sum(len(c.side.payload) for c in sent)
+    views = sum(c.side.views_with_residual for c in sent)
+    line = (
+        f"each tile's own: sent for {len(sent)} of {len(codings)} tiles ({_reasons(sent)}), {views} views "
+        f"with a residual, {size:,} B"
+    )
+    unsent = [c for c in weighed if not _sends(c)]
+    return f"{line}; not sent: {_reasons(unsent)}" if unsent else line
+
+
+def _reasons(codings) -> str:
+    """How many tiles gave each reason (the side-information step's line, its head: gspc/encoder/
+    side_decision.py), most common first."""
+    heads: dict[str, int] = {}
+    for c in codings:
+        head = c.side.reason.split(":")[0]
+        head = head.removeprefix("none (").removeprefix("sent (").removeprefix("none").rstrip(")").strip()
+        head = head or "its check found it does not pay"
+        heads[head] = heads.get(head, 0) + 1
+    ranked = sorted(heads.items(), key=lambda x: -x[1])
+    return "; ".join(f"{k}: {v} tile{'s' if v > 1 else ''}" for k, v in ranked)
 
 
 def _tiled_framing(num_gaussians: int, tile_size: int) -> int:
@@ -349,7 +389,7 @@ def _decide_at(
             )
     if attribute_budget is not None and fidelity is None:
         _refuse_missed_target(coded.encoded, attribute_budget, opts.target_size)
-    side = _side_information(
+    side = side_information(
         scene, cams, coded, restorer, opts, device, stages, attribute_budget, fidelity is not None
     )
     attributes = side.attributes
@@ -413,7 +453,7 @@ def _fidelity_search(
         )
 
 
-def _lambda_reasons(coded: CodedAttributes, side: _Side, enc: EncodedAttributes) -> tuple[str, ...]:
+def _lambda_reasons(coded: CodedAttributes, side: SideChoice, enc: EncodedAttributes) -> tuple[str, ...]:
     """What moved the coding's lambda away from the one asked, in the bytes that lambda codes."""
     reasons = []
     if coded.removal is not None and coded.removal.kept is not coded.removal.base:
@@ -439,158 +479,6 @@ def _counts(scene: GaussianScene, coded: CodedAttributes, enc: EncodedAttributes
     candidates = int(prune_mask(scene, coded.params, coded.visible).sum())
     n = enc.decoded.num_gaussians
     return GaussianCounts(scene.num_gaussians, scene.num_gaussians - candidates, candidates - n, n)
-
-
-@dataclass
-class _Side:
-    """The side-information step's outcome: the attributes to send with it (or in its place)."""
-
-    attributes: EncodedAttributes
-    side: SideCandidate | None
-    refine_iterations: int
-    reason: str
-    check: SideInfoDecision | None = None
-
-
-def _side_information(
-    scene: GaussianScene,
-    cams: list[Camera],
-    coded: CodedAttributes,
-    restorer,
-    opts: EncodeOptions,
-    device,
-    stages: Stages,
-    attribute_budget: int | None,
-    at_fidelity: bool = False,
-) -> _Side:
-    """Render the sampled views, code their residuals and, where the check runs, keep the side information
-    only if it pays for its bytes (gspc/encoder/policy.py). With a byte budget, the attributes are coded
-    again in what the side information leaves (its residuals made again for that coding) first. Coded to a
-    fidelity (``at_fidelity``), side information that does not pay costs no bytes at all."""
-    enc = coded.encoded
-    runs = iteration_counts(opts, enc.decoded.num_gaussians)
-    view_indices, view_cams = sample_side_views(cams, opts)
-    if not view_indices:
-        if not opts.side_info:
-            reason = "none (--no-side-info)"
-        elif not quality_preset(opts.quality).side_info:
-            reason = f"none (the {opts.quality} preset: a file for viewers, which do not refine)"
-        else:
-            reason = "none (no view sampled)"
-        return _Side(_unrefined(scene, coded, stages), None, runs.refine, reason)
-    original, rendered, candidates = _candidates(scene, enc, view_cams, opts, runs.check, stages, device)
-    if attribute_budget is not None and candidates[0].payload is not None:
-        room = attribute_budget - len(candidates[0].payload) - CHUNK_ENTRY_BYTES
-        with stages.stage("attributes"):
-            enc = search_lambda(
-                scene,
-                room,
-                coded.params.with_lambda(enc.lam),
-                visible=coded.visible,
-                significance=coded.significance,
-                first=enc,
-            )
-        if enc.num_bytes > room:  # no room for both: the attributes alone
-            return _Side(coded.encoded, None, runs.refine, "none (no room for it in the target)")
-        coded = CodedAttributes(enc, coded.params.with_lambda(enc.lam), coded.visible, coded.significance)
-        original, rendered, candidates = _candidates(
-            scene, enc, view_cams, opts, runs.check, stages, device, original
-        )
-    # No residual anywhere: no chunk at all (cameras alone would be dead weight).
-    side = candidates[0] if candidates[0].payload is not None else None
-    if side is None:
-        reason = "none (no view's residual was worth sending)"
-        return _Side(_unrefined(scene, coded, stages), None, runs.refine, reason)
-    # No more iterations than a decode of a file of at least these payloads runs (spec 10.8).
-    least = enc.num_bytes + min(len(c.payload) for c in candidates if c.payload is not None)
-    runs = iteration_counts(
-        opts, enc.decoded.num_gaussians, work_bound(enc.decoded, view_cams, side.images, least)
-    )
-    if runs.check == 0:
-        return _Side(enc, side, runs.refine, _sent(side, "unchecked, --check-iterations 0"))
-    inputs = CheckInputs(
-        scene=scene,
-        attributes=enc,
-        params=coded.params.unrefined(),
-        visible=coded.visible,
-        significance=coded.significance,
-        view_cameras=view_cams,
-        check_cameras=check_cameras(cams, view_indices, opts.check_views),
-        original=original,
-        coded=rendered,
-        candidates=candidates,
-        restorer=restorer,
-        iterations=runs.refine,
-        background=opts.background,
-        margin_db=opts.check_margin_db,
-        device=device,
-        deadline=stages.deadline,
-    )
-    with stages.stage("check"):
-        result = check_side_info(inputs, stages.progress)
-    d = result.decision
-    if result.side is not None:
-        # The decoder runs what the check ran (a time budget may cut it).
-        return _Side(
-            result.attributes, result.side, d.iterations, _sent(result.side, "the check found it pays"), d
-        )
-    attributes = result.attributes
-    if d.outcome is Outcome.DROPPED or (at_fidelity and d.outcome is Outcome.SPENT_ON_ATTRIBUTES):
-        # Coded to a fidelity, the attributes already reach it: side information that does not pay
-        # leaves its bytes unspent rather than on attributes past the target.
-        attributes = _unrefined(scene, coded, stages)
-    return _Side(attributes, None, runs.refine, _not_sent(d, at_fidelity), d)
-
-
-def _candidates(
-    scene: GaussianScene,
-    enc: EncodedAttributes,
-    view_cams: list[Camera],
-    opts: EncodeOptions,
-    check_iterations: int,
-    stages: Stages,
-    device,
-    original: list | None = None,
-) -> tuple[list, list, list[SideCandidate]]:
-    """Renders of G (``original``, where already made) and G~ at the side-information views, and the
-    residuals' candidate codings (gspc/encoder/prepare.py side_candidates)."""
-    with stages.stage("render", announce=False):
-        bg = opts.background
-        # The residuals go into the file: rendered by the file's renderer rules (spec 10.12), which the
-        # torch renderer follows on every device and gsplat 1.5 does not (gspc/render/gsplat_backend.py).
-        if original is None:
-            original = render_images(
-                scene.to(device), view_cams, bg, stages.progress, "render original", "torch"
-            )
-        coded = render_images(enc.decoded.to(device), view_cams, bg, stages.progress, "render coded", "torch")
-    with stages.stage("side info"):
-        candidates = side_candidates(opts, view_cams, view_residuals(original, coded), check_iterations)
-    return original, coded, candidates
-
-
-def _sent(side: SideCandidate, why: str) -> str:
-    return (
-        f"sent ({why}): {side.views_with_residual} of {len(side.records)} views carry a residual, "
-        f"{len(side.payload):,} B at 1/{side.scale} resolution"
-    )
-
-
-def _not_sent(d: SideInfoDecision, at_fidelity: bool = False) -> str:
-    if d.outcome is Outcome.SPENT_ON_ATTRIBUTES:
-        where = (
-            "left unspent (the attributes reach the fidelity)"
-            if at_fidelity
-            else "spent on attributes instead"
-        )
-        return (
-            f"none: it did not beat the same bytes on attributes by the check's margin, {d.rival_db:.2f} dB "
-            f"at {d.check_views} views carrying none against {d.refined_db:.2f} dB refined with it; its "
-            f"bytes {where}"
-        )
-    return (
-        f"none: refinement did not improve the {d.check_views} views carrying none ({d.coded_db:.2f} dB "
-        f"coded, {d.refined_db:.2f} dB refined)"
-    )
 
 
 def _tuned(
@@ -628,27 +516,6 @@ def _tuned(
             progress=stages.progress,
         )
     return tuned.encoded, tuned.report
-
-
-def _unrefined(scene: GaussianScene, coded: CodedAttributes, stages: Stages) -> EncodedAttributes:
-    """The attributes of a file without side information, which the decoder does not refine: coded with
-    the parameters for that (CodecParams.unrefined) in the bytes the refined coding takes. Past the
-    deadline no search starts, and one it cuts short keeps the refined coding unless it found better."""
-    enc = coded.encoded
-    params = coded.params.unrefined().with_lambda(enc.lam)
-    if coded_with(enc, params) or stages.past_deadline():
-        return enc  # the same steps (a fine rate, or the uniform codec), or no time left
-    with stages.stage("attributes for no side information"):
-        found = search_lambda(
-            scene,
-            enc.num_bytes,
-            params,
-            visible=coded.visible,
-            significance=coded.significance,
-            rel_tol=0.005,
-            deadline=stages.deadline,
-        )
-    return found if found.num_bytes <= enc.num_bytes else enc
 
 
 def file_bytes(decisions: EncoderDecisions, scene: GaussianScene | None, opts: EncodeOptions) -> bytes:
@@ -704,6 +571,18 @@ def _tiled_file_bytes(decisions: EncoderDecisions, opts: EncodeOptions) -> bytes
             _lowest_fidelity(tiles),
         ),
         attributes=None,
-        side_info=SideInfoHeader(opts.background, opts.restorer, 0),
+        side_info=SideInfoHeader(opts.background, opts.restorer, decisions.refine_iterations),
     )
-    return pack_tiled_file(header, [(t.tile, t.chunks) for t in tiles], None)
+    sides = decisions.tile_sides
+    data = pack_tiled_file(header, [(t.tile, t.chunks) for t in tiles], None, sides)
+    sizes = [sum(len(p) for p in t.chunks.values()) + len(s or b"") for t, s in zip(tiles, sides)]
+    for k, t in enumerate(tiles):  # each tile's views within its share of the file's budget (spec 10.15)
+        if _sends(t):
+            share = RenderAllowance.of_tile(k, sizes[k], sum(sizes))
+            try:
+                if sum(t.side.work.pixels) > share.pixels:
+                    raise CodecError(f"its views ask for more than its {share.pixels:,} pixels")
+                check_decode_work(t.side.work, share)
+            except CodecError as e:
+                raise InputError(f"tile {k}: {e}; lower --max-side or --views-fraction") from None
+    return data

@@ -18,7 +18,7 @@ import torch
 
 from gspc.cameras import Camera
 from gspc.codec import residuals
-from gspc.encoder.coding import EncodedAttributes, encode_attributes
+from gspc.encoder.coding import EncodedAttributes, SharedGrid, encode_attributes
 from gspc.encoder.params import CodecParams
 from gspc.encoder.precision_plan import Significance
 from gspc.encoder.rate import coded_with, search_lambda
@@ -152,6 +152,7 @@ class CheckInputs:
     # time.perf_counter() by which the encode should end: refinement is shortened so that it and the final
     # scoring fit (None: the full ``iterations``).
     deadline: float | None = None
+    grid: SharedGrid | None = None  # a tile's: the scene's grid, which the rivals keep (spec 10.14)
 
 
 @dataclass
@@ -284,6 +285,7 @@ def _rival_coding(
         rel_tol=rel_tol,
         first=first,
         deadline=deadline,
+        grid=inp.grid,
     )
 
 
@@ -303,7 +305,7 @@ def _rivals(
     if coded_with(enc, params):
         first = enc
     else:
-        first = encode_attributes(inp.scene, params, inp.visible, inp.significance)
+        first = encode_attributes(inp.scene, params, inp.visible, inp.significance, grid=inp.grid)
     low = first if first.num_bytes <= min(targets) else _rival_coding(inp, min(targets), bracket, first)
     if progress:
         progress("check rivals", 1, steps)

@@ -92,6 +92,7 @@ class CodedAttributes:
     visible: np.ndarray  # per input Gaussian: seen by some camera
     significance: Significance | None = None  # what each Gaussian does to the views, where measured
     removal: RemovalChoice | None = None  # how the removal was chosen (None: the parameters' own)
+    grid: SharedGrid | None = None  # a tile's: the scene's grid, which every coding of it keeps
 
 
 def measure_scene(
@@ -141,7 +142,7 @@ def code_attributes(
             scene.to("cpu"), enc, params, visible, sig, cameras, background, removal, deadline, progress, grid
         )
         enc, params = choice.encoded, choice.params
-    return CodedAttributes(enc, params, visible, sig, choice)
+    return CodedAttributes(enc, params, visible, sig, choice, grid)
 
 
 @dataclass(frozen=True)

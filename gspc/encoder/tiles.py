@@ -9,7 +9,11 @@ task: a plain function of its rows and the run's settings to its chunks, run in 
 worker's (gspc/workers.py), with the same bytes either way.
 
 Each tile is measured, searched and tuned with its own Gaussians alone: the Gaussians of other tiles that
-occlude it are not drawn (bench/tiles.md measures what that costs against one block).
+occlude it are not drawn (bench/tiles.md measures what that costs against one block). Asked for side
+information, a tile gets its own (spec 10.15), made and checked as a whole scene's is
+(gspc/encoder/side_decision.py): views among the cameras that see it, residuals of its Gaussians rendered
+alone, sent only where its check finds that the decoder's refinement with them beats the same bytes on the
+tile's attributes; a tile sent none has its values tuned.
 
 Coded to a fidelity, a tile gets its share of the scene's error: a view's squared error is the sum of the
 tiles' it shows, each scored over the whole image, so tiles coded to the target each left a scene of N tiles
@@ -27,15 +31,22 @@ import numpy as np
 
 from gspc.cameras import Camera
 from gspc.codec import positions as pos
+from gspc.device import check_device
 from gspc.encoder.coding import EncodedAttributes, SharedGrid, prune_mask
 from gspc.encoder.fidelity import FidelityParams, code_to_fidelity, tuned_to_fidelity
 from gspc.encoder.params import CodecParams
-from gspc.encoder.prepare import code_attributes, measure_scene
+from gspc.encoder.policy import SideInfoDecision
+from gspc.encoder.prepare import CodedAttributes, code_attributes, measure_scene
 from gspc.encoder.removal import RemovalChoice, RemovalParams
+from gspc.encoder.side_decision import SideChoice, side_information
 from gspc.encoder.tuning import TuningParams, TuningReport, tune_coding
 from gspc.format.tiles import Box, Tile
+from gspc.options import EncodeOptions
 from gspc.progress import Progress
+from gspc.reconstruct import DecodeWork, decode_work
+from gspc.restore.restorer import load_restorer
 from gspc.scene import GaussianScene
+from gspc.stages import Stages
 from gspc.visibility import seeing_cameras
 from gspc.workers import run_tasks
 
@@ -143,6 +154,19 @@ class TileJob:
     byte_target: int | None = None  # code in at most this many bytes (None: at the rate)
     fidelity: FidelityParams | None = None  # code to this fidelity (gspc/encoder/fidelity.py; None: the rate)
     share_db: float = 0.0  # what the fidelity's target was raised by: the tile's share of the views' error
+    side: EncodeOptions | None = None  # weigh side information of the tile's own with these options
+
+
+@dataclass(frozen=True)
+class TileSide:
+    """A tile's own side information (spec 10.15) as the encoder sent it, or why it sent none."""
+
+    payload: bytes | None  # the TSID payload (None: none sent)
+    reason: str  # the side-information step's line (gspc/encoder/side_decision.py)
+    refine_iterations: int  # what the check ran, or the preset's
+    work: DecodeWork | None  # what its views ask of a decoder, for the file's checks (spec 10.15)
+    views_with_residual: int = 0
+    check: SideInfoDecision | None = None
 
 
 @dataclass(frozen=True)
@@ -166,6 +190,7 @@ class TileCoding:
     fidelity_db: float | None = None
     fidelity_reached: bool = True
     share_db: float = 0.0
+    side: TileSide | None = None  # where side information was weighed
 
 
 def code_tile(job: TileJob) -> TileCoding:
@@ -197,6 +222,14 @@ def code_tile(job: TileJob) -> TileCoding:
             coded, encoded=fidelity.encoded, params=coded.params.with_lambda(fidelity.encoded.lam)
         )
 
+    side = None
+    if job.side is not None and len(cams) > 1:  # the tile's own side information, checked (spec 10.15)
+        here = CodedAttributes(
+            coded.encoded, coded.params, coded.visible, coded.significance, grid=job.shared
+        )
+        side = _tile_side(scene, cams, here, job)
+        coded = replace(coded, encoded=side.attributes)
+
     def tune(enc: EncodedAttributes) -> tuple[EncodedAttributes, TuningReport | None]:
         if job.tuning is None:
             return enc, None
@@ -223,7 +256,11 @@ def code_tile(job: TileJob) -> TileCoding:
         ).encoded
 
     fidelity_db = None
-    if fidelity is not None:  # tuned, and brought back near the target
+    if side is not None and side.side is not None:  # the decoder refines it: not tuned
+        enc, tuning = coded.encoded, None
+        if fidelity is not None:
+            fidelity_db = fidelity.score(enc)
+    elif fidelity is not None:  # tuned, and brought back near the target
         enc, tuning, fidelity_db = tuned_to_fidelity(
             coded.encoded, fidelity, job.fidelity.tolerance_db, tune, search
         )
@@ -246,7 +283,28 @@ def code_tile(job: TileJob) -> TileCoding:
         None if fidelity_db is None else fidelity_db - job.share_db,
         fidelity is None or fidelity.reached,
         job.share_db,
+        None if side is None else _sent_side(side, enc),
     )
+
+
+def _tile_side(scene: GaussianScene, cams: list[Camera], coded: CodedAttributes, job: TileJob) -> SideChoice:
+    """The side-information step on the tile alone, on this process's CPU (a worker has no other device)."""
+    opts = job.side
+    device = check_device("cpu")
+    restorer = load_restorer(opts.restorer, device=device)
+    stages = Stages()
+    at_fidelity = job.fidelity is not None
+    return side_information(scene, cams, coded, restorer, opts, device, stages, job.byte_target, at_fidelity)
+
+
+def _sent_side(side: SideChoice, enc: EncodedAttributes) -> TileSide:
+    """What the file records of a tile's side-information step: its payload and the work its views ask."""
+    if side.side is None:
+        return TileSide(None, side.reason, side.refine_iterations, None, 0, side.check)
+    cams = [v.camera.to_camera() for v in side.side.records]
+    work = decode_work(enc.decoded, cams, side.side.images, None)
+    views = side.side.views_with_residual
+    return TileSide(side.side.payload, side.reason, side.refine_iterations, work, views, side.check)
 
 
 def _box(enc: EncodedAttributes) -> Box:
@@ -272,6 +330,7 @@ class TileSettings:
     removal: RemovalParams | None
     tuning: TuningParams | None
     fidelity: FidelityParams | None = None
+    side: EncodeOptions | None = None  # each tile weighs side information of its own (spec 10.15)
 
 
 def code_tiles(
@@ -308,6 +367,7 @@ def code_tiles(
                 None if targets is None else targets[k],
                 _raised(settings.fidelity, shares[k]) if targets is None else None,
                 float(shares[k]),
+                settings.side,
             )
 
     def run(targets: list[int] | None, stage: str) -> list[TileCoding]:

@@ -26,6 +26,7 @@ PREC = "PREC"
 SIDE = "SIDE"
 RESI = "RESI"
 TIDX = "TIDX"
+TSID = "TSID"
 
 REGISTRY: dict[str, ChunkType] = {
     c.name: c
@@ -40,6 +41,7 @@ REGISTRY: dict[str, ChunkType] = {
         ChunkType(RESI, "one residual image per view (format 1.0; read only)", "10.7"),
         ChunkType(SIDE, "every side-information view and residual image (format 1.1 on)", "10.9"),
         ChunkType(TIDX, "the tile index: each tile's box and attribute section (format 1.5)", "10.14"),
+        ChunkType(TSID, "one tile's side information, in the SIDE layout (format 1.6; optional)", "10.15"),
     )
 }
 

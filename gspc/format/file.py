@@ -16,10 +16,21 @@ from dataclasses import dataclass
 from gspc.errors import CodecError
 from gspc.format import container
 from gspc.format.attribute_section import attribute_chunks, check_attribute_chunks
-from gspc.format.chunks import ATTRIBUTE_TYPES, SIDE, TIDX
+from gspc.format.chunks import ATTRIBUTE_TYPES, SIDE, TIDX, TSID
 from gspc.format.header import FileHeader
-from gspc.format.side_chunk import SideViews, read_side_views
-from gspc.format.tiles import TILED_VERSION, Tile, TileIndex, pack_tile_index, read_tile_index, tile_chunks
+from gspc.format.side_chunk import SideViews, read_side_views, read_tile_side
+from gspc.format.tiles import (
+    TILE_SIDE_VERSION,
+    TILED_VERSION,
+    Tile,
+    TileIndex,
+    pack_tile_index,
+    read_tile_index,
+    refuse_untiled_sides,
+    tile_chunks,
+    tile_side_allowances,
+)
+from gspc.limits import RenderAllowance
 
 
 @dataclass(frozen=True)
@@ -33,6 +44,9 @@ class GspcFile:
     header_length: int
     tiles: TileIndex | None = None  # a tiled file's index (spec 10.14); its tiles' payloads below
     tile_chunks: tuple[dict[str, bytes], ...] = ()
+    # Each tile's own side information (spec 10.15; None: the tile has none) and its share of the budget.
+    tile_sides: tuple[SideViews | None, ...] = ()
+    tile_allowances: tuple[RenderAllowance, ...] = ()
 
     @property
     def budget(self) -> dict[str, int]:
@@ -68,12 +82,28 @@ def read_file(data: bytes) -> GspcFile:
     side = read_side_views(header.side_info.legacy_views, c.chunks, len(data))
     chunks = (*c.chunks, *c.skipped)
     if index_chunk is None:
+        refuse_untiled_sides(c.chunks)
         attributes = attribute_chunks(c.chunks)
         check_attribute_chunks(attributes, header.attributes)
         return GspcFile(c.version, header, attributes, side, chunks, c.file_size, c.header_length)
     tiles = _tile_index(c.chunks)
     per_tile = tuple(tile_chunks(c.chunks, tiles))
-    return GspcFile(c.version, header, {}, side, chunks, c.file_size, c.header_length, tiles, per_tile)
+    allowances = tuple(tile_side_allowances(c.chunks, len(tiles.tiles)))
+    payloads = {ch.index: ch.payload for ch in c.chunks if ch.type == TSID}
+    sides = tuple(_tile_side(payloads.get(k), k, allowances[k]) for k in range(len(tiles.tiles)))
+    return GspcFile(
+        c.version, header, {}, side, chunks, c.file_size, c.header_length, tiles, per_tile, sides, allowances
+    )
+
+
+def _tile_side(payload: bytes | None, k: int, budget: RenderAllowance) -> SideViews | None:
+    """Tile ``k``'s side information from its TSID payload (None: it has none), errors naming the tile."""
+    if payload is None:
+        return None
+    try:
+        return read_tile_side(payload, budget)
+    except CodecError as e:
+        raise CodecError(f"tile {k}'s {TSID}: {e}") from None
 
 
 def _tile_index(chunks: Sequence) -> TileIndex:
@@ -101,12 +131,14 @@ class FileReader:
             self.header: FileHeader | None = None
             self.tiles: TileIndex | None = None
             self.side = SideViews()
+            self.tile_allowances: list[RenderAllowance] = []
             if has_index:
                 self.header = FileHeader.from_dict(self.head.meta, tiled=True)
                 k = next(i for i, e in enumerate(entries) if e.type == TIDX)
                 index_chunk = container.read_chunk(self._f, self.head, k)
                 self.tiles = _tile_index([*entries[:k], index_chunk, *entries[k + 1 :]])
                 tile_chunks(entries, self.tiles)  # the table's layout, before any tile is read
+                self.tile_allowances = tile_side_allowances(entries, len(self.tiles.tiles))
                 side_entries = [i for i, e in enumerate(entries) if e.type in (SIDE, "RESI")]
                 side_chunks = [container.read_chunk(self._f, self.head, i) for i in side_entries]
                 self.side = read_side_views(
@@ -145,6 +177,19 @@ class FileReader:
                 out[e.type] = container.read_chunk(self._f, self.head, i).payload
         return out
 
+    def tile_side(self, k: int) -> SideViews | None:
+        """Tile ``k``'s own side information (spec 10.15; None: it has none), read and checked (its
+        CRC, layout and pixels against the tile's share of the budget)."""
+        for i, e in enumerate(self.head.entries):
+            if e.type == TSID and e.index == k:
+                payload = container.read_chunk(self._f, self.head, i).payload
+                return _tile_side(payload, k, self.tile_allowances[k])
+        return None
+
+    @property
+    def has_tile_sides(self) -> bool:
+        return any(e.type == TSID for e in self.head.entries)
+
     def check_trailer(self) -> None:
         """Spec section 8's checks 9 and 10 over the whole file, read in blocks (a decode that read every
         tile runs it before its output is in place)."""
@@ -161,13 +206,18 @@ def file_chunks(attributes: dict[str, bytes], side: bytes | None) -> list[contai
 
 
 def tiled_file_chunks(
-    tiles: Sequence[tuple[Tile, dict[str, bytes]]], side: bytes | None
+    tiles: Sequence[tuple[Tile, dict[str, bytes]]],
+    side: bytes | None,
+    tile_sides: Sequence[bytes | None] = (),
 ) -> list[container.Chunk]:
     """A tiled file's chunks (spec 10.14): the tile index, then each tile's attribute chunks (index: the
-    tile's number) in the order the format lists them, then the side information."""
+    tile's number) in the order the format lists them and its own side information (a TSID, optional:
+    10.15), then the whole scene's side information."""
     chunks = [container.Chunk(TIDX, pack_tile_index([t for t, _ in tiles]))]
     for k, (_, payloads) in enumerate(tiles):
         chunks += [container.Chunk(t, payloads[t], index=k) for t in ATTRIBUTE_TYPES if t in payloads]
+        if k < len(tile_sides) and tile_sides[k] is not None:
+            chunks.append(container.Chunk(TSID, tile_sides[k], index=k, required=False))
     if side is not None:
         chunks.append(container.Chunk(SIDE, side))
     return chunks
@@ -179,7 +229,12 @@ def pack_file(header: FileHeader, attributes: dict[str, bytes], side: bytes | No
 
 
 def pack_tiled_file(
-    header: FileHeader, tiles: Sequence[tuple[Tile, dict[str, bytes]]], side: bytes | None
+    header: FileHeader,
+    tiles: Sequence[tuple[Tile, dict[str, bytes]]],
+    side: bytes | None,
+    tile_sides: Sequence[bytes | None] = (),
 ) -> bytes:
-    """The tiled file of these parts (:func:`tiled_file_chunks`), marked format 1.5 (spec section 3)."""
-    return container.pack(header.to_dict(), tiled_file_chunks(tiles, side), TILED_VERSION)
+    """The tiled file of these parts (:func:`tiled_file_chunks`), marked format 1.6 where a tile carries side
+    information of its own, else 1.5 (spec section 3)."""
+    version = TILE_SIDE_VERSION if any(s is not None for s in tile_sides) else TILED_VERSION
+    return container.pack(header.to_dict(), tiled_file_chunks(tiles, side, tile_sides), version)

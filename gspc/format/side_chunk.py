@@ -26,6 +26,7 @@ from gspc.format.view_records import (
     ViewRecord,
     check_view_pixels,
 )
+from gspc.limits import RenderAllowance
 
 FLAG_PER_VIEW_CAMERA = 1  # each view stores its own size and intrinsics
 
@@ -168,6 +169,21 @@ def read_side_views(legacy: tuple[ViewRecord, ...], chunks: list, file_size: int
             raise CodecError(f"side-information view {bad} has a RESI chunk or a residual record, not both")
         side = SideViews(legacy, res)
     check_view_pixels(side.views, file_size)
+    _check_images(side)
+    return side
+
+
+def read_tile_side(payload: bytes, budget: RenderAllowance) -> SideViews:
+    """One tile's side information (a TSID payload, spec 10.15: the SIDE layout), its views' pixels checked
+    against the tile's share of the file's budget and each image's declared size against its record."""
+    side = unpack_side(payload)
+    check_view_pixels(side.views, budget)
+    _check_images(side)
+    return side
+
+
+def _check_images(side: SideViews) -> None:
+    """Each residual image's declared size against its record, before any image is decoded."""
     for k, image in side.images.items():
         record = side.views[k].residual
         declared = coded_size(record.codec, image)
@@ -177,4 +193,3 @@ def read_side_views(legacy: tuple[ViewRecord, ...], chunks: list, file_size: int
                 f"side-information view {k}: residual {record.codec} image declares {declared[0]}x"
                 f"{declared[1]} pixels, its record expects {columns}x{rows}"
             )
-    return side

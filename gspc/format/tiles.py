@@ -1,4 +1,5 @@
-"""Spatial tiles (format 1.5, spec 10.14): the tile index and the rules that tie each tile to its chunks.
+"""Spatial tiles (format 1.5, spec 10.14; their side information, 1.6, 10.15): the tile index and the rules
+that tie each tile to its chunks.
 
 A tiled file codes its scene as tiles, each an attribute section (spec 10.0) a decoder can decode alone: the
 ``TIDX`` chunk lists every tile's box and section, and tile ``k``'s attribute chunks carry index ``k``, all
@@ -16,10 +17,13 @@ import msgpack
 
 from gspc.errors import CodecError
 from gspc.format.attribute_section import AttributeSection, check_attribute_chunks
-from gspc.format.chunks import ATTRIBUTE_TYPES, TIDX
-from gspc.limits import MAX_TILES, max_coded_gaussians
+from gspc.format.chunks import ATTRIBUTE_TYPES, TIDX, TSID
+from gspc.limits import MAX_TILES, RenderAllowance, max_coded_gaussians
 
-TILED_VERSION = (1, 5)  # the format version a file with a tile index is written as (spec section 3)
+# The format versions a file with a tile index is written as (spec section 3): 1.6 where a tile carries side
+# information of its own (a TSID chunk, 10.15), 1.5 otherwise.
+TILED_VERSION = (1, 5)
+TILE_SIDE_VERSION = (1, 6)
 Box = tuple[float, float, float, float, float, float]  # lo x, y, z, hi x, y, z
 
 
@@ -111,9 +115,9 @@ def _box(value: object, k: int) -> Box:
 def tile_chunks(chunks: Sequence, index: TileIndex) -> list[dict[str, bytes]]:
     """Each tile's attribute payloads by type, from a file's chunks (or chunk-table entries: anything with
     ``type``, ``index`` and, for the bounds, ``payload`` or ``length``), checked against spec 10.14: the
-    index first, every attribute chunk naming a tile, a tile's chunks after the previous tile's, each tile's
-    chunks those its section needs, and the Gaussians within what the bytes may declare, per tile and in
-    all (gspc/limits.py)."""
+    index first, every attribute chunk (and every TSID, 10.15) naming a tile, a tile's chunks after the
+    previous tile's, each tile's chunks those its section needs, and the Gaussians within what the bytes may
+    declare, per tile and in all (gspc/limits.py)."""
     out: list[dict[str, bytes]] = [{} for _ in index.tiles]
     sizes = [0] * len(index.tiles)
     last, seen_index = -1, False
@@ -121,7 +125,7 @@ def tile_chunks(chunks: Sequence, index: TileIndex) -> list[dict[str, bytes]]:
         if c.type == TIDX:
             seen_index = True
             continue
-        if c.type not in ATTRIBUTE_TYPES:
+        if c.type not in ATTRIBUTE_TYPES and c.type != TSID:
             continue
         if not seen_index:
             raise CodecError(f"chunk {c.type}#{c.index} comes before the tile index ({TIDX})")
@@ -130,6 +134,8 @@ def tile_chunks(chunks: Sequence, index: TileIndex) -> list[dict[str, bytes]]:
         if c.index < last:
             raise CodecError(f"chunk {c.type}#{c.index} comes after tile {last}'s chunks")
         last = c.index
+        if c.type == TSID:
+            continue
         payload = getattr(c, "payload", None)
         out[c.index][c.type] = payload if payload is not None else b""
         sizes[c.index] += len(payload) if payload is not None else c.length
@@ -145,3 +151,22 @@ def tile_chunks(chunks: Sequence, index: TileIndex) -> list[dict[str, bytes]]:
             f"{max_coded_gaussians(total):,})"
         )
     return out
+
+
+def tile_side_allowances(chunks: Sequence, tiles: int) -> list[RenderAllowance]:
+    """Each tile's share of what side views may ask of a decoder (spec 10.15): by its attribute and TSID
+    payload bytes among every tile's, from a file's chunks or chunk-table entries."""
+    sizes = [0] * tiles
+    for c in chunks:
+        if (c.type in ATTRIBUTE_TYPES or c.type == TSID) and 0 <= c.index < tiles:
+            payload = getattr(c, "payload", None)
+            sizes[c.index] += len(payload) if payload is not None else c.length
+    total = sum(sizes)
+    return [RenderAllowance.of_tile(k, q, total) for k, q in enumerate(sizes)]
+
+
+def refuse_untiled_sides(chunks: Sequence) -> None:
+    """A TSID chunk belongs to a tile (spec 10.15): a file without a tile index holding one is refused."""
+    for c in chunks:
+        if c.type == TSID:
+            raise CodecError(f"chunk {TSID}#{c.index} in a file without a tile index")

@@ -21,7 +21,8 @@ from gspc.limits import (
     MAX_VIEW_PIXELS,
     PIXEL_FLOOR,
     PIXELS_PER_FILE_BYTE,
-    view_pixel_budget,
+    RenderAllowance,
+    allowance,
 )
 
 # The residual image codecs a file may name; a SIDE chunk stores the position in this tuple (spec 10.9).
@@ -213,9 +214,12 @@ class ViewRecord:
         return cls(camera, residual)
 
 
-def check_view_pixels(views: tuple[ViewRecord, ...] | list[ViewRecord], file_size: int) -> None:
-    """Each view's pixels, and all views' together, against gspc/limits.py: the decoder renders and keeps
-    every view, so a small file must not ask for gigapixels. Run before any camera is built or rendered."""
+def check_view_pixels(
+    views: tuple[ViewRecord, ...] | list[ViewRecord], file_size: int | RenderAllowance
+) -> None:
+    """Each view's pixels, and all views' together, against gspc/limits.py (a file's budget for its size, or
+    a tile's share: RenderAllowance): the decoder renders and keeps every view, so a small file must not ask
+    for gigapixels. Run before any camera is built or rendered."""
     total = 0
     for k, v in enumerate(views):
         if v.camera.pixels > MAX_VIEW_PIXELS:
@@ -224,10 +228,10 @@ def check_view_pixels(views: tuple[ViewRecord, ...] | list[ViewRecord], file_siz
                 f"pixels; the limit is {MAX_VIEW_PIXELS:,}"
             )
         total += v.camera.pixels
-    budget = view_pixel_budget(file_size)
-    if total > budget:
+    budget = allowance(file_size)
+    if total > budget.pixels:
         raise CodecError(
-            f"side-information views ask for {total:,} pixels in a {file_size:,}-byte file; the limit is "
-            f"{budget:,} (max({PIXEL_FLOOR:,}, {PIXELS_PER_FILE_BYTE} per file byte), at most "
-            f"{MAX_TOTAL_PIXELS:,})"
+            f"side-information views ask for {total:,} pixels in {budget.of}; the limit is {budget.pixels:,} "
+            f"(max({PIXEL_FLOOR:,}, {PIXELS_PER_FILE_BYTE} per file byte), at most {MAX_TOTAL_PIXELS:,}; "
+            f"{budget.rule})"
         )

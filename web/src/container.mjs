@@ -26,8 +26,8 @@ export const END_MARKER = Uint8Array.of(0x47, 0x45, 0x4e, 0x44); // "GEND"
 export const PREAMBLE_BYTES = 20;
 export const TRAILER_BYTES = 8;
 export const MAJOR = 1;
-/** Chunk types of format 1.5 (spec section 6). */
-export const KNOWN_TYPES = new Set(['POSN', 'OPAC', 'SCAL', 'ROTN', 'SHDC', 'SHRS', 'PREC', 'TIDX', 'RESI', 'SIDE']);
+/** Chunk types of format 1.6 (spec section 6). */
+export const KNOWN_TYPES = new Set(['POSN', 'OPAC', 'SCAL', 'ROTN', 'SHDC', 'SHRS', 'PREC', 'TIDX', 'RESI', 'SIDE', 'TSID']);
 
 const FLAG_REQUIRED = 1;
 const TYPE_PATTERN = /^[A-Za-z0-9]{4}$/;

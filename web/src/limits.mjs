@@ -132,6 +132,14 @@ export const PIXELS_PER_FILE_BYTE = 1024;
 export function viewPixelBudget(fileSize) {
   return Math.min(MAX_TOTAL_PIXELS, Math.max(PIXEL_FLOOR, PIXELS_PER_FILE_BYTE * fileSize));
 }
+// Side information per tile (format 1.6, spec 10.15): the pixel limit of 10.8 holds per tile, the floor
+// shared among the tiles in proportion to their bytes Q_k (tile k's attribute and TSID payloads) of Q (all
+// tiles'), as 10.14 shares the model floors: min(2^28, max(floor(2^22 Q_k / Q), 1024 Q_k)). Without the
+// share, a file of many tiny tiles would bring one 2^22-pixel floor per tile.
+/** The most pixels the views of a tile of `tileBytes` (Q_k) of `allBytes` (Q) may ask for together (10.15). */
+export function tileViewPixelBudget(tileBytes, allBytes) {
+  return Math.min(MAX_TOTAL_PIXELS, Math.max(share(PIXEL_FLOOR, tileBytes, allBytes), PIXELS_PER_FILE_BYTE * tileBytes));
+}
 // Residual scale s (10.7, 10.9): 1 .. 16; beyond, a residual of a 4096-pixel view has too few pixels.
 export const MAX_RESIDUAL_SCALE = 16;
 // Residual gain (10.7): a binary32 that is finite and > 0 once rounded, 2^-150 < gain < 2^128 - 2^103.

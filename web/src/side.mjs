@@ -1,7 +1,8 @@
-// Side information (spec 10.7-10.10): meta["side_info"], and the views of either layout (1.1's SIDE chunk
-// or 1.0's `views` records with one RESI chunk per residual), read into one list of checked records. Every
-// rule that refuses a file is checked here, also when no image is decoded: cameras, gains, shapes, the pixel
-// limits, and each residual image's declared size.
+// Side information (spec 10.7-10.10, 10.15): meta["side_info"], and the views of either layout (1.1's SIDE
+// chunk or 1.0's `views` records with one RESI chunk per residual), read into one list of checked records;
+// and a tile's own views (format 1.6's TSID chunk, in the SIDE layout). Every rule that refuses a file is
+// checked here, also when no image is decoded: cameras, gains, shapes, the pixel limits, and each residual
+// image's declared size.
 
 import { CodecError, show } from './errors.mjs';
 import { declaredSize } from './imageHeaders.mjs';
@@ -15,6 +16,7 @@ import {
   MAX_VIEWS,
   MAX_VIEW_PIXELS,
   MIN_GAIN_EXCLUSIVE,
+  tileViewPixelBudget,
   viewPixelBudget,
 } from './limits.mjs';
 
@@ -161,25 +163,29 @@ function legacyView(v) {
   return record;
 }
 
-/** The SIDE chunk's payload (spec 10.9) as {views, images (view number -> bytes)}. */
-export function readSideChunk(payload) {
+/**
+ * A payload in the SIDE layout (spec 10.9) as {views, images (view number -> bytes)}: a SIDE chunk's, or a
+ * TSID chunk's (10.15: the same layout, refused by the same rules); `name` names the chunk in messages.
+ * The pixel limits and the images' declared sizes are checked by the callers (checkViewPixels, withImages).
+ */
+export function readSideChunk(payload, name = 'SIDE') {
   const view = new DataView(payload.buffer, payload.byteOffset, payload.byteLength);
   const size = payload.length;
-  if (size < HEAD_BYTES) throw new CodecError('SIDE chunk is truncated');
+  if (size < HEAD_BYTES) throw new CodecError(`${name} chunk is truncated`);
   const count = view.getUint32(0, true);
   const flags = payload[4];
   const codecId = payload[5];
   const bits = payload[6];
   const scale = payload[7];
-  if (!(count >= 1 && count <= MAX_VIEWS)) throw new CodecError(`SIDE chunk has ${count} views (allowed 1..${MAX_VIEWS})`);
-  if (flags & ~FLAG_PER_VIEW_CAMERA) throw new CodecError(`SIDE chunk has unknown flags 0x${flags.toString(16)}`);
+  if (!(count >= 1 && count <= MAX_VIEWS)) throw new CodecError(`${name} chunk has ${count} views (allowed 1..${MAX_VIEWS})`);
+  if (flags & ~FLAG_PER_VIEW_CAMERA) throw new CodecError(`${name} chunk has unknown flags 0x${flags.toString(16)}`);
   if (codecId >= RESIDUAL_CODECS.length || (bits !== 8 && bits !== 16) || !(scale >= 1 && scale <= MAX_RESIDUAL_SCALE)) {
-    throw new CodecError(`SIDE chunk names codec ${codecId}, ${bits} bits, scale ${scale}: not allowed`);
+    throw new CodecError(`${name} chunk names codec ${codecId}, ${bits} bits, scale ${scale}: not allowed`);
   }
   const perView = flags & FLAG_PER_VIEW_CAMERA;
   const tableBytes = HEAD_BYTES + (perView ? 0 : CAMERA_BYTES) + count * (VIEW_BYTES + (perView ? CAMERA_BYTES : 0));
   // Every view takes its bytes: refuse a count the chunk cannot hold before building a record per view.
-  if (tableBytes > size) throw new CodecError(`SIDE chunk is truncated: ${count} views need ${tableBytes} bytes, it has ${size}`);
+  if (tableBytes > size) throw new CodecError(`${name} chunk is truncated: ${count} views need ${tableBytes} bytes, it has ${size}`);
   let p = HEAD_BYTES;
   const readCamera = () => {
     const out = [view.getUint32(p, true), view.getUint32(p + 4, true), floats32(payload.subarray(p + 8, p + 24), 4)];
@@ -196,7 +202,7 @@ export function readSideChunk(payload) {
     p += VIEW_BYTES;
     let gain = null;
     if (length) {
-      if (p + GAIN_BYTES > size) throw new CodecError('SIDE chunk is truncated');
+      if (p + GAIN_BYTES > size) throw new CodecError(`${name} chunk is truncated`);
       gain = view.getFloat32(p, true);
       p += GAIN_BYTES;
     }
@@ -210,7 +216,7 @@ export function readSideChunk(payload) {
   }
   const imageBytes = lengths.reduce((a, b) => a + b, 0);
   if (p + imageBytes !== size) {
-    throw new CodecError(`SIDE chunk images need ${imageBytes} bytes after the view table, found ${size - p}`);
+    throw new CodecError(`${name} chunk images need ${imageBytes} bytes after the view table, found ${size - p}`);
   }
   const images = new Map();
   lengths.forEach((length, k) => {
@@ -222,8 +228,11 @@ export function readSideChunk(payload) {
   return { views, images };
 }
 
-/** Each view's pixels, and all views' together, against the limits of spec 10.8. */
-export function checkViewPixels(views, fileSize) {
+/**
+ * Each view's pixels against 2^24, and all views' together against `budget` (spec 10.8: viewPixelBudget of
+ * the file's size; 10.15: a tile's tileViewPixelBudget). `of` says what the budget is of, for the message.
+ */
+export function checkViewPixels(views, budget, of) {
   let total = 0;
   views.forEach((v, k) => {
     const pixels = v.camera.width * v.camera.height;
@@ -232,10 +241,29 @@ export function checkViewPixels(views, fileSize) {
     }
     total += pixels;
   });
-  const budget = viewPixelBudget(fileSize);
   if (total > budget) {
-    throw new CodecError(`side-information views ask for ${total} pixels in a ${fileSize}-byte file; the limit is ${budget}`);
+    throw new CodecError(`side-information views ask for ${total} pixels in ${of}; the limit is ${budget}`);
   }
+}
+
+/**
+ * The views with their residual images (`images`: view number -> bytes), each image's signature and
+ * declared size checked against its record (spec 10.7, "Which decoder checks what"): [{camera, residual
+ * (null or the record with its `image` bytes)}].
+ */
+function withImages(views, images) {
+  return views.map((v, k) => {
+    if (!v.residual) return v;
+    const image = images.get(k);
+    const [w, h] = declaredSize(v.residual.codec, image);
+    const [rows, columns] = v.residual.shape;
+    if (w !== columns || h !== rows) {
+      throw new CodecError(
+        `side-information view ${k}: residual ${v.residual.codec} image declares ${w}x${h} pixels, its record expects ${columns}x${rows}`,
+      );
+    }
+    return { camera: v.camera, residual: { ...v.residual, image } };
+  });
 }
 
 /**
@@ -265,17 +293,23 @@ export function readSideViews(sideInfo, chunks, fileSize) {
     }
     images = resi;
   }
-  checkViewPixels(views, fileSize);
-  return views.map((v, k) => {
-    if (!v.residual) return v;
-    const image = images.get(k);
-    const [w, h] = declaredSize(v.residual.codec, image);
-    const [rows, columns] = v.residual.shape;
-    if (w !== columns || h !== rows) {
-      throw new CodecError(
-        `side-information view ${k}: residual ${v.residual.codec} image declares ${w}x${h} pixels, its record expects ${columns}x${rows}`,
-      );
-    }
-    return { camera: v.camera, residual: { ...v.residual, image } };
-  });
+  checkViewPixels(views, viewPixelBudget(fileSize), `a ${fileSize}-byte file`);
+  return withImages(views, images);
+}
+
+/**
+ * Tile `number`'s side information (format 1.6, spec 10.15): its TSID chunk's `payload`, in the SIDE layout
+ * and refused by the SIDE rules (10.9), its views' pixels within the tile's share of the file's floor:
+ * `tileBytes` (Q_k) its attribute and TSID payload bytes, `allBytes` (Q) all tiles'. Returns the views as
+ * readSideViews does; errors name the tile.
+ */
+export function readTileSideViews(number, payload, tileBytes, allBytes) {
+  try {
+    const { views, images } = readSideChunk(payload, `TSID#${number}`);
+    checkViewPixels(views, tileViewPixelBudget(tileBytes, allBytes), `tile ${number} (${tileBytes} of the tiles' ${allBytes} bytes)`);
+    return withImages(views, images);
+  } catch (err) {
+    if (err instanceof CodecError) throw new CodecError(`tile ${number}'s side information: ${err.message}`);
+    throw err;
+  }
 }

@@ -1,10 +1,10 @@
 // Reading a .gspc file in parts from a byte source (spec 10.14, "Reading part of a file"): the preamble,
 // header and tile index first (section 8's checks 1 to 8, the tiles' layout and every tile's bounds), then
-// each tile's chunks, checked and decoded as they arrive, so that a viewer draws the first tiles before the
-// last have arrived. A decode of every tile reads the file in order and checks all of section 8 (every
-// chunk, the trailer, the whole file's CRC) and the side information before it reports the scene complete;
-// a region's decode reads only the tiles it needs. An untiled file is one section: it is decoded whole once
-// all of it has arrived.
+// each tile's chunks (its attribute chunks and its side information, TSID, spec 10.15), checked and decoded
+// as they arrive, so that a viewer draws the first tiles before the last have arrived. A decode of every
+// tile reads the file in order and checks all of section 8 (every chunk, the trailer, the whole file's CRC)
+// and the side information before it reports the scene complete; a region's decode reads only the tiles it
+// needs. An untiled file is one section: it is decoded whole once all of it has arrived.
 
 import { PREAMBLE_BYTES, checkChunk, checkFileSize, checkHeaderPadding, checkTrailer, readHeader, readPreamble, regionAt } from './container.mjs';
 import { crc32 } from './crc32.mjs';
@@ -13,7 +13,7 @@ import { readFileHeader } from './header.mjs';
 import { decodeGspc } from './decode.mjs';
 import { readSideViews } from './side.mjs';
 import { SourceEnded } from './sources.mjs';
-import { boxMeets, decodeTile, readTileIndex, tileIndexEntry, tileLayout } from './tiles.mjs';
+import { boxMeets, checkUntiledSide, decodeTile, readTileIndex, tileIndexEntry, tileLayout, tileSideViews } from './tiles.mjs';
 import { toPlain } from './msgpack.mjs';
 
 /** The box of positions `means` (n x 3): low x, y, z, high x, y, z. */
@@ -74,14 +74,17 @@ class GspcReader {
 
   /**
    * The tiles that meet `region` (6 numbers: low x, y, z, high x, y, z; every tile when null), decoded one
-   * at a time in file order: each {number, box, count, shDegree, means, quats, logScales, opacities, shDc,
-   * shRest} (decodeAttributes' arrays). Without a region the whole file is checked before the last yield
-   * returns (an untiled file is one tile, its box that of its positions).
+   * at a time in file order: each {number, box, count, shDegree, views, means, quats, logScales, opacities,
+   * shDc, shRest} (decodeAttributes' arrays; `views` the side views of the tile's Gaussians as decodeGspc
+   * gives `views`: a tile's TSID views, spec 10.15, [] without one; an untiled file's, its scene's). Without
+   * a region the whole file is checked before the last yield returns (an untiled file is one tile, its box
+   * that of its positions).
    */
   async *decode({ region = null } = {}) {
     if (!this.index) {
       const scene = decodeGspc(await this.read(0, this.size));
-      yield { number: 0, box: boundsOf(scene.means), count: scene.count, shDegree: scene.shDegree, ...arrays(scene) };
+      const { count, shDegree, views } = scene;
+      yield { number: 0, box: boundsOf(scene.means), count, shDegree, views, ...arrays(scene) };
       return;
     }
     const chosen = this.index.tiles.filter((t) => region === null || boxMeets(t.box, region));
@@ -96,12 +99,19 @@ class GspcReader {
     }
   }
 
+  /**
+   * Tile `tile` from `bytes` (the file's bytes from offset `base` on, its span among them): each of its
+   * chunks' CRC and padding, its side information (TSID: the SIDE layout and its pixel share), then its
+   * attributes.
+   */
   decodeOne(tile, bytes, base) {
     const span = this.tileLayout.tiles[tile.number];
     const payloads = {};
     for (const [type, entry] of Object.entries(span.entries)) payloads[type] = checkChunk(bytes, entry, base);
+    const side = span.side ? checkChunk(bytes, span.side, base) : null;
+    const views = tileSideViews(tile.number, side, span, this.tileLayout);
     const scene = decodeTile(tile, payloads, span.bytes, this.tileLayout.bytes);
-    return { number: tile.number, box: tile.box, count: scene.count, shDegree: scene.shDegree, ...arrays(scene) };
+    return { number: tile.number, box: tile.box, count: scene.count, shDegree: scene.shDegree, views, ...arrays(scene) };
   }
 
   /** Every tile, reading the file from its start to its end and checking every part of it on the way. */
@@ -145,8 +155,8 @@ function arrays(scene) {
 /**
  * Open a .gspc file from `source` ({size, read(offset, length)}, sources.mjs): checks 1 to 8 of spec
  * section 8 and the header padding, the header's records, and for a tiled file its tile index and every
- * rule of 10.14 that the chunk table decides (chunk order, counts and each tile's bounds), reading only
- * the file's head and its TIDX chunk. Throws FormatError or CodecError as decodeGspc does.
+ * rule of 10.14 and 10.15 that the chunk table decides (chunk order, TSID placement, counts and each tile's
+ * bounds), reading only the file's head and its TIDX chunk; an untiled file with a TSID chunk is refused. Throws FormatError or CodecError as decodeGspc does.
  */
 export async function openGspc(source) {
   const size = source.size;
@@ -173,6 +183,8 @@ export async function openGspc(source) {
   if (indexEntry) {
     reader.index = readTileIndex(checkChunk(head, indexEntry));
     reader.tileLayout = tileLayout(layout.entries, reader.index);
+  } else {
+    checkUntiledSide(layout.entries);
   }
   return reader;
 }

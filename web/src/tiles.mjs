@@ -1,5 +1,6 @@
 // Spatial tiles (format 1.5, spec 10.14): the TIDX chunk's tile index, the rules that tie each tile to its
-// chunks in the chunk table, and the decoding of one tile with its share of the file's decode bounds.
+// chunks in the chunk table (its attribute chunks and, from format 1.6, its optional TSID chunk of side
+// information, 10.15), and the decoding of one tile with its share of the file's decode bounds.
 //
 // Everything here works from the chunk table's entries (type, index, length) and the tile index alone, so a
 // reader that has only the header and the TIDX chunk can check a file's layout and bound every tile's work
@@ -11,8 +12,11 @@ import { MAX_TILES, MIN_TILES, maxCodedGaussians, tileModelBytes, tileTableEntri
 import { TileBudget } from './models.mjs';
 import { MsgReader, MsgpackError, kindOf } from './msgpack.mjs';
 import { readAttributeSection } from './section.mjs';
+import { readTileSideViews } from './side.mjs';
 
 export const TIDX = 'TIDX';
+/** A tile's side information (format 1.6, spec 10.15): index the tile's number, payload in the SIDE layout. */
+export const TSID = 'TSID';
 const BOX_VALUES = 6;
 const nameOf = (e) => `${e.type}#${e.index}`;
 
@@ -82,16 +86,26 @@ export function tileIndexEntry(entries) {
 }
 
 /**
- * Each tile's attribute chunks from the chunk table (spec 10.14), checked before any tile is read: the
- * TIDX entry before every attribute chunk, every attribute chunk naming a tile and coming after the previous
- * tiles' chunks, each tile's chunks those its section needs (10.10), and the Gaussians within what the
- * bytes may declare, per tile and in all. `entries` are the table's entries (type, index, length, offset)
- * in file order. Returns {tiles: [{entries: {type: entry}, bytes, start, end}], bytes}: `start .. end` the
- * file bytes of a tile's chunks with their padding, `bytes` its attribute payload bytes (P_k), and in all
- * (P).
+ * A TSID chunk belongs to a tile (spec 10.15): `entries` (chunk table entries or chunks, with type and
+ * index) of a file without a tile index may hold none.
+ */
+export function checkUntiledSide(entries) {
+  const found = entries.find((e) => e.type === TSID);
+  if (found) throw new CodecError(`chunk ${nameOf(found)} (a tile's side information, spec 10.15) in a file without a tile index`);
+}
+
+/**
+ * Each tile's chunks from the chunk table (spec 10.14, 10.15), checked before any tile is read: the TIDX
+ * entry before every attribute and TSID chunk, each of them naming a tile and coming after the previous
+ * tiles' chunks (a TSID is one of its tile's chunks), each tile's attribute chunks those its section needs
+ * (10.10), and the Gaussians within what the bytes may declare, per tile and in all. `entries` are the
+ * table's entries (type, index, length, offset) in file order. Returns {tiles: [{entries: {type: entry},
+ * side (the TSID entry or null), bytes, sideBytes, start, end}], bytes, sideBytes}: `start .. end` the file
+ * bytes of a tile's chunks with their padding, `bytes` its attribute payload bytes (P_k) and in all (P),
+ * `sideBytes` its attribute and TSID payload bytes (Q_k, 10.15) and in all (Q).
  */
 export function tileLayout(entries, index) {
-  const tiles = index.tiles.map(() => ({ entries: {}, bytes: 0, start: Infinity, end: 0 }));
+  const tiles = index.tiles.map(() => ({ entries: {}, side: null, bytes: 0, sideBytes: 0, start: Infinity, end: 0 }));
   let last = -1;
   let seenIndex = false;
   for (const e of entries) {
@@ -99,14 +113,20 @@ export function tileLayout(entries, index) {
       seenIndex = true;
       continue;
     }
-    if (!ATTRIBUTE_TYPES.includes(e.type)) continue;
+    const isSide = e.type === TSID;
+    if (!isSide && !ATTRIBUTE_TYPES.includes(e.type)) continue;
     if (!seenIndex) throw new CodecError(`chunk ${nameOf(e)} comes before the tile index (${TIDX})`);
     if (e.index >= tiles.length) throw new CodecError(`chunk ${nameOf(e)} names no tile (the file has ${tiles.length})`);
     if (e.index < last) throw new CodecError(`chunk ${nameOf(e)} comes after tile ${last}'s chunks`);
     last = e.index;
     const tile = tiles[e.index];
-    tile.entries[e.type] = e;
-    tile.bytes += e.length;
+    // At most one TSID per tile: the container refuses a repeated (type, index) pair (DuplicateChunk).
+    if (isSide) tile.side = e;
+    else {
+      tile.entries[e.type] = e;
+      tile.bytes += e.length;
+    }
+    tile.sideBytes += e.length;
     tile.start = Math.min(tile.start, e.offset);
     tile.end = Math.max(tile.end, Math.ceil((e.offset + e.length) / 8) * 8);
   }
@@ -119,11 +139,22 @@ export function tileLayout(entries, index) {
     }
   });
   const bytes = tiles.reduce((sum, t) => sum + t.bytes, 0);
+  const sideBytes = tiles.reduce((sum, t) => sum + t.sideBytes, 0);
   const most = maxCodedGaussians(bytes);
   if (index.count > most) {
     throw new CodecError(`${index.count} Gaussians in all from ${bytes} attribute payload bytes (at most ${most}, spec 10.14)`);
   }
-  return { tiles, bytes };
+  return { tiles, bytes, sideBytes };
+}
+
+/**
+ * Tile `number`'s side views (spec 10.15) from its TSID payload (null: the tile has none, []), with `span`
+ * its entry of tileLayout's tiles and `layout` tileLayout's result: the SIDE layout's rules and the
+ * tile's pixel share, checked when the tile is read. Returns [{camera, residual}] as readSideViews does.
+ */
+export function tileSideViews(number, payload, span, layout) {
+  if (payload === null) return [];
+  return readTileSideViews(number, payload, span.sideBytes, layout.sideBytes);
 }
 
 /** Whether `box` meets the closed box `region` (each: low x, y, z, high x, y, z). */

@@ -4,7 +4,9 @@
 //
 // In: {type: 'decode', url, mode: 'stream' (one GET, read as it arrives) or 'range' (HTTP range requests),
 // region: null or [6 numbers]}. Out, in this order: 'progress' (bytes received) any time, 'head' once,
-// 'tile' per tile, then 'done' or, at the first problem, 'error' {name, message} and nothing more.
+// 'tile' per tile, then 'done' or, at the first problem, 'error' {name, message} and nothing more. A tile's
+// side views (`views`, spec 10.15) come with their cameras and residual records but not the residual images'
+// bytes, which the page does not use: each is a view into the bytes read, which a message would copy whole.
 
 import { GspcError } from './errors.mjs';
 import { SourceError, fetchRangeSource, fetchStreamSource } from './sources.mjs';
@@ -45,6 +47,13 @@ export function errorMessage(err) {
   return { type: 'error', name: 'InternalError', message: `internal error: ${text}` };
 }
 
+/** A side view without its residual image's bytes (its record kept). */
+function withoutImage({ camera, residual }) {
+  if (!residual) return { camera, residual };
+  const { image, ...record } = residual;
+  return { camera, residual: record };
+}
+
 async function run({ url, mode = 'stream', region = null }) {
   const onProgress = progressPoster();
   const source = mode === 'range' ? await fetchRangeSource(url, { onProgress }) : await fetchStreamSource(url, { onProgress });
@@ -52,7 +61,7 @@ async function run({ url, mode = 'stream', region = null }) {
   postMessage(headMessage(reader));
   for await (const tile of reader.decode({ region })) {
     const buffers = ['means', 'quats', 'logScales', 'opacities', 'shDc', 'shRest'].map((k) => tile[k].buffer);
-    postMessage({ type: 'tile', tile }, buffers);
+    postMessage({ type: 'tile', tile: { ...tile, views: tile.views.map(withoutImage) } }, buffers);
   }
   postMessage({ type: 'done', whole: region === null });
 }

@@ -5,23 +5,7 @@ import test from 'node:test';
 import assert from 'node:assert/strict';
 import { CodecError, decodeGspc } from '../src/index.mjs';
 import { declaredSize } from '../src/imageHeaders.mjs';
-import { F64, constantScene, gspcFile } from './writer.mjs';
-
-const f32 = (...values) => new Uint8Array(Float32Array.from(values).buffer);
-const POSE = f32(1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 4);
-
-/** A lossless WebP's first bytes, declaring `width` x `height` (VP8L header; no pixels). */
-function webpHeader(width, height) {
-  const b = new Uint8Array(32);
-  const v = new DataView(b.buffer);
-  b.set(new TextEncoder().encode('RIFF'), 0);
-  v.setUint32(4, 24, true);
-  b.set(new TextEncoder().encode('WEBPVP8L'), 8);
-  v.setUint32(16, 12, true);
-  b[20] = 0x2f;
-  v.setUint32(21, (width - 1) | ((height - 1) << 14), true);
-  return b;
-}
+import { F64, POSE, constantScene, f32, gspcFile, sidePayload, webpHeader } from './writer.mjs';
 
 const camera = (overrides = {}) => ({ width: 24, height: 20, intrinsics: f32(30, 30, 12, 10), pose: POSE, ...overrides });
 const residual = (overrides = {}) => ({ codec: 'webp', shape: [20, 24], bits: 8, gain: new F64(50), offset: 128, ...overrides });
@@ -77,31 +61,6 @@ test('side: 1.0-layout records are refused by the rules of 10.7 and 10.8', () =>
   refused(file({ views: [{ camera: camera() }] }, [resi(0, webpHeader(24, 20))]), 'RESI chunk or a residual record');
   refused(file({ views: [{ camera: camera() }] }, [resi(3, webpHeader(24, 20))]), 'view 3');
 });
-
-/** A SIDE payload of `views` ({pose?, image?, gain?}) with one shared camera of `width` x `height`. */
-function sidePayload(views, { width = 24, height = 20, scale = 1, codec = 1, fx = 30 } = {}) {
-  const parts = [];
-  const head = new Uint8Array(8);
-  new DataView(head.buffer).setUint32(0, views.length, true);
-  head.set([0, codec, 8, scale], 4);
-  const cam = new Uint8Array(24);
-  const cv = new DataView(cam.buffer);
-  cv.setUint32(0, width, true);
-  cv.setUint32(4, height, true);
-  cam.set(f32(fx, 30, 12, 10), 8);
-  parts.push(head, cam);
-  const images = [];
-  for (const v of views) {
-    const entry = new Uint8Array(52 + (v.image ? 4 : 0));
-    entry.set(POSE, 0);
-    const ev = new DataView(entry.buffer);
-    ev.setUint32(48, v.image ? v.image.length : 0, true);
-    if (v.image) ev.setFloat32(52, v.gain ?? 50, true);
-    parts.push(entry);
-    if (v.image) images.push(v.image);
-  }
-  return Uint8Array.from([...parts, ...images].flatMap((p) => [...p]));
-}
 
 const side = (payload, index = 0) => ({ type: 'SIDE', index, payload });
 

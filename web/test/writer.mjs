@@ -186,3 +186,57 @@ export function tiledScene(counts, tile = (k, map) => map) {
   tiles.forEach(({ chunks: own }, k) => chunks.push(...own.map((c) => ({ ...c, index: k }))));
   return { meta, chunks };
 }
+
+// --- side information (spec 10.9, 10.15) -----------------------------------------------------------------
+
+/** Numbers as binary32 little-endian bytes. */
+export const f32 = (...values) => new Uint8Array(Float32Array.from(values).buffer);
+/** A world-to-camera pose (3 x 4, row-major): the identity, 4 units back. */
+export const POSE = f32(1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 4);
+
+/** A lossless WebP's first bytes, declaring `width` x `height` (VP8L header; no pixels). */
+export function webpHeader(width, height) {
+  const b = new Uint8Array(32);
+  const v = new DataView(b.buffer);
+  b.set(new TextEncoder().encode('RIFF'), 0);
+  v.setUint32(4, 24, true);
+  b.set(new TextEncoder().encode('WEBPVP8L'), 8);
+  v.setUint32(16, 12, true);
+  b[20] = 0x2f;
+  v.setUint32(21, (width - 1) | ((height - 1) << 14), true);
+  return b;
+}
+
+/**
+ * A payload in the SIDE layout (spec 10.9; a SIDE or TSID chunk's) of `views` ({image?, gain?, width?,
+ * height?}): with one shared camera of `width` x `height`, or with `perView` each view's own camera (its
+ * `width` and `height`, the shared values where absent).
+ */
+export function sidePayload(views, { width = 24, height = 20, scale = 1, codec = 1, fx = 30, perView = false } = {}) {
+  const parts = [];
+  const head = new Uint8Array(8);
+  new DataView(head.buffer).setUint32(0, views.length, true);
+  head.set([perView ? 1 : 0, codec, 8, scale], 4);
+  const cameraBytes = (w, h) => {
+    const cam = new Uint8Array(24);
+    const cv = new DataView(cam.buffer);
+    cv.setUint32(0, w, true);
+    cv.setUint32(4, h, true);
+    cam.set(f32(fx, 30, 12, 10), 8);
+    return cam;
+  };
+  parts.push(head);
+  if (!perView) parts.push(cameraBytes(width, height));
+  const images = [];
+  for (const v of views) {
+    if (perView) parts.push(cameraBytes(v.width ?? width, v.height ?? height));
+    const entry = new Uint8Array(52 + (v.image ? 4 : 0));
+    entry.set(POSE, 0);
+    const ev = new DataView(entry.buffer);
+    ev.setUint32(48, v.image ? v.image.length : 0, true);
+    if (v.image) ev.setFloat32(52, v.gain ?? 50, true);
+    parts.push(entry);
+    if (v.image) images.push(v.image);
+  }
+  return Uint8Array.from([...parts, ...images].flatMap((p) => [...p]));
+}

@@ -1,0 +1,119 @@
+"""One tile of a tiled file decoded and, where it carries side information of its own (a TSID chunk, spec
+10.15), restored and refined: the decoder's reconstruction (gspc/reconstruct.py) on the tile's Gaussians
+alone, at the tile's views, bounded by the tile's share of the file's budget. A task of plain data, so tiles
+reconstruct side by side in worker processes (gspc/workers.py), each the same wherever it runs.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from gspc.codec.tiles import TileDecodeJob, decode_tile_section
+from gspc.device import check_device
+from gspc.format.side_chunk import SideViews
+from gspc.jit import compile_kernels, uncompiled_kernels
+from gspc.limits import RenderAllowance, default_refine_iterations
+from gspc.options import DecodeOptions
+from gspc.reconstruct import (
+    check_decode_work,
+    decode_work,
+    refine_in_cells,
+    refine_iterations,
+    render_images,
+    restored_targets,
+)
+from gspc.restore.restorer import load_restorer
+from gspc.scene import GaussianScene
+
+
+@dataclass(frozen=True)
+class TileSideSettings:
+    """What every tile's reconstruction reads from the file's header (``meta["side_info"]``) and the
+    decode's options."""
+
+    background: tuple[float, float, float]
+    restorer: str  # the file's, or the one the options name
+    file_iterations: int  # side_info.refine_iterations
+    opts: DecodeOptions
+
+
+@dataclass(frozen=True)
+class TileReconstructJob:
+    attributes: TileDecodeJob
+    side: SideViews | None  # the tile's TSID, read and checked (None: the tile has none)
+    allowance: RenderAllowance  # the tile's share of the file's budget (spec 10.15)
+    settings: TileSideSettings | None  # None: the attributes only (no tile of the file carries side info)
+
+
+@dataclass(frozen=True)
+class TileOutcome:
+    """What a tile's reconstruction did, for the decode's report."""
+
+    iterations: int  # the refinement run (0: none)
+    why_not: str | None  # why the tile was not refined, where it was not
+    views: int  # its side information's views
+
+
+@dataclass(frozen=True)
+class TileReconstruction:
+    scene: GaussianScene
+    outcome: TileOutcome
+
+
+def reconstruct_tile(job: TileReconstructJob) -> TileReconstruction:
+    """The tile's Gaussians: decoded, then restored and refined against its own views where it carries side
+    information and the options allow (spec 10.15; the decoder procedure of 10.8 on the tile alone)."""
+    decoded = decode_tile_section(job.attributes)
+    scene, s = decoded.scene, job.settings
+    views = len(job.side.views) if job.side is not None else 0
+    why_not = _no_refinement(job.side, s)
+    if why_not is not None or s is None or job.side is None:
+        return TileReconstruction(scene, TileOutcome(0, why_not, views))
+    opts = s.opts
+    iterations = opts.iterations
+    if iterations is None:
+        iterations = default_refine_iterations(s.file_iterations, scene.num_gaussians)
+    if iterations == 0:
+        return TileReconstruction(scene, TileOutcome(0, "0 iterations", views))
+    device = check_device(opts.device)
+    if device.type == "cpu" and uncompiled_kernels():
+        compile_kernels(None)
+    cams = [v.camera.to_camera() for v in job.side.views]
+    work = decode_work(scene, cams, job.side.images, job.allowance)
+    check_decode_work(work, job.allowance)
+    if opts.iterations is None:
+        iterations = refine_iterations(s.file_iterations, work, job.allowance)
+        if iterations == 0:
+            why = "its share of the work budget pays for none (spec 10.15)"
+            return TileReconstruction(scene, TileOutcome(0, why, views))
+    restorer = load_restorer(s.restorer, device=device)
+    scene = scene.to(device)
+    degraded = render_images(scene, cams, s.background)
+    targets = restored_targets(degraded, job.side.views, job.side.images, restorer)
+    del degraded
+    refined = refine_in_cells(
+        scene,
+        job.attributes.section if opts.in_cells else None,
+        cams,
+        targets,
+        iterations,
+        s.background,
+        seed=opts.seed,
+        lr_scale=opts.lr_scale,
+        in_place=True,
+        precision=decoded.precision,
+    )
+    return TileReconstruction(refined.scene.to("cpu"), TileOutcome(refined.iterations, None, views))
+
+
+def _no_refinement(side: SideViews | None, s: TileSideSettings | None) -> str | None:
+    """Why a tile keeps its decoded Gaussians (None: it is refined), as gspc/pipeline.py says it of a file."""
+    if s is None or side is None or not side.views:
+        return "no side information of its own"
+    if not s.opts.refine:
+        return "--no-refine"
+    if not side.images:
+        return "no view carries a residual"
+    if not s.opts.restore:
+        return "--no-restore: the targets would be the renders themselves"
+    return None
