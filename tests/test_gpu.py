@@ -26,6 +26,7 @@ from scenes import coarse_residual_scene, random_scene
 
 import gspc.device as device_module
 import gspc.encoder.decisions as decisions
+import gspc.encoder.side_decision as side_decision
 import gspc.pipeline as pipeline
 import gspc.render.api as api
 import gspc.render.gsplat_backend as gb
@@ -122,7 +123,7 @@ def test_the_device_reaches_the_restorer_and_the_check(monkeypatch):
         raise Checked
 
     monkeypatch.setattr(pipeline, "load_restorer", spy_restorer)
-    monkeypatch.setattr(decisions, "check_side_info", spy_check)
+    monkeypatch.setattr(side_decision, "check_side_info", spy_check)
     with pytest.raises(Checked):
         encode_scene(coarse_residual_scene(), opts=small_encode(check_iterations=2, restorer="none"))
     assert check_devices == [marker] and restorer_devices == [marker]

@@ -224,11 +224,11 @@ def code_tile(job: TileJob) -> TileCoding:
 
     side = None
     if job.side is not None and len(cams) > 1:  # the tile's own side information, checked (spec 10.15)
-        here = CodedAttributes(
-            coded.encoded, coded.params, coded.visible, coded.significance, grid=job.shared
-        )
-        side = _tile_side(scene, cams, here, job)
-        coded = replace(coded, encoded=side.attributes)
+        side = _tile_side(scene, cams, coded, job)  # coded on the scene's grid, which its codings keep
+        # Coded to a fidelity, a tile sent none keeps the coding that reached it (tuned below): the same bytes
+        # coded for no refinement can fall far under the target at the coarse rates tiles take.
+        if side.side is not None or job.fidelity is None:
+            coded = replace(coded, encoded=side.attributes)
 
     def tune(enc: EncodedAttributes) -> tuple[EncodedAttributes, TuningReport | None]:
         if job.tuning is None:
