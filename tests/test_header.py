@@ -67,4 +67,5 @@ def test_defaults_of_optional_fields():
 
 def test_one_registry_of_chunk_types():
     assert set(ATTRIBUTE_TYPES) <= KNOWN_TYPES == set(REGISTRY)
-    assert KNOWN_TYPES == {"POSN", "PREC", "OPAC", "SCAL", "ROTN", "SHDC", "SHRS", "RESI", "SIDE", "TIDX"}
+    registered = {"POSN", "PREC", "OPAC", "SCAL", "ROTN", "SHDC", "SHRS", "RESI", "SIDE", "TIDX", "TSID"}
+    assert KNOWN_TYPES == registered

@@ -31,8 +31,10 @@ for (const v of MANIFEST.vectors.filter((x) => x.codec)) {
       assert.equal(sha256(bytesOf(array)), want.sha256, `${key} SHA-256`);
     }
     assert.equal(scene.count, v.codec.attributes.means.shape[0]);
-    assert.equal(scene.views.length, v.codec.views.length);
-    scene.views.forEach((view, k) => {
+    // The manifest lists the whole scene's views, then each tile's own (spec 10.15) in tile order.
+    const views = [...scene.views, ...(scene.tileViews ?? []).flat()];
+    assert.equal(views.length, v.codec.views.length);
+    views.forEach((view, k) => {
       const want = v.codec.views[k];
       assert.equal(view.camera.width, want.width);
       assert.equal(view.camera.height, want.height);
