@@ -15,6 +15,7 @@ from gspc.pipeline import encode
 from gspc.views import synthesize_views
 
 FLAGS = ["--tile-size", QUICK["tile_size"], "--views", QUICK["synth_views"], "--max-side", QUICK["max_side"]]
+FLAGS += ["--no-side-info"]  # QUICK's
 FLAGS += ["--no-removal-search", "--tune-iterations", 0]
 
 

@@ -7,7 +7,7 @@
 2. the attributes at the rate or in ``--target-size`` bytes, with the removal and position grid chosen per
    scene (prepare.py, rate.py, removal.py);
 3. the side information: residuals of sampled views, and the check that the decoder's refinement against
-   them beats the same bytes spent on attributes (side.py, policy.py);
+   them beats the same bytes spent on attributes (side_decision.py, side.py, policy.py);
 4. a file without side information, which the decoder takes as it is: its attributes coded for that, then
    its coded values tuned (tuning.py);
 5. with ``--target-size``, the whole file within it: side information counts inside the target.
