@@ -326,3 +326,12 @@ def test_each_tile_aims_at_its_share_of_the_views_error():
     shares = error_shares(halves, means, log_scales, cams)
     assert np.allclose(shares, 10 * np.log10(2))  # every camera sees both halves
     assert np.allclose(error_shares([np.arange(3000)], means, log_scales, cams), 0.0)
+
+
+def test_each_tiles_check_is_summarised():
+    """A tile's check weighs its side information against the same bytes on its attributes; the summary
+    gives what the checks measured, and why none was sent."""
+    _, rep = encode_scene(scene(), opts=EncodeOptions(**{**SIDED, "check_iterations": 20, "lam": 20.0}))
+    assert rep.info["tile checks"].startswith("4 tiles: refined with their side information"), rep.info
+    side = rep.info["side info"]
+    assert side.startswith("each tile's own: sent for") or side.startswith("none sent: "), side

@@ -180,6 +180,15 @@ class EncoderDecisions:
                 f"{len(tuned)} of {len(tiles)} tiles kept their tuned values ({gain:+.2f} dB mean)"
             )
         out["side info"] = self.side_info
+        checks = [t.side.check for t in tiles if t.side is not None and t.side.check is not None]
+        if checks:  # what each tile's check measured at its views carrying none (policy.py)
+            gains = [c.refined_db - c.coded_db for c in checks]
+            rivals = [c.rival_db - c.coded_db for c in checks]
+            out["tile checks"] = (
+                f"{len(checks)} tiles: refined with their side information {min(gains):+.2f} to "
+                f"{max(gains):+.2f} dB over their coding, the same bytes on attributes {min(rivals):+.2f} to "
+                f"{max(rivals):+.2f} dB"
+            )
         sent = sum(_sends(t) for t in tiles)
         out["decoder refines"] = (
             f"each of {sent} tiles against its own views, up to {self.refine_iterations} iterations by "
