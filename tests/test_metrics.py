@@ -87,3 +87,19 @@ def test_mean_psnr_quantises_each_pair_to_8_bits():
     a, b = _pair(dtype=torch.float32)
     want = (float(psnr(quantize8(a), quantize8(b))) + float(psnr(quantize8(b), quantize8(b + 0.01)))) / 2
     assert mean_psnr([a, b], [b, b + 0.01]) == pytest.approx(want)
+
+
+def test_a_capped_mean_counts_identical_views_as_the_closest_a_difference_can_be():
+    """The check's score (gspc/encoder/policy.py): a tile's check view may show none of it."""
+    import math
+
+    import torch
+
+    from gspc.metrics import mean_psnr
+
+    a = torch.zeros(3, 4, 5)
+    b = a.clone()
+    b[0, 0, 0] = 1 / 255
+    assert mean_psnr([a], [a]) == math.inf
+    assert mean_psnr([a], [a], capped=True) == mean_psnr([a], [b]) == mean_psnr([a], [b], capped=True)
+    assert math.isfinite(mean_psnr([a, a], [a, b], capped=True))

@@ -178,8 +178,11 @@ def check_side_info(inp: CheckInputs, progress: Progress | None = None) -> Check
     scene = inp.scene.to(inp.device)
     reference = render_images(scene, inp.check_cameras, inp.background, progress, "check render original")
 
+    # Capped per view: a tile's check views may show none of its error (identical to 8 bits), and an
+    # infinite score would make every refinement, gain or loss, look alike (spec 10.15's tiles).
     def score(s: GaussianScene) -> float:
-        return mean_psnr(render_images(s.to(inp.device), inp.check_cameras, inp.background), reference)
+        images = render_images(s.to(inp.device), inp.check_cameras, inp.background)
+        return mean_psnr(images, reference, capped=True)
 
     t0 = time.perf_counter()
     before = score(enc.decoded)
@@ -357,5 +360,5 @@ def _target_gain(original: list[torch.Tensor], coded: list[torch.Tensor], side: 
             gains.append(0.0)
             continue
         r = torch.from_numpy(residuals.decode_residual(side.images[k], v.residual)).to(img)
-        gains.append(mean_psnr([(img + r).clamp(0, 1)], [ref]) - mean_psnr([img], [ref]))
+        gains.append(mean_psnr([(img + r).clamp(0, 1)], [ref], True) - mean_psnr([img], [ref], True))
     return float(np.mean(gains))
