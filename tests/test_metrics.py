@@ -91,15 +91,9 @@ def test_mean_psnr_quantises_each_pair_to_8_bits():
 
 def test_a_capped_mean_counts_identical_views_as_the_closest_a_difference_can_be():
     """The check's score (gspc/encoder/policy.py): a tile's check view may show none of it."""
-    import math
-
-    import torch
-
-    from gspc.metrics import mean_psnr
-
     a = torch.zeros(3, 4, 5)
     b = a.clone()
     b[0, 0, 0] = 1 / 255
     assert mean_psnr([a], [a]) == math.inf
-    assert mean_psnr([a], [a], capped=True) == mean_psnr([a], [b]) == mean_psnr([a], [b], capped=True)
+    assert mean_psnr([a], [a], capped=True) == pytest.approx(mean_psnr([a], [b]), abs=1e-5)
     assert math.isfinite(mean_psnr([a, a], [a, b], capped=True))
