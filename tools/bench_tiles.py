@@ -14,7 +14,10 @@ one block and tiles of several sizes at three lambdas each (bytes at equal PSNR 
 the default tiles as the low preset codes them (each tile aimed at its fidelity, no ``--lambda``); ``--plan
 side``: the preset with each tile's own side information (spec 10.15) against the attributes alone, both at
 the preset and in the same bytes, every eighth camera held out of the encoder and scored (the others are
-where side information may be sent, so scoring there would flatter it). Results
+where side information may be sent, so scoring there would flatter it); ``--plan closeups``: the same
+question on tools/make_scale_scenes.py's scenes (``--scenes /work/scale``) with the close-up cameras of
+tools/bench_scale_pipeline.py, every fourth held out, at ``--lam``: tiles each with their own side
+information, one block with the scene's, and the tiles' attributes alone in the first's bytes. Results
 are appended as JSON lines to ``--log`` as they come (a long run can be read while it runs) and the report
 is written from all of them at the end.
 """
@@ -159,6 +162,51 @@ def one(
     return row
 
 
+def closeup_rows(folder: Path, work: Path, lam: float, workers: int) -> list[dict]:
+    """``--plan closeups`` on one scale scene: its rows."""
+    import torch
+    from bench_scale_pipeline import closeup_cameras
+
+    from gspc.io import read_scene
+    from gspc.io.cameras_json import save_cameras_json
+    from gspc.metrics import mse
+    from gspc.reconstruct import render_images
+    from gspc.views import split_test_views
+
+    torch.set_num_threads(1)
+    meta = json.loads((folder / "scene.json").read_text())
+    cams = next(c for c in (closeup_cameras(meta, k) for k in range(1, 64)) if len(c) >= 112)
+    train, test = split_test_views(cams, every=4)
+    save_cameras_json([cams[i] for i in train], work / f"{folder.name}-closeups.json")
+    held = [cams[i] for i in test]
+    reference = render_images(read_scene(folder / "point_cloud.ply"), held, (0.0, 0.0, 0.0))
+    common = ["--cameras", str(work / f"{folder.name}-closeups.json"), "--lambda", f"{lam:g}"]
+    variants = [
+        ("tiles, each its own side information", ["--workers", str(workers)]),
+        ("one block, the scene's side information", ["--tile-size", "0"]),
+        ("tiles, attributes alone in the same bytes", ["--workers", str(workers), "--no-side-info"]),
+    ]
+    rows: list[dict] = []
+    for name, args in variants:
+        out = work / f"{folder.name}-{lam:g}-{name.split(',')[0].replace(' ', '_')}.gspc"
+        if name.endswith("same bytes"):
+            args = [*args, "--target-size", str(rows[0]["bytes"])]
+        enc = run_gspc(
+            ["encode", str(folder / "point_cloud.ply"), "-o", str(out), *common, *args], work / "gspc.log"
+        )
+        tiled = ["--workers", str(workers)] if "--tile-size" not in args else []
+        dec = run_gspc(["decode", str(out), "-o", str(out.with_suffix(".ply")), *tiled], work / "gspc.log")
+        images = render_images(read_scene(out.with_suffix(".ply")), held, (0.0, 0.0, 0.0))
+        p = float(
+            np.mean([-10 * math.log10(max(float(mse(a, b)), 1e-12)) for a, b in zip(images, reference)])
+        )
+        rows.append({"scene": folder.name, "gaussians": int(meta.get("gaussians", 0)), "variant": name,
+                     "tile_size": 0 if "--tile-size" in args else 1 << 18, "lambda": lam, "workers": workers,
+                     "bytes": out.stat().st_size, "psnr": p, "encode": enc, "decode": dec})  # fmt: skip
+        print(json.dumps(rows[-1]), flush=True)
+    return rows
+
+
 def plan_rows(
     plan: str, sizes: list[int], workers: tuple[int, ...] = (1, 2)
 ) -> list[tuple[int, str, float | None, int, int]]:
@@ -241,7 +289,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scenes", type=Path, default=Path("/work/district"))
     ap.add_argument("--sizes", default="1000000")
-    ap.add_argument("--plan", choices=("compare", "scale", "preset", "side"), default="compare")
+    ap.add_argument("--plan", choices=("compare", "scale", "preset", "side", "closeups"), default="compare")
+    ap.add_argument("--lam", type=float, default=8.0, help="--plan closeups: the rate")
     ap.add_argument("--workers", default="1,2", help="--plan scale, preset: the worker counts to run")
     ap.add_argument("--work", type=Path, default=Path("/work/bench_tiles"))
     ap.add_argument("--log", type=Path, default=None, help="rows as JSON lines (default: WORK/rows.jsonl)")
@@ -253,6 +302,17 @@ def main() -> None:
     rows = [json.loads(x) for x in log.read_text().splitlines()] if log.exists() else []
     done = {(r["scene"], r["variant"], r["lambda"], r["workers"]) for r in rows}
     sizes, counts = [int(s) for s in args.sizes.split(",")], tuple(int(w) for w in args.workers.split(","))
+    if args.plan == "closeups":  # tools/make_scale_scenes.py's scenes, scale_N
+        for n in sizes:
+            for row in closeup_rows(args.scenes / f"scale_{n}", args.work, args.lam, counts[-1]):
+                with open(log, "a") as f:
+                    f.write(json.dumps(row) + "\n")
+                rows.append(row)
+        text = report(rows, machine)
+        print(text)
+        if args.out:
+            args.out.write_text(text)
+        return
     for n, variant, lam, tile, workers in plan_rows(args.plan, sizes, counts):
         scene_dir = args.scenes / f"district_{n}"
         if (scene_dir.name, variant, "the preset's" if lam is None else lam, workers) in done:
