@@ -146,3 +146,105 @@ def test_a_rival_searched_past_the_deadline_starts_no_second_coding(monkeypatch)
     codings.clear()
     policy._rival_coding(inp, target)
     assert len(codings) > late  # without a deadline the same search goes on
+
+
+class _Scored:
+    """A stand-in for a scene or its render: the check's score reads ``db`` (patched below)."""
+
+    def __init__(self, db: float) -> None:
+        self.db = db
+
+    def to(self, device):
+        return self
+
+
+class _Coding:
+    def __init__(self, db: float, num_bytes: int = 1000) -> None:
+        self.decoded, self.num_bytes = _Scored(db), num_bytes
+        self.section = self.precision = None
+        self.lam = 4.0
+
+
+class _Run:
+    def __init__(self, refined_db: float, total: int) -> None:
+        self.refined, self.done, self.total = refined_db, 0, total
+
+    def run(self, count, deadline, report):
+        self.done = self.total if count is None else min(self.total, self.done + count)
+
+    def scene(self):
+        return _Scored(self.refined)
+
+
+def _scored_check(monkeypatch, refined_db: float, tuned_db: float | None):
+    """check_side_info on stand-ins: coded 40 dB, the untuned rival 40.5 dB, the refinement ``refined_db``,
+    the rival tuned ``tuned_db`` (None: no tuning asked); what the check decided and what tune was asked."""
+    from gspc.encoder import policy
+    from gspc.encoder.policy import CheckInputs
+    from gspc.encoder.side import SideCandidate
+
+    monkeypatch.setattr(policy, "render_images", lambda s, *a, **k: s)
+    monkeypatch.setattr(policy, "mean_psnr", lambda images, reference, capped=False: images.db)
+    monkeypatch.setattr(policy, "_rivals", lambda inp, score, progress, before: [40.5])
+    monkeypatch.setattr(policy, "restored_targets", lambda *a: None)
+    monkeypatch.setattr(policy, "decoder_refinement", lambda *a, **k: _Run(refined_db, 10))
+    monkeypatch.setattr(policy, "_rival_coding", lambda inp, target, *a, **k: _Coding(40.5, target))
+    asked = []
+
+    def tune(enc, limit):
+        asked.append((enc.num_bytes, limit))
+        return _Coding(tuned_db, enc.num_bytes), "its report"
+
+    inp = CheckInputs(
+        scene=_Scored(99.0),
+        attributes=_Coding(40.0),
+        params=None,
+        visible=None,
+        significance=None,
+        view_cameras=[],
+        check_cameras=[None] * 8,
+        original=[],
+        coded=[],
+        candidates=[SideCandidate(2, [], {}, bytes(200))],
+        restorer=None,
+        iterations=10,
+        background=(0.0, 0.0, 0.0),
+        margin_db=0.15,
+        tune=None if tuned_db is None else tune,
+    )
+    return policy.check_side_info(inp), asked
+
+
+def test_side_information_must_beat_the_rival_the_encoder_would_tune(monkeypatch):
+    # The refinement (41.0 dB) beats the untuned rival (40.5) by the margin, not the rival tuned (41.2): the
+    # tuned rival is the file, tuned once, in the side information's bytes and the file's attributes'.
+    from gspc.encoder.policy import Outcome
+
+    result, asked = _scored_check(monkeypatch, 41.0, 41.2)
+    d = result.decision
+    assert d.outcome is Outcome.SPENT_ON_ATTRIBUTES and result.side is None
+    assert d.rival_db == 40.5 and d.tuned_rival_db == 41.2
+    assert result.attributes.decoded.db == 41.2 and result.tuning == "its report"
+    target = 1000 + 200 + CheckPolicy().chunk_entry_bytes  # the attributes, the payload, its chunk
+    assert asked == [(target, target)]
+    assert "41.20 dB tuned" in d.summary()["check"]
+
+
+def test_side_information_that_beats_the_tuned_rival_is_sent(monkeypatch):
+    from gspc.encoder.policy import Outcome
+
+    result, asked = _scored_check(monkeypatch, 41.0, 40.7)
+    assert result.decision.outcome is Outcome.SENT and result.side is not None
+    assert result.decision.tuned_rival_db == 40.7 and len(asked) == 1
+    assert result.tuning is None
+
+
+def test_without_tuning_the_check_compares_the_untuned_rival_alone(monkeypatch):
+    from gspc.encoder.policy import Outcome
+
+    result, asked = _scored_check(monkeypatch, 41.0, None)
+    assert result.decision.outcome is Outcome.SENT and result.decision.tuned_rival_db is None
+    # A refinement that loses to the untuned rival never asks for the tuned one.
+    result, asked = _scored_check(monkeypatch, 40.55, 45.0)
+    assert result.decision.outcome is Outcome.SPENT_ON_ATTRIBUTES and asked == []
+    assert result.decision.tuned_rival_db is None

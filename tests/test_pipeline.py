@@ -125,7 +125,7 @@ def test_encoder_check_keeps_side_info_only_if_refinement_pays(tmp_path):
     # Two resolutions weighed (the preset's 1/2 and 1/4), one refined.
     assert [cand.scale for cand in d.candidates] == [2, 4] and d.scale in (2, 4)
     assert all(cand.payload_bytes > 0 and cand.render_gain_db is not None for cand in d.candidates)
-    if d.refined_db >= max(d.coded_db, d.rival_db) + EncodeOptions().check_margin_db:
+    if d.refined_db >= max(d.coded_db, d.best_rival_db) + EncodeOptions().check_margin_db:
         assert d.outcome is Outcome.SENT and len(images) >= 1
         assert all(v.residual.scale == d.scale for v in views if v.residual is not None)
     else:
@@ -143,7 +143,7 @@ def test_long_check_scores_a_trial_first(tmp_path):
     d = rep.side_info
     assert d is not None and container.read(out).header["side_info"]["refine_iterations"] == 400
     assert d.trial_iterations == CheckPolicy().trial_length(400) < 400
-    bar = max(d.coded_db, d.rival_db) + opts.check_margin_db
+    bar = max(d.coded_db, d.best_rival_db) + opts.check_margin_db
     if d.predicted:  # sent on the trial's score, which settled it
         assert d.outcome is Outcome.SENT
         assert trial_settles(d.refined_db - d.coded_db, bar - d.coded_db, CheckPolicy().gain_ratio)

@@ -237,7 +237,7 @@ def bench_check(s: Setup, lines: list[str]) -> None:
         check_s = rep.seconds.get("check", float("nan"))
         lines.append(
             f"| {label} | {d.outcome.value} | {ran} of {d.iterations} | {d.coded_db:.2f} "
-            f"| {d.refined_db:.2f} | {d.rival_db:.2f} | {check_s:.0f} | {wall:.0f} | {len(data):,} |"
+            f"| {d.refined_db:.2f} | {d.best_rival_db:.2f} | {check_s:.0f} | {wall:.0f} | {len(data):,} |"
         )
         print(lines[-1], flush=True)
     lines.append("")

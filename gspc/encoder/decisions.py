@@ -183,7 +183,7 @@ class EncoderDecisions:
         checks = [t.side.check for t in tiles if t.side is not None and t.side.check is not None]
         if checks:  # what each tile's check measured at its views carrying none (policy.py)
             gains = [c.refined_db - c.coded_db for c in checks]
-            rivals = [c.rival_db - c.coded_db for c in checks]
+            rivals = [c.best_rival_db - c.coded_db for c in checks]
             out["tile checks"] = (
                 f"{len(checks)} tiles: refined with their side information {min(gains):+.2f} to "
                 f"{max(gains):+.2f} dB over their coding, the same bytes on attributes {min(rivals):+.2f} to "
@@ -398,14 +398,16 @@ def _decide_at(
             )
     if attribute_budget is not None and fidelity is None:
         _refuse_missed_target(coded.encoded, attribute_budget, opts.target_size)
-    side = side_information(
-        scene, cams, coded, restorer, opts, device, stages, attribute_budget, fidelity is not None
-    )
-    attributes = side.attributes
-    tuning = None
 
-    def tune(enc: EncodedAttributes) -> tuple[EncodedAttributes, TuningReport | None]:
-        return _tuned(scene, enc, coded, cams, opts, stages, attribute_budget)
+    def tune(
+        enc: EncodedAttributes, limit: int | None = attribute_budget
+    ) -> tuple[EncodedAttributes, TuningReport | None]:
+        return _tuned(scene, enc, coded, cams, opts, stages, limit)
+
+    side = side_information(
+        scene, cams, coded, restorer, opts, device, stages, attribute_budget, fidelity is not None, tune
+    )
+    attributes, tuning = side.attributes, side.tuning
 
     def search(target_db: float, lam: float) -> EncodedAttributes:
         params = coded.params.unrefined().with_lambda(lam)
@@ -416,7 +418,7 @@ def _decide_at(
         tolerance = fp.tolerance_db
         attributes, tuning, reached_db = tuned_to_fidelity(attributes, fidelity, tolerance, tune, search)
         fidelity = replace(fidelity, encoded=attributes, psnr_db=reached_db)
-    elif side.side is None:  # a file the decoder does not refine: its coded values are tuned
+    elif side.side is None and tuning is None:  # a file the decoder does not refine: its values tuned
         attributes, tuning = tune(attributes)
     elif fidelity is not None:  # what the file itself renders at the fidelity's views
         fidelity = replace(fidelity, encoded=attributes, psnr_db=fidelity.score(attributes))

@@ -12,10 +12,18 @@ from dataclasses import dataclass
 
 from gspc.cameras import Camera
 from gspc.encoder.coding import EncodedAttributes
-from gspc.encoder.policy import CheckInputs, Outcome, SideInfoDecision, check_cameras, check_side_info
+from gspc.encoder.policy import (
+    CheckInputs,
+    Outcome,
+    SideInfoDecision,
+    Tune,
+    check_cameras,
+    check_side_info,
+)
 from gspc.encoder.prepare import CodedAttributes, iteration_counts, sample_side_views, side_candidates
 from gspc.encoder.rate import coded_with, search_lambda
 from gspc.encoder.side import SideCandidate, view_residuals
+from gspc.encoder.tuning import TuningReport
 from gspc.options import EncodeOptions
 from gspc.presets import quality_preset
 from gspc.reconstruct import render_images, work_bound
@@ -36,6 +44,7 @@ class SideChoice:
     refine_iterations: int
     reason: str
     check: SideInfoDecision | None = None
+    tuning: TuningReport | None = None  # where the check's tuned rival is the attributes: its tuning
 
 
 def side_information(
@@ -48,11 +57,13 @@ def side_information(
     stages: Stages,
     attribute_budget: int | None,
     at_fidelity: bool = False,
+    tune: Tune | None = None,
 ) -> SideChoice:
     """Render the sampled views, code their residuals and, where the check runs, keep the side information
     only if it pays for its bytes (gspc/encoder/policy.py). With a byte budget, the attributes are coded
     again in what the side information leaves (its residuals made again for that coding) first. Coded to a
-    fidelity (``at_fidelity``), side information that does not pay costs no bytes at all."""
+    fidelity (``at_fidelity``), side information that does not pay costs no bytes at all. ``tune``: the
+    encoder's tuning of a file without side information, which the check's rival gets too (None: untuned)."""
     enc = coded.encoded
     runs = iteration_counts(opts, enc.decoded.num_gaussians)
     view_indices, view_cams = sample_side_views(cams, opts)
@@ -115,6 +126,7 @@ def side_information(
         device=device,
         deadline=stages.deadline,
         grid=coded.grid,
+        tune=tune,
     )
     with stages.stage("check"):
         result = check_side_info(inputs, stages.progress)
@@ -124,12 +136,12 @@ def side_information(
         return SideChoice(
             result.attributes, result.side, d.iterations, _sent(result.side, "the check found it pays"), d
         )
-    attributes = result.attributes
+    attributes, tuning = result.attributes, result.tuning
     if d.outcome is Outcome.DROPPED or (at_fidelity and d.outcome is Outcome.SPENT_ON_ATTRIBUTES):
         # Coded to a fidelity, the attributes already reach it: side information that does not pay
         # leaves its bytes unspent rather than on attributes past the target.
-        attributes = unrefined_coding(scene, coded, stages)
-    return SideChoice(attributes, None, runs.refine, _not_sent(d, at_fidelity), d)
+        attributes, tuning = unrefined_coding(scene, coded, stages), None
+    return SideChoice(attributes, None, runs.refine, _not_sent(d, at_fidelity), d, tuning)
 
 
 def _candidates(
@@ -172,8 +184,9 @@ def _not_sent(d: SideInfoDecision, at_fidelity: bool = False) -> str:
             if at_fidelity
             else "spent on attributes instead"
         )
+        rival = f"{d.rival_db:.2f}" if d.tuned_rival_db is None else f"{d.tuned_rival_db:.2f} (tuned)"
         return (
-            f"none: it did not beat the same bytes on attributes by the check's margin, {d.rival_db:.2f} dB "
+            f"none: it did not beat the same bytes on attributes by the check's margin, {rival} dB "
             f"at {d.check_views} views carrying none against {d.refined_db:.2f} dB refined with it; its "
             f"bytes {where}"
         )

@@ -35,8 +35,9 @@ from gspc.device import check_device
 from gspc.encoder.coding import EncodedAttributes, SharedGrid, prune_mask
 from gspc.encoder.fidelity import FidelityParams, code_to_fidelity, tuned_to_fidelity
 from gspc.encoder.params import CodecParams
-from gspc.encoder.policy import SideInfoDecision
+from gspc.encoder.policy import SideInfoDecision, Tune
 from gspc.encoder.prepare import CodedAttributes, code_attributes, measure_scene
+from gspc.encoder.rate import coded_with
 from gspc.encoder.removal import RemovalChoice, RemovalParams
 from gspc.encoder.side_decision import SideChoice, side_information
 from gspc.encoder.tuning import TuningParams, TuningReport, tune_coding
@@ -222,30 +223,36 @@ def code_tile(job: TileJob) -> TileCoding:
             coded, encoded=fidelity.encoded, params=coded.params.with_lambda(fidelity.encoded.lam)
         )
 
-    side = None
-    if job.side is not None and len(cams) > 1:  # the tile's own side information, checked (spec 10.15)
-        side = _tile_side(scene, cams, coded, job)  # coded on the scene's grid, which its codings keep
-        # Coded to a fidelity, a tile sent none keeps the coding that reached it (tuned below): the same bytes
-        # coded for no refinement can fall far under the target at the coarse rates tiles take.
-        if side.side is not None or job.fidelity is None:
-            coded = replace(coded, encoded=side.attributes)
-
-    def tune(enc: EncodedAttributes) -> tuple[EncodedAttributes, TuningReport | None]:
+    def tune(
+        enc: EncodedAttributes, limit: int | None = job.byte_target
+    ) -> tuple[EncodedAttributes, TuningReport | None]:
         if job.tuning is None:
             return enc, None
         tuned = tune_coding(
             scene,
             enc,
-            coded.params,
+            params_for(enc),
             cams,
             job.background,
             coded.visible,
             coded.significance,
             job.tuning,
-            byte_limit=job.byte_target,
+            byte_limit=limit,
             grid=job.shared,
         )
         return tuned.encoded, tuned.report
+
+    def params_for(enc: EncodedAttributes) -> CodecParams:
+        unrefined = coded.params.unrefined()  # the check's rival is coded for no refinement
+        return unrefined if coded_with(enc, unrefined) else coded.params
+
+    side = None
+    if job.side is not None and len(cams) > 1:  # the tile's own side information, checked (spec 10.15)
+        side = _tile_side(scene, cams, coded, job, tune)  # coded on the scene's grid, which its codings keep
+        # Coded to a fidelity, a tile sent none keeps the coding that reached it (tuned below): the same bytes
+        # coded for no refinement can fall far under the target at the coarse rates tiles take.
+        if side.side is not None or job.fidelity is None:
+            coded = replace(coded, encoded=side.attributes)
 
     def search(target_db: float, lam: float) -> EncodedAttributes:
         lower = replace(job.fidelity, target_db=target_db)
@@ -264,6 +271,8 @@ def code_tile(job: TileJob) -> TileCoding:
         enc, tuning, fidelity_db = tuned_to_fidelity(
             coded.encoded, fidelity, job.fidelity.tolerance_db, tune, search
         )
+    elif side is not None and side.tuning is not None:  # the check's tuned rival won: tuned already
+        enc, tuning = coded.encoded, side.tuning
     else:
         enc, tuning = tune(coded.encoded)
     candidates = int(prune_mask(scene, coded.params, coded.visible).sum())
@@ -287,14 +296,18 @@ def code_tile(job: TileJob) -> TileCoding:
     )
 
 
-def _tile_side(scene: GaussianScene, cams: list[Camera], coded: CodedAttributes, job: TileJob) -> SideChoice:
+def _tile_side(
+    scene: GaussianScene, cams: list[Camera], coded: CodedAttributes, job: TileJob, tune: Tune
+) -> SideChoice:
     """The side-information step on the tile alone, on this process's CPU (a worker has no other device)."""
     opts = job.side
     device = check_device("cpu")
     restorer = load_restorer(opts.restorer, device=device)
     stages = Stages()
     at_fidelity = job.fidelity is not None
-    return side_information(scene, cams, coded, restorer, opts, device, stages, job.byte_target, at_fidelity)
+    return side_information(
+        scene, cams, coded, restorer, opts, device, stages, job.byte_target, at_fidelity, tune
+    )
 
 
 def _sent_side(side: SideChoice, enc: EncodedAttributes) -> TileSide:
