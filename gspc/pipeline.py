@@ -38,14 +38,7 @@ from gspc.limits import DECODE_WORKER_BYTES, default_refine_iterations
 from gspc.options import DecodeOptions, EncodeOptions, check_region
 from gspc.paths import refuse_output_over_input
 from gspc.progress import Progress
-from gspc.reconstruct import (
-    check_decode_work,
-    decode_work,
-    refine_in_cells,
-    refine_iterations,
-    render_images,
-    restored_targets,
-)
+from gspc.reconstruct import check_decode_work, decode_work, reconstruct, refine_iterations
 from gspc.restore.restorer import load_restorer
 from gspc.scene import GaussianScene
 from gspc.stages import Stages
@@ -402,7 +395,7 @@ def decode_bytes(
     restorer = load_restorer(restorer_name, device=device)
     rep.info["restorer"] = restorer_name
     scene = _restore_and_refine(
-        scene.to(device), file, cams, restorer, iterations, opts, stages, rep, decoded.precision
+        scene.to(device), file, restorer, iterations, opts, stages, rep, decoded.precision
     )
     scene.coordinates = coordinates
     return scene, rep
@@ -474,7 +467,6 @@ def _no_refinement(side: SideViews, opts: DecodeOptions, iterations: int) -> str
 def _restore_and_refine(
     scene: GaussianScene,
     file: GspcFile,
-    cams: list[Camera],
     restorer,
     iterations: int,
     opts: DecodeOptions,
@@ -484,27 +476,21 @@ def _restore_and_refine(
 ) -> GaussianScene:
     """Render G~ at the stored views, restore them with their residuals and refine G~ against them."""
     header: FileHeader = file.header
+    section = header.attributes if opts.in_cells else None
     background = header.side_info.background
-    with stages.stage("render", announce=False):
-        degraded = render_images(scene, cams, background, stages.progress, "render coded")
-    with stages.stage("restore", announce=False):
-        targets = restored_targets(degraded, file.side.views, file.side.images, restorer, stages.progress)
-    del degraded
-    with stages.stage("refine", announce=False):
-        refined = refine_in_cells(
-            scene,
-            header.attributes if opts.in_cells else None,
-            cams,
-            targets,
-            iterations,
-            background,
-            stages.progress,
-            seed=opts.seed,
-            lr_scale=opts.lr_scale,
-            deadline=stages.deadline,
-            in_place=True,  # G~ is not needed after
-            precision=precision,
-        )
+    refined = reconstruct(
+        scene,
+        section,
+        file.side.views,
+        file.side.images,
+        restorer,
+        iterations,
+        background,
+        stages,
+        opts.seed,
+        opts.lr_scale,
+        precision,
+    )
     rep.refine_iterations = refined.iterations
     ran = f"{refined.iterations} iterations"
     if refined.iterations < iterations:

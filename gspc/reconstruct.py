@@ -36,6 +36,7 @@ from gspc.refine import Deadline, Refined, Refinement, Schedule
 from gspc.render import render
 from gspc.render.work import view_pairs
 from gspc.scene import GaussianScene
+from gspc.stages import Stages
 from gspc.visibility import sampling_coverage
 
 
@@ -271,3 +272,43 @@ def refine_in_cells(
     limit = Deadline(deadline) if deadline is not None else None
     run.run(deadline=limit, progress=refine_progress(progress, stage, iterations))
     return run.result()
+
+
+def reconstruct(
+    scene: GaussianScene,
+    section: AttributeSection | None,
+    views: Sequence[ViewRecord],
+    images: dict[int, bytes],
+    restorer,
+    iterations: int,
+    background: Sequence[float],
+    stages: Stages | None = None,
+    seed: int = 0,
+    lr_scale: float = 1.0,
+    precision: PrecisionMap | None = None,
+) -> Refined:
+    """The decoder's reconstruction (spec 10.8), of a file or of one tile (10.15): G~ rendered at the stored
+    ``views``, the renders restored with their residuals, G~ refined against them in its cells
+    (``section``; None: cells off) in place, each step a stage of ``stages`` (its progress and deadline)."""
+    stages = stages if stages is not None else Stages()
+    cams = [v.camera.to_camera() for v in views]
+    with stages.stage("render", announce=False):
+        degraded = render_images(scene, cams, background, stages.progress, "render coded")
+    with stages.stage("restore", announce=False):
+        targets = restored_targets(degraded, views, images, restorer, stages.progress)
+    del degraded
+    with stages.stage("refine", announce=False):
+        return refine_in_cells(
+            scene,
+            section,
+            cams,
+            targets,
+            iterations,
+            background,
+            stages.progress,
+            seed=seed,
+            lr_scale=lr_scale,
+            deadline=stages.deadline,
+            in_place=True,  # G~ is not needed after
+            precision=precision,
+        )

@@ -14,14 +14,7 @@ from gspc.format.side_chunk import SideViews
 from gspc.jit import compile_kernels, uncompiled_kernels
 from gspc.limits import RenderAllowance, default_refine_iterations
 from gspc.options import DecodeOptions
-from gspc.reconstruct import (
-    check_decode_work,
-    decode_work,
-    refine_in_cells,
-    refine_iterations,
-    render_images,
-    restored_targets,
-)
+from gspc.reconstruct import check_decode_work, decode_work, reconstruct, refine_iterations
 from gspc.restore.restorer import load_restorer
 from gspc.scene import GaussianScene
 
@@ -87,20 +80,18 @@ def reconstruct_tile(job: TileReconstructJob) -> TileReconstruction:
             why = "its share of the work budget pays for none (spec 10.15)"
             return TileReconstruction(scene, TileOutcome(0, why, views))
     restorer = load_restorer(s.restorer, device=device)
-    scene = scene.to(device)
-    degraded = render_images(scene, cams, s.background)
-    targets = restored_targets(degraded, job.side.views, job.side.images, restorer)
-    del degraded
-    refined = refine_in_cells(
-        scene,
-        job.attributes.section if opts.in_cells else None,
-        cams,
-        targets,
+    section = job.attributes.section if opts.in_cells else None
+    side = job.side
+    refined = reconstruct(
+        scene.to(device),
+        section,
+        side.views,
+        side.images,
+        restorer,
         iterations,
         s.background,
         seed=opts.seed,
         lr_scale=opts.lr_scale,
-        in_place=True,
         precision=decoded.precision,
     )
     return TileReconstruction(refined.scene.to("cpu"), TileOutcome(refined.iterations, None, views))

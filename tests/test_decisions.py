@@ -114,8 +114,7 @@ def test_decoding_without_refinement_renders_and_restores_nothing(monkeypatch):
     def forbidden(*a, **k):
         raise AssertionError("a decode that does not refine rendered or restored")
 
-    monkeypatch.setattr(pipeline, "render_images", forbidden)
-    monkeypatch.setattr(pipeline, "restored_targets", forbidden)
+    monkeypatch.setattr(pipeline, "reconstruct", forbidden)
     monkeypatch.setattr(pipeline, "load_restorer", forbidden)
     for opts in (DecodeOptions(refine=False), DecodeOptions(iterations=0), DecodeOptions(restore=False)):
         _, rep = decode_bytes(data, opts)
