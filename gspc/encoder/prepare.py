@@ -13,6 +13,7 @@ from gspc.cameras import Camera
 from gspc.codec import residuals
 from gspc.encoder.coding import EncodedAttributes, SharedGrid, encode_attributes
 from gspc.encoder.fidelity import FidelityParams
+from gspc.encoder.occlusion import Occlusion
 from gspc.encoder.params import CodecParams
 from gspc.encoder.precision_plan import Significance
 from gspc.encoder.rate import search_lambda
@@ -101,15 +102,17 @@ def measure_scene(
     params: CodecParams,
     background: tuple[float, float, float] = (0.0, 0.0, 0.0),
     progress: Progress | None = None,
+    occlusion: Occlusion | None = None,
 ) -> Measure:
     """Which Gaussians some camera sees and, where the parameters spend precision per Gaussian, what each
-    does to the views (gspc/encoder/significance.py); on the CPU, where the codec runs."""
+    does to the views (gspc/encoder/significance.py; a tile's of what the other tiles leave in view,
+    ``occlusion``); on the CPU, where the codec runs."""
     visible = visible_mask(
         scene.means.detach().cpu().numpy(), scene.log_scales.detach().cpu().numpy(), cameras
     )
     sig = None
     if params.precision is not None:
-        sig = encoder_significance(scene.to("cpu"), cameras, background, progress)
+        sig = encoder_significance(scene.to("cpu"), cameras, background, progress, occlusion)
     return Measure(visible, sig)
 
 

@@ -38,6 +38,7 @@ import numpy as np
 import torch
 
 from gspc.cameras import Camera
+from gspc.encoder.occlusion import Occlusion
 from gspc.encoder.precision_plan import Significance
 from gspc.progress import Progress
 from gspc.render.project import project
@@ -92,8 +93,20 @@ class ViewMeasures:
     sh_band_change: torch.Tensor  # (N, D)
 
 
-def measure_view(scene: GaussianScene, camera: Camera, background: Sequence[float]) -> ViewMeasures:
-    """Every measure of one view, from one render and its backward."""
+def measure_view(
+    scene: GaussianScene,
+    camera: Camera,
+    background: Sequence[float],
+    occlusion: Occlusion | None = None,
+    zoom: float = 1.0,
+) -> ViewMeasures:
+    """Every measure of one view (``camera`` at ``zoom`` times its size), from one render and its backward;
+    with ``occlusion`` (a tile's), each Gaussian's measures scaled by the share of it in front of the other
+    tiles (gspc/encoder/occlusion.py)."""
+    if zoom != 1.0:
+        camera, base = camera.scaled(zoom), camera
+    else:
+        base = camera
     # Leaves sharing the scene's storage (autograd.grad below writes no .grad, and nothing writes them).
     leaves = {k: v.detach().requires_grad_(True) for k, v in scene.tensors().items()}
     p = project(
@@ -138,6 +151,13 @@ def measure_view(scene: GaussianScene, camera: Camera, background: Sequence[floa
     if d > 0 and g_rest is not None:
         coef = scene.sh_rest.detach().contiguous().numpy()
         change = torch.from_numpy(kern.band_changes(g_rest.contiguous().numpy(), coef, d, drawn))
+    shares = None if occlusion is None else occlusion.shares(p, base, zoom)
+    if shares is not None:
+        front = torch.ones(n, dtype=torch.float64)
+        front[p.index] = torch.from_numpy(shares)
+        weight *= front
+        gradient = {k: g * front for k, g in gradient.items()}
+        change = change * front[:, None]
     return ViewMeasures(weight, gradient, change)
 
 
@@ -160,9 +180,11 @@ def significance(
     background: Sequence[float] = (0.0, 0.0, 0.0),
     progress: Progress | None = None,
     zooms: Sequence[float] = (1.0,),
+    occlusion: Occlusion | None = None,
 ) -> Significance:
     """Every measure, accumulated over ``cameras`` at each of ``zooms`` (a camera's size multiplier); of
-    several zooms, per Gaussian the largest, the sums over a zoom's pixels divided by zoom^2."""
+    several zooms, per Gaussian the largest, the sums over a zoom's pixels divided by zoom^2. ``occlusion``:
+    a tile's, what the other tiles hide (gspc/encoder/occlusion.py)."""
     n, d = scene.num_gaussians, scene.sh_degree
     weight = torch.zeros(n, dtype=torch.float64)
     gradient = {k: torch.zeros(n, dtype=torch.float64) for k in ATTRIBUTE_NAMES}
@@ -175,7 +197,7 @@ def significance(
         for i, cam in enumerate(cameras):
             if progress:
                 progress("significance", z * len(cameras) + i, total)
-            m = measure_view(scene, cam if zoom == 1.0 else cam.scaled(zoom), background)
+            m = measure_view(scene, cam, background, occlusion, zoom)
             w += m.weight
             c += m.sh_band_change
             for k, v in m.gradient.items():
@@ -197,19 +219,22 @@ def encoder_significance(
     cameras: Sequence[Camera],
     background: Sequence[float] = (0.0, 0.0, 0.0),
     progress: Progress | None = None,
+    occlusion: Occlusion | None = None,
 ) -> Significance:
     """The encoder's measure: :func:`significance` at up to WIDE_VIEWS evenly spaced cameras at 1x (fewer
-    past WIDE_WORK Gaussian-views, never fewer than SIGNIFICANCE_VIEWS) and at
-    SIGNIFICANCE_VIEWS of them at the larger SIGNIFICANCE_ZOOMS (per Gaussian the largest, per view of the
-    wider set), and the Gaussians those cameras under-show measured alone at every camera (in front of
-    nothing: what the rest hides of them is counted too, which errs towards precision)."""
+    past WIDE_WORK Gaussian-views, never fewer than SIGNIFICANCE_VIEWS) and at SIGNIFICANCE_VIEWS of them at
+    the larger SIGNIFICANCE_ZOOMS (per Gaussian the largest, per view of the wider set), and the Gaussians
+    those cameras under-show measured alone at every camera (in front of nothing of the scene's: what the
+    rest hides of them is counted too, which errs towards precision). With a tile's ``occlusion``, of what
+    the other tiles leave in view."""
     wide = wide_cameras(cameras, scene.num_gaussians)
     sample = evenly_spaced(wide, SIGNIFICANCE_VIEWS)
     zooms = [z for z in SIGNIFICANCE_ZOOMS if z != 1.0]
     total = len(wide) + len(sample) * len(zooms)
-    sig = significance(scene, wide, background, _within(progress, 0, total))
+    sig = significance(scene, wide, background, _within(progress, 0, total), occlusion=occlusion)
     if zooms:
-        zoomed = significance(scene, sample, background, _within(progress, len(wide), total), zooms)
+        within = _within(progress, len(wide), total)
+        zoomed = significance(scene, sample, background, within, zooms, occlusion)
         sig = _raised(sig, np.arange(scene.num_gaussians), zoomed, len(wide) / len(sample))
     if len(wide) == len(cameras):
         return sig
@@ -220,7 +245,7 @@ def encoder_significance(
         return sig
     budget = max(1, SURVEY_WORK_PER_GAUSSIAN * scene.num_gaussians // rows.size)
     survey = evenly_spaced(cameras, min(budget, SURVEY_MAX_VIEWS))
-    alone = significance(scene.subset(rows), survey, background)
+    alone = significance(scene.subset(rows), survey, background, occlusion=occlusion)
     return _raised(sig, rows, alone, len(wide) / len(survey))
 
 

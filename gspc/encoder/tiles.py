@@ -8,8 +8,10 @@ that see it, its precision planned, its removal and position grid searched, its 
 task: a plain function of its rows and the run's settings to its chunks, run in this process or in a
 worker's (gspc/workers.py), with the same bytes either way.
 
-Each tile is measured, searched and tuned with its own Gaussians alone: the Gaussians of other tiles that
-occlude it are not drawn (bench/tiles.md measures what that costs against one block). Asked for side
+Each tile is measured, searched and tuned with its own Gaussians alone; its measure counts of each Gaussian
+only what the other tiles leave in view (gspc/encoder/occlusion.py: every tile is first rendered alone to
+where it turns opaque, at the scene's cameras). Its searches and tuning still score the tile alone
+(bench/tiles.md measures what that costs against one block). Asked for side
 information, a tile gets its own (spec 10.15), made and checked as a whole scene's is
 (gspc/encoder/side_decision.py): views among the cameras that see it, residuals of its Gaussians rendered
 alone, sent only where its check finds that the decoder's refinement with them beats the same bytes on the
@@ -34,6 +36,7 @@ from gspc.codec import positions as pos
 from gspc.device import check_device
 from gspc.encoder.coding import EncodedAttributes, SharedGrid, prune_mask
 from gspc.encoder.fidelity import FidelityParams, code_to_fidelity, tuned_to_fidelity
+from gspc.encoder.occlusion import DepthMaps, Occluders, Occlusion, map_cell, opaque_depths
 from gspc.encoder.params import CodecParams
 from gspc.encoder.policy import SideInfoDecision, Tune
 from gspc.encoder.prepare import CodedAttributes, code_attributes, measure_scene
@@ -156,6 +159,7 @@ class TileJob:
     fidelity: FidelityParams | None = None  # code to this fidelity (gspc/encoder/fidelity.py; None: the rate)
     share_db: float = 0.0  # what the fidelity's target was raised by: the tile's share of the views' error
     side: EncodeOptions | None = None  # weigh side information of the tile's own with these options
+    occlusion: Occlusion | None = None  # what the other tiles hide of it (gspc/encoder/occlusion.py)
 
 
 @dataclass(frozen=True)
@@ -201,7 +205,7 @@ def code_tile(job: TileJob) -> TileCoding:
     scene = job.source if job.rows is None else job.source.rows(job.rows)
     seen = seeing_cameras(scene.means.detach().numpy(), scene.log_scales.detach().numpy(), list(job.cameras))
     cams = [job.cameras[k] for k in seen] or list(job.cameras)
-    measure = measure_scene(scene, cams, job.params, job.background)
+    measure = measure_scene(scene, cams, job.params, job.background, occlusion=job.occlusion)
     removal = job.removal if len(cams) > 1 else None  # scoring views lie between two cameras
     coded = code_attributes(
         scene, cams, job.params, job.byte_target, job.background, None, removal, None, measure, job.shared
@@ -363,6 +367,9 @@ def code_tiles(
     if settings.fidelity is not None:
         shares = error_shares(plan.rows, positions, log_scales, list(settings.cameras))
     del positions, log_scales
+    occluders = None
+    if len(plan.rows) > 1:
+        occluders = opaque_scene(source, plan, settings.cameras, workers, progress)
 
     def jobs(targets: list[int] | None):
         for k, rows in enumerate(plan.rows):
@@ -381,6 +388,7 @@ def code_tiles(
                 _raised(settings.fidelity, shares[k]) if targets is None else None,
                 float(shares[k]),
                 settings.side,
+                None if occluders is None else occluders.others(k),
             )
 
     def run(targets: list[int] | None, stage: str) -> list[TileCoding]:
@@ -390,6 +398,41 @@ def code_tiles(
     if byte_target is not None:
         codings = run(retarget(codings, byte_target), "tiles in the target")
     return plan, codings
+
+
+@dataclass(frozen=True)
+class TileDepthJob:
+    """Rendering one tile alone to where it turns opaque (gspc/encoder/occlusion.py): a task, as a tile's
+    coding is."""
+
+    number: int
+    source: object
+    rows: np.ndarray | None
+    cameras: tuple[Camera, ...]
+    cell: int
+
+
+def tile_depths(job: TileDepthJob) -> DepthMaps:
+    scene = job.source if job.rows is None else job.source.rows(job.rows)
+    return opaque_depths(scene, job.cameras, job.cell)
+
+
+def opaque_scene(
+    source, plan: TilePlan, cameras: Sequence[Camera], workers: int, progress: Progress | None = None
+) -> Occluders:
+    """The scene's opaque depths at ``cameras``, folded from each tile's on ``workers`` processes."""
+    cell = map_cell(cameras)
+    occluders = Occluders(cameras, cell)
+
+    def jobs():
+        for k, rows in enumerate(plan.rows):
+            src, own = source.tile(rows)
+            yield TileDepthJob(k, src, own, tuple(cameras), cell)
+
+    depths = run_tasks(tile_depths, jobs(), workers, _job_name, len(plan.rows), progress, "tiles' depths")
+    for k, d in enumerate(depths):
+        occluders.fold(k, d)
+    return occluders
 
 
 def error_shares(
@@ -408,5 +451,5 @@ def _raised(fp: FidelityParams | None, db: float) -> FidelityParams | None:
     return None if fp is None else replace(fp, target_db=fp.target_db + db)
 
 
-def _job_name(job: TileJob) -> str:
+def _job_name(job: TileJob | TileDepthJob) -> str:
     return f"tile {job.number}"
