@@ -67,3 +67,25 @@ def test_a_cell_holds_the_farthest_of_its_pixels_and_maps_stay_bounded():
     cell = map_cell([big] * 8)
     assert 8 * (3000 // cell + 1) * (4000 // cell + 1) <= MAP_CELLS * 1.01 and cell > 1
     assert map_cell([cam]) == 1
+
+
+def test_a_tiles_searches_score_only_where_it_is_in_front():
+    from gspc.encoder.occlusion import scene_views
+    from gspc.encoder.removal import RemovalParams, scoring_views
+    from gspc.views import between_views
+
+    cams = [_camera(), Camera(look_at(np.array([0.3, 0, -5]), np.zeros(3), np.array([0.0, -1, 0])),
+                              _camera().K, 80, 60)]  # fmt: skip
+    near, behind = _blob(400, (0.0, 0.0, 0.0), 1.0, seed=1), _blob(200, (0.0, 0.0, 2.0), 0.3, seed=2)
+    views = scene_views(cams)
+    occ = Occluders(views, 1)
+    occ.fold(0, opaque_depths(near, views, 1))
+    occ.fold(1, opaque_depths(behind, views, 1))
+    hidden = occ.others(1)
+    # The scoring views are the scene's halfway views (whose maps are known), the ones between_views makes.
+    picked = scoring_views(cams[1:], 200, RemovalParams(), hidden)
+    assert len(picked) == 1 and picked[0].name == between_views(cams, [1])[0].name
+    (mask,) = hidden.masks(behind, picked)
+    assert mask.shape == (60, 80, 1) and float(mask.sum()) == 0.0  # all of it behind the near tile
+    (mask,) = occ.others(0).masks(near, picked)
+    assert float(mask[30, 40, 0]) == 1.0 and float(mask.sum()) < 80 * 60  # in front, where it is at all

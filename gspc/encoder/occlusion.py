@@ -1,12 +1,14 @@
 """What the other tiles hide of a tile: a tile is coded alone, but the scene shows it behind its neighbours.
 
 Measured alone, a tile counts as seen what other tiles hide: on the 1M district a fifth to a third of each
-tile's blending weight at its cameras lies behind other tiles (bench/tiles.md, "What other tiles hide"), and
-the precision measure spends bits on it. So before the tiles are coded, each tile is rendered alone at the
-scene's cameras to the depth where it turns opaque (its transmittance under OPAQUE_TRANSMITTANCE), and the
-scene's maps are folded from the tiles' (per pixel the nearest, and the nearest of any other tile). A tile's
-job carries, per camera, the depth where the *other* tiles turn opaque; its measure counts of each Gaussian
-only the share of its footprint in front of that (gspc/encoder/significance.py).
+tile's blending weight at its cameras lies behind other tiles (bench/tiles.md, "What other tiles hide"): the
+precision measure spends bits on it, and the searches score errors nobody sees. So before the tiles are
+coded, each tile is rendered alone to the depth where it turns opaque (its transmittance under
+OPAQUE_TRANSMITTANCE) at the scene's cameras and at the views halfway between them, and the scene's maps are
+folded from the tiles' (per pixel the nearest, and the nearest of any other tile). A tile's job carries, per
+view, the depth where the *other* tiles turn opaque: its measure counts of each Gaussian only the share of
+its footprint in front of that (gspc/encoder/significance.py), and its removal and fidelity searches score at
+the halfway views only the pixels where some of the tile is in front (gspc/encoder/removal.py scorer).
 
 The maps err towards precision: a tile's own opaque depth ignores what several tiles hide together, and a
 map cell holds the farthest of the pixels it covers (MAP_CELLS bounds the maps whatever the cameras).
@@ -25,7 +27,9 @@ import torch
 from gspc.cameras import Camera
 from gspc.encoder import occlusion_cpu as kern
 from gspc.render.project import Projected, project
+from gspc.render.rules import ALPHA_MIN
 from gspc.scene import GaussianScene
+from gspc.views import between_views
 from gspc.visibility import seeing_cameras
 
 # A pixel is opaque once the Gaussians in front leave it this much light: what lies behind adds at most
@@ -67,19 +71,52 @@ def opaque_depths(scene: GaussianScene, cameras: Sequence[Camera], cell: int) ->
     return DepthMaps(cell, tuple(maps))
 
 
+def scene_views(cameras: Sequence[Camera]) -> tuple[Camera, ...]:
+    """The views whose opaque depths are folded: the scene's cameras, then for each the view halfway to its
+    nearest other (where a tile's searches score: :meth:`Occlusion.scoring_views`)."""
+    return (*cameras, *between_views(cameras, range(len(cameras))))
+
+
 @dataclass(frozen=True)
 class Occlusion:
-    """What a tile's job carries: per camera of the scene, the depth where the other tiles turn opaque
-    (None: nothing of theirs in view)."""
+    """What a tile's job carries: per view of :func:`scene_views`, the depth where the other tiles turn
+    opaque (None: nothing of theirs in view)."""
 
-    cameras: tuple[Camera, ...]
+    views: tuple[Camera, ...]  # the scene's cameras, then the views halfway between them
     far: tuple[np.ndarray | None, ...]
     cell: int
+
+    def scoring_views(self, cameras: Sequence[Camera], picked: Sequence[int]) -> list[Camera]:
+        """For each of ``cameras[i]``, i in ``picked`` (the scene's cameras), the view halfway to its nearest
+        other of the scene's, as gspc/views.py between_views makes it: views whose maps are known."""
+        n = len(self.views) // 2
+        keys = {_key(c): k for k, c in enumerate(self.views[:n])}
+        out = []
+        for i in picked:
+            k = keys.get(_key(cameras[i]))
+            out.append(self.views[n + k] if k is not None else between_views(cameras, [i])[0])
+        return out
+
+    def masks(self, scene: GaussianScene, views: Sequence[Camera]) -> list[torch.Tensor | None]:
+        """Per view, (H, W, 1) float: 1 where some of ``scene`` (the tile) lies in front of the other tiles,
+        0 where they hide all of it (None: nothing of theirs in view). A pixel's error counts only where 1."""
+        out: list[torch.Tensor | None] = []
+        for v in views:
+            far = self.far_at(v)
+            if far is None:
+                out.append(None)
+                continue
+            p = _projected(scene, v)
+            first = kern.opaque_depths(*_arrays(p), v.width, v.height, 1.0 - 0.5 * ALPHA_MIN)
+            front = -_cell_max(-first, self.cell) < far  # the nearest of each cell's pixels
+            full = np.repeat(np.repeat(front, self.cell, 0), self.cell, 1)[: v.height, : v.width]
+            out.append(torch.from_numpy(full[..., None].astype(np.float32)))
+        return out
 
     def far_at(self, camera: Camera) -> np.ndarray | None:
         """The map of ``camera`` (one of :attr:`cameras`, as it was given; None where none is known)."""
         key = _key(camera)
-        for c, f in zip(self.cameras, self.far):
+        for c, f in zip(self.views, self.far):
             if _key(c) == key:
                 return f
         return None
@@ -95,12 +132,12 @@ class Occlusion:
 
 
 class Occluders:
-    """The scene's maps, folded tile by tile in the parent: per camera the nearest opaque depth, its tile,
-    and the nearest of any other tile (so a tile's others are one lookup)."""
+    """The scene's maps, folded tile by tile in the parent: per view the nearest opaque depth, its tile, and
+    the nearest of any other tile (so a tile's others are one lookup)."""
 
-    def __init__(self, cameras: Sequence[Camera], cell: int) -> None:
-        self.cameras, self.cell = tuple(cameras), cell
-        shapes = [(math.ceil(c.height / cell), math.ceil(c.width / cell)) for c in cameras]
+    def __init__(self, views: Sequence[Camera], cell: int) -> None:
+        self.views, self.cell = tuple(views), cell
+        shapes = [(math.ceil(c.height / cell), math.ceil(c.width / cell)) for c in views]
         self.far = [np.full(s, np.inf, np.float32) for s in shapes]
         self.owner = [np.full(s, -1, np.int32) for s in shapes]
         self.second = [np.full(s, np.inf, np.float32) for s in shapes]
@@ -115,7 +152,7 @@ class Occluders:
         for f, o, s in zip(self.far, self.owner, self.second):
             m = np.where(o == tile, s, f)
             far.append(m if np.isfinite(m).any() else None)
-        return Occlusion(self.cameras, tuple(far), self.cell)
+        return Occlusion(self.views, tuple(far), self.cell)
 
 
 def _projected(scene: GaussianScene, camera: Camera) -> Projected:

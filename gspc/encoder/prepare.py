@@ -84,6 +84,7 @@ class Measure:
 
     visible: np.ndarray  # seen by some camera
     significance: Significance | None  # what it does to the views, where the parameters spend precision
+    occlusion: Occlusion | None = None  # a tile's: what the other tiles hide (measured and scored without)
 
 
 @dataclass
@@ -113,7 +114,7 @@ def measure_scene(
     sig = None
     if params.precision is not None:
         sig = encoder_significance(scene.to("cpu"), cameras, background, progress, occlusion)
-    return Measure(visible, sig)
+    return Measure(visible, sig, occlusion)
 
 
 def code_attributes(
@@ -142,7 +143,18 @@ def code_attributes(
     choice = None
     if removal is not None and sig is not None:
         choice = choose_removal(
-            scene.to("cpu"), enc, params, visible, sig, cameras, background, removal, deadline, progress, grid
+            scene.to("cpu"),
+            enc,
+            params,
+            visible,
+            sig,
+            cameras,
+            background,
+            removal,
+            deadline,
+            progress,
+            grid,
+            m.occlusion,
         )
         enc, params = choice.encoded, choice.params
     return CodedAttributes(enc, params, visible, sig, choice, grid)

@@ -34,6 +34,7 @@ import torch
 
 from gspc.cameras import Camera
 from gspc.encoder.coding import EncodedAttributes, SharedGrid
+from gspc.encoder.occlusion import Occlusion
 from gspc.encoder.params import CodecParams
 from gspc.encoder.precision_plan import Significance
 from gspc.encoder.rate import search_lambda
@@ -165,12 +166,18 @@ def better(best: Trial, t: Trial, limit: int, min_gain_db: float) -> bool:
     return t.bytes <= limit and t.psnr >= best.psnr + min_gain_db
 
 
-def scoring_views(cameras: Sequence[Camera], num_gaussians: int, rp: RemovalParams) -> list[Camera]:
+def scoring_views(
+    cameras: Sequence[Camera], num_gaussians: int, rp: RemovalParams, occlusion: Occlusion | None = None
+) -> list[Camera]:
     """Where the search renders: halfway from ``rp.views`` evenly spaced encoder cameras (fewer past
-    ``rp.work``) to their nearest others. Not the cameras themselves: removal takes what they show least,
-    so they flatter it (bench/precision.md, "Removal chosen per scene")."""
+    ``rp.work``) to their nearest others (a tile's: of the scene's cameras, where ``occlusion`` knows what
+    the other tiles hide). Not the cameras themselves: removal takes what they show least, so they flatter
+    it (bench/precision.md, "Removal chosen per scene")."""
     count = max(rp.min_views, min(rp.views, rp.work // max(1, num_gaussians)))
-    return between_views(cameras, evenly_spaced_indices(len(cameras), count))
+    picked = evenly_spaced_indices(len(cameras), count)
+    if occlusion is not None:
+        return occlusion.scoring_views(cameras, picked)
+    return between_views(cameras, picked)
 
 
 def choose_removal(
@@ -185,6 +192,7 @@ def choose_removal(
     deadline: float | None = None,
     progress: Progress | None = None,
     grid: SharedGrid | None = None,
+    occlusion: Occlusion | None = None,
 ) -> RemovalChoice:
     """The removal for ``scene`` (``first``: its coding with ``params``): the preset's, or the strongest of
     ``rp.steps`` tried until one fails to beat the best so far in ``first``'s bytes (none where the
@@ -201,8 +209,8 @@ def choose_removal(
     ):
         return RemovalChoice(first, params)
     t0 = time.perf_counter()
-    views = scoring_views(cameras, scene.num_gaussians, rp)
-    score = scorer(scene, views, background)
+    views = scoring_views(cameras, scene.num_gaussians, rp, occlusion)
+    score = scorer(scene, views, background, occlusion)
     stages = len(steps) + len(rp.position_offsets) + len(sh_options)
     _tick(progress, 0, stages)
     base = Trial(precision.prune, first.lam, first.num_bytes, score(first))
@@ -262,15 +270,23 @@ def choose_removal(
 
 
 def scorer(
-    scene: GaussianScene, views: list[Camera], background: Sequence[float]
+    scene: GaussianScene,
+    views: list[Camera],
+    background: Sequence[float],
+    occlusion: Occlusion | None = None,
 ) -> Callable[[EncodedAttributes], float]:
     """Mean PSNR over ``views`` of a coding's renders against the original's, unquantised: at the statues'
-    quality the error is under one 8-bit level, which 8-bit renders would round away."""
+    quality the error is under one 8-bit level, which 8-bit renders would round away. A tile's
+    ``occlusion``: only the pixels where some of it is in front of the other tiles count (over the whole
+    image still, so the scale is a scene's)."""
     refs = render_images(scene, views, background)
+    masks = occlusion.masks(scene, views) if occlusion is not None else [None] * len(views)
 
     def score(enc: EncodedAttributes) -> float:
         coded = render_images(enc.decoded, views, background)
-        errors = torch.stack([mse(a, b) for a, b in zip(coded, refs)]).clamp_min(1e-12)
+        errors = torch.stack(
+            [mse(a, b) if m is None else mse(a * m, b * m) for a, b, m in zip(coded, refs, masks)]
+        ).clamp_min(1e-12)
         return float((-10.0 * torch.log10(errors)).mean())
 
     return score

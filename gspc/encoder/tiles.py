@@ -10,8 +10,9 @@ worker's (gspc/workers.py), with the same bytes either way.
 
 Each tile is measured, searched and tuned with its own Gaussians alone; its measure counts of each Gaussian
 only what the other tiles leave in view (gspc/encoder/occlusion.py: every tile is first rendered alone to
-where it turns opaque, at the scene's cameras). Its searches and tuning still score the tile alone
-(bench/tiles.md measures what that costs against one block). Asked for side
+where it turns opaque, at the scene's cameras and the views halfway between them), and its removal and
+fidelity searches score only the pixels where some of it is in front of them; its tuning still fits the tile
+alone (bench/tiles.md, "What other tiles hide", measures what is left against one block). Asked for side
 information, a tile gets its own (spec 10.15), made and checked as a whole scene's is
 (gspc/encoder/side_decision.py): views among the cameras that see it, residuals of its Gaussians rendered
 alone, sent only where its check finds that the decoder's refinement with them beats the same bytes on the
@@ -36,7 +37,7 @@ from gspc.codec import positions as pos
 from gspc.device import check_device
 from gspc.encoder.coding import EncodedAttributes, SharedGrid, prune_mask
 from gspc.encoder.fidelity import FidelityParams, code_to_fidelity, tuned_to_fidelity
-from gspc.encoder.occlusion import DepthMaps, Occluders, Occlusion, map_cell, opaque_depths
+from gspc.encoder.occlusion import DepthMaps, Occluders, Occlusion, map_cell, opaque_depths, scene_views
 from gspc.encoder.params import CodecParams
 from gspc.encoder.policy import SideInfoDecision, Tune
 from gspc.encoder.prepare import CodedAttributes, code_attributes, measure_scene
@@ -222,6 +223,7 @@ def code_tile(job: TileJob) -> TileCoding:
             job.fidelity,
             job.removal or RemovalParams(),
             grid=job.shared,
+            occlusion=job.occlusion,
         )
         coded = replace(
             coded, encoded=fidelity.encoded, params=coded.params.with_lambda(fidelity.encoded.lam)
@@ -263,7 +265,16 @@ def code_tile(job: TileJob) -> TileCoding:
         params = coded.params.with_lambda(lam)
         rp = job.removal or RemovalParams()
         return code_to_fidelity(
-            scene, params, coded.visible, coded.significance, cams, job.background, lower, rp, grid=job.shared
+            scene,
+            params,
+            coded.visible,
+            coded.significance,
+            cams,
+            job.background,
+            lower,
+            rp,
+            grid=job.shared,
+            occlusion=job.occlusion,
         ).encoded
 
     fidelity_db = None
@@ -420,14 +431,16 @@ def tile_depths(job: TileDepthJob) -> DepthMaps:
 def opaque_scene(
     source, plan: TilePlan, cameras: Sequence[Camera], workers: int, progress: Progress | None = None
 ) -> Occluders:
-    """The scene's opaque depths at ``cameras``, folded from each tile's on ``workers`` processes."""
-    cell = map_cell(cameras)
-    occluders = Occluders(cameras, cell)
+    """The scene's opaque depths at ``cameras`` and the views between them, folded from each tile's on
+    ``workers`` processes."""
+    views = scene_views(cameras)
+    cell = map_cell(views)
+    occluders = Occluders(views, cell)
 
     def jobs():
         for k, rows in enumerate(plan.rows):
             src, own = source.tile(rows)
-            yield TileDepthJob(k, src, own, tuple(cameras), cell)
+            yield TileDepthJob(k, src, own, views, cell)
 
     depths = run_tasks(tile_depths, jobs(), workers, _job_name, len(plan.rows), progress, "tiles' depths")
     for k, d in enumerate(depths):
