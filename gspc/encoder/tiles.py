@@ -11,8 +11,8 @@ worker's (gspc/workers.py), with the same bytes either way.
 Each tile is measured, searched and tuned with its own Gaussians alone; its measure counts of each Gaussian
 only what the other tiles leave in view (gspc/encoder/occlusion.py: every tile is first rendered alone to
 where it turns opaque, at the scene's cameras and the views halfway between them), and its removal and
-fidelity searches score only the pixels where some of it is in front of them; its tuning still fits the tile
-alone (bench/tiles.md, "What other tiles hide", measures what is left against one block). Asked for side
+fidelity searches and its tuning score only the pixels where some of it is in front of them (bench/tiles.md,
+"What other tiles hide"). Asked for side
 information, a tile gets its own (spec 10.15), made and checked as a whole scene's is
 (gspc/encoder/side_decision.py): views among the cameras that see it, residuals of its Gaussians rendered
 alone, sent only where its check finds that the decoder's refinement with them beats the same bytes on the
@@ -245,6 +245,7 @@ def code_tile(job: TileJob) -> TileCoding:
             job.tuning,
             byte_limit=limit,
             grid=job.shared,
+            occlusion=job.occlusion,
         )
         return tuned.encoded, tuned.report
 

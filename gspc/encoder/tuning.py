@@ -37,6 +37,7 @@ from gspc.adam import FusedAdam
 from gspc.cameras import Camera
 from gspc.codec.cells import quantisation_cells
 from gspc.encoder.coding import EncodedAttributes, SharedGrid, encode_attributes
+from gspc.encoder.occlusion import Occlusion
 from gspc.encoder.params import CodecParams
 from gspc.encoder.precision_plan import Significance
 from gspc.encoder.significance import wide_cameras
@@ -115,11 +116,13 @@ def tune_coding(
     deadline: float | None = None,
     progress: Progress | None = None,
     grid: SharedGrid | None = None,
+    occlusion: Occlusion | None = None,
 ) -> Tuned:
     """``enc`` (``scene`` coded with ``params.with_lambda(enc.lam)``, ``visible`` and ``significance``) with
     its values tuned at ``cameras`` (see the module). ``byte_limit``: the most bytes the tuned coding may
     take (default: the untuned one's plus ``tuning.growth``); no iteration starts after ``deadline`` (a
-    ``time.perf_counter()`` value). The scene is read on the CPU, as the codec runs."""
+    ``time.perf_counter()`` value). The scene is read on the CPU, as the codec runs. A tile's ``occlusion``:
+    only the pixels where some of it is in front of the other tiles count (gspc/encoder/occlusion.py)."""
     t0 = time.perf_counter()
     views = wide_cameras(cameras, scene.num_gaussians)
     affordable = TUNE_WORK // max(1, scene.num_gaussians)
@@ -132,6 +135,11 @@ def tune_coding(
     stride = max(1, len(views) // per)
     bg = tuple(float(x) for x in background)
     refs = render_images(scene, views, bg)
+    if occlusion is not None:  # the pixels the other tiles hide are the same in both: no error there
+        masks = occlusion.masks(scene, views)
+        refs = [r if m is None else r * m for r, m in zip(refs, masks)]
+    else:
+        masks = [None] * len(views)
     first_share = _share(len(views), stride, 0)
 
     origin, width = _origin_and_width(scene, enc)
@@ -145,7 +153,7 @@ def tune_coding(
         if deadline is not None and time.perf_counter() >= deadline:
             break
         share = _share(len(views), stride, it)
-        loss, grads = _loss_and_gradients(current, views, refs, share, bg)
+        loss, grads = _loss_and_gradients(current, views, refs, masks, share, bg)
         if it == 0:
             before = loss
         opt.zero_grad()
@@ -173,7 +181,7 @@ def tune_coding(
     if best is enc:  # the first coding already passed the byte limit (or the rate's range)
         at = _db(before, views, first_share)
         return Tuned(enc, _report(done, len(first_share), at, at, enc, enc, False, t0))
-    after = _loss(best, views, refs, first_share, bg)
+    after = _loss(best, views, refs, masks, first_share, bg)
     before_db, after_db = _db(before, views, first_share), _db(after, views, first_share)
     kept = after < before
     chosen = best if kept else enc
@@ -225,17 +233,22 @@ def _moved(
 
 
 def _loss_and_gradients(
-    enc: EncodedAttributes, views: Sequence[Camera], refs: list[torch.Tensor], share: list[int], bg
+    enc: EncodedAttributes,
+    views: Sequence[Camera],
+    refs: list[torch.Tensor],
+    masks: list[torch.Tensor | None],
+    share: list[int],
+    bg,
 ) -> tuple[float, dict[str, torch.Tensor]]:
-    """The squared error of ``enc``'s decoded scene at the ``share`` of ``views``, and its gradient with
-    respect to each tuned attribute of the decoded scene (decoded order)."""
+    """The squared error of ``enc``'s decoded scene at the ``share`` of ``views`` (where ``masks`` count),
+    and its gradient with respect to each tuned attribute of the decoded scene (decoded order)."""
     dec = enc.decoded
     leaves = {k: v.detach().clone().requires_grad_(k in TUNED_ATTRIBUTES) for k, v in dec.tensors().items()}
     s = GaussianScene(**leaves, sh_degree=dec.sh_degree)
     bgt = torch.tensor(bg, dtype=dec.means.dtype)
     total = 0.0
     for i in share:
-        loss = ((render(s, views[i], background=bgt).image - refs[i]) ** 2).sum()
+        loss = ((_masked(render(s, views[i], background=bgt).image, masks[i]) - refs[i]) ** 2).sum()
         loss.backward()
         total += float(loss.detach())
     grads = {}
@@ -262,12 +275,18 @@ def _to_input_rows(g: torch.Tensor, enc: EncodedAttributes, origin: torch.Tensor
     return out
 
 
-def _loss(enc: EncodedAttributes, views: Sequence[Camera], refs: list[torch.Tensor], share: list[int], bg):
+def _loss(enc: EncodedAttributes, views: Sequence[Camera], refs: list[torch.Tensor], masks, share, bg):
     bgt = torch.tensor(bg, dtype=enc.decoded.means.dtype)
+    total = 0.0
     with torch.no_grad():
-        return sum(
-            float(((render(enc.decoded, views[i], background=bgt).image - refs[i]) ** 2).sum()) for i in share
-        )
+        for i in share:
+            image = _masked(render(enc.decoded, views[i], background=bgt).image, masks[i])
+            total += float(((image - refs[i]) ** 2).sum())
+    return total
+
+
+def _masked(image: torch.Tensor, mask: torch.Tensor | None) -> torch.Tensor:
+    return image if mask is None else image * mask
 
 
 def _db(loss: float, views: Sequence[Camera], share: list[int]) -> float:
