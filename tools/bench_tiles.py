@@ -10,8 +10,8 @@ as a district, with its cameras). PSNR is of the decoded attributes (``decode``:
 information) against the original's renders at every eighth of the scene's cameras, in float (8-bit
 rounding hides sub-level differences at these rates), by gspc's renderer on one thread. ``--plan compare``:
 one block and tiles of several sizes at three lambdas each (bytes at equal PSNR off each one's own curve);
-``--plan occlusion``: one block and the default tiles at lambda 8 and 11 (``--variants tiles``: the tiles
-alone, to run again on another tree);
+``--plan occlusion``: one block and the default tiles at ``--lams`` (8 and 11; ``--variants tiles``: the
+tiles alone, to run again on another tree);
 ``--plan scale``: the default tiles at the low preset's lambda, 8, on 1 and 2 workers; ``--plan preset``:
 the default tiles as the low preset codes them (each tile aimed at its fidelity, no ``--lambda``); ``--plan
 side``: the preset with each tile's own side information (spec 10.15) against the attributes alone, both at
@@ -210,9 +210,9 @@ def closeup_rows(folder: Path, work: Path, lam: float, workers: int) -> list[dic
 
 
 def plan_rows(
-    plan: str, sizes: list[int], workers: tuple[int, ...] = (1, 2)
+    plan: str, sizes: list[int], workers: tuple[int, ...] = (1, 2), lams: tuple[float, ...] = (8.0, 11.0)
 ) -> list[tuple[int, str, float | None, int, int]]:
-    """(size, variant, lambda, tile size, workers) of every run of a plan."""
+    """(size, variant, lambda, tile size, workers) of every run of a plan (``lams``: --plan occlusion's)."""
     rows = []
     if plan == "compare":
         for n in sizes:
@@ -222,7 +222,7 @@ def plan_rows(
                     rows.append((n, f"tiles of {tile:,}", lam, tile, 2))
     elif plan == "occlusion":  # one block and the default tiles, at the low preset's rate and one coarser
         for n in sizes:
-            for lam in (8.0, 11.0):
+            for lam in lams:
                 rows.append((n, "one block", lam, 0, 1))
                 rows.append((n, f"tiles of {1 << 18:,}", lam, 1 << 18, 2))
     elif plan == "side":
@@ -299,6 +299,7 @@ def main() -> None:
     plans = ("compare", "occlusion", "scale", "preset", "side", "closeups")
     ap.add_argument("--plan", choices=plans, default="compare")
     ap.add_argument("--variants", default="", help="run only the plan's variants whose name holds this")
+    ap.add_argument("--lams", default="8,11", help="--plan occlusion: the lambdas")
     ap.add_argument("--lam", type=float, default=8.0, help="--plan closeups: the rate")
     ap.add_argument("--workers", default="1,2", help="--plan scale, preset: the worker counts to run")
     ap.add_argument("--work", type=Path, default=Path("/work/bench_tiles"))
@@ -322,7 +323,8 @@ def main() -> None:
         if args.out:
             args.out.write_text(text)
         return
-    for n, variant, lam, tile, workers in plan_rows(args.plan, sizes, counts):
+    lams = tuple(float(x) for x in args.lams.split(","))
+    for n, variant, lam, tile, workers in plan_rows(args.plan, sizes, counts, lams):
         scene_dir = args.scenes / f"district_{n}"
         if (scene_dir.name, variant, "the preset's" if lam is None else lam, workers) in done:
             continue
