@@ -16,11 +16,13 @@ from gspc.render.kernels import JIT
 from gspc.render.rules import ALPHA_MAX, ALPHA_MIN
 
 
-@numba.njit(**JIT)
-def _box(mx, my, ex, ey, width, height):
+@numba.njit(inline="always", **JIT)
+def _gaussian(g, means2d, conics, opacities, extents, width, height):
+    """Gaussian ``g``'s mean, conic and opacity, and its box's pixel range clipped to the image."""
+    mx, my, ex, ey = means2d[g, 0], means2d[g, 1], extents[g, 0], extents[g, 1]
     x0, x1 = max(0, int(math.floor(mx - ex))), min(width - 1, int(math.ceil(mx + ex)))
     y0, y1 = max(0, int(math.floor(my - ey))), min(height - 1, int(math.ceil(my + ey)))
-    return x0, x1, y0, y1
+    return mx, my, conics[g, 0], conics[g, 1], conics[g, 2], opacities[g], x0, x1, y0, y1
 
 
 @numba.njit(inline="always", **JIT)
@@ -47,9 +49,7 @@ def opaque_depths(
     for g in np.argsort(depths):
         if extents[g, 0] < 0:
             continue
-        mx, my = means2d[g, 0], means2d[g, 1]
-        a, b, c, o = conics[g, 0], conics[g, 1], conics[g, 2], opacities[g]
-        x0, x1, y0, y1 = _box(mx, my, extents[g, 0], extents[g, 1], width, height)
+        mx, my, a, b, c, o, x0, x1, y0, y1 = _gaussian(g, means2d, conics, opacities, extents, width, height)
         for y in range(y0, y1 + 1):
             for x in range(x0, x1 + 1):
                 if far[y, x] < np.inf:
@@ -82,9 +82,7 @@ def shares_in_front(
     for g in range(len(depths)):
         if extents[g, 0] < 0:
             continue
-        mx, my = means2d[g, 0], means2d[g, 1]
-        a, b, c, o = conics[g, 0], conics[g, 1], conics[g, 2], opacities[g]
-        x0, x1, y0, y1 = _box(mx, my, extents[g, 0], extents[g, 1], width, height)
+        mx, my, a, b, c, o, x0, x1, y0, y1 = _gaussian(g, means2d, conics, opacities, extents, width, height)
         front = total = 0.0
         for y in range(y0, y1 + 1):
             r = min(rows - 1, int(y / cell))
