@@ -27,7 +27,6 @@ import numpy as np
 
 from gspc.cameras import Camera
 from gspc.encoder.coding import EncodedAttributes, SharedGrid, encode_attributes
-from gspc.encoder.occlusion import Occlusion
 from gspc.encoder.params import CodecParams
 from gspc.encoder.precision_plan import Significance
 from gspc.encoder.removal import RemovalParams, scorer, scoring_views
@@ -95,7 +94,6 @@ def code_to_fidelity(
     rp: RemovalParams = RemovalParams(),
     grid: SharedGrid | None = None,
     progress: Progress | None = None,
-    occlusion: Occlusion | None = None,
 ) -> Fidelity:
     """The coding of ``scene`` with ``params`` (at another lambda) of the fewest bytes whose PSNR at the
     scoring views is at least ``fp.target_db`` (and whose bytes are within ``fp.max_bytes_per_gaussian``):
@@ -105,8 +103,8 @@ def code_to_fidelity(
     max_bytes = None
     if fp.max_bytes_per_gaussian is not None:
         max_bytes = int(fp.max_bytes_per_gaussian * scene.num_gaussians)
-    views = scoring_views(cameras, scene.num_gaussians, rp, occlusion)  # a tile's: what the others hide
-    score = scorer(scene, views, background, occlusion)
+    views = scoring_views(cameras, scene.num_gaussians, rp)
+    score = scorer(scene, views, background)
     lo, hi = math.log(MIN_LAMBDA), math.log(MAX_LAMBDA)  # finer (closer) at lo, coarser at hi
     best: tuple[EncodedAttributes, float] | None = None
     closest: tuple[EncodedAttributes, float] | None = None

@@ -7,8 +7,8 @@ coded, each tile is rendered alone to the depth where it turns opaque (its trans
 OPAQUE_TRANSMITTANCE) at the scene's cameras and at the views halfway between them, and the scene's maps are
 folded from the tiles' (per pixel the nearest, and the nearest of any other tile). A tile's job carries, per
 view, the depth where the *other* tiles turn opaque: its measure counts of each Gaussian only the share of
-its footprint in front of that (gspc/encoder/significance.py), and its removal and fidelity searches (at
-the halfway views) and its tuning (at the cameras) score only the pixels where some of the tile is in front
+its footprint in front of that (gspc/encoder/significance.py), and its removal search (at the halfway
+views) and its tuning (at the cameras) score only the pixels where some of the tile is in front
 (gspc/encoder/removal.py scorer, gspc/encoder/tuning.py).
 
 The maps err towards precision: a tile's own opaque depth ignores what several tiles hide together, and a

@@ -10,10 +10,13 @@ worker's (gspc/workers.py), with the same bytes either way.
 
 Each tile is measured, searched and tuned with its own Gaussians alone; its measure counts of each Gaussian
 only what the other tiles leave in view (gspc/encoder/occlusion.py: every tile is first rendered alone to
-where it turns opaque, at the scene's cameras and the views halfway between them), and its removal and
-fidelity searches and its tuning score only the pixels where some of it is in front of them (bench/tiles.md,
-"What other tiles hide"). Asked for side
-information, a tile gets its own (spec 10.15), made and checked as a whole scene's is
+where it turns opaque, at the scene's cameras and the views halfway between them), and its removal search
+and its tuning score only the pixels where some of it is in front of them (bench/tiles.md, "What other tiles
+hide"). Its fidelity search scores the tile whole, as the shares below were measured: with its pixels
+masked too, the 1M district's preset landed further under its target (bench/tiles.md, "What other tiles
+hide").
+
+Asked for side information, a tile gets its own (spec 10.15), made and checked as a whole scene's is
 (gspc/encoder/side_decision.py): views among the cameras that see it, residuals of its Gaussians rendered
 alone, sent only where its check finds that the decoder's refinement with them beats the same bytes on the
 tile's attributes; a tile sent none has its values tuned.
@@ -223,7 +226,6 @@ def code_tile(job: TileJob) -> TileCoding:
             job.fidelity,
             job.removal or RemovalParams(),
             grid=job.shared,
-            occlusion=job.occlusion,
         )
         coded = replace(
             coded, encoded=fidelity.encoded, params=coded.params.with_lambda(fidelity.encoded.lam)
@@ -275,7 +277,6 @@ def code_tile(job: TileJob) -> TileCoding:
             lower,
             rp,
             grid=job.shared,
-            occlusion=job.occlusion,
         ).encoded
 
     fidelity_db = None
