@@ -80,22 +80,6 @@ def test_a_worse_removal_keeps_the_presets_coding_and_ends_the_search(monkeypatc
     assert len(choice.trials) == 1
 
 
-def test_a_step_that_only_ties_goes_on_to_the_next(monkeypatch):
-    # The first step scores within the tie of the preset's coding, the second 1 dB better: the search goes
-    # past the tie and keeps the second; a step that then loses ends it.
-    scene, cams, params, sig, first = _small()
-    scores = iter([40.0, 39.95, 41.0, 39.0])  # the preset's, x2, x4, x8
-    monkeypatch.setattr(removal, "scorer", lambda *a: lambda enc: next(scores))
-    rp = RemovalParams(steps=(2, 4, 8), position_offsets=())
-    choice = choose_removal(scene, first, params, None, sig, cams, (0, 0, 0), rp)
-    assert [t.prune for t in choice.trials] == [params.precision.prune * k for k in (2, 4, 8)]
-    assert choice.params.precision.prune == params.precision.prune * 4
-    # Without the tie's allowance the first step ends it.
-    scores = iter([40.0, 39.95, 41.0, 39.0])
-    strict = choose_removal(scene, first, params, None, sig, cams, (0, 0, 0), replace(rp, tie_db=0.0))
-    assert len(strict.trials) == 1 and strict.encoded is first
-
-
 def _coarser_scores_better(enc) -> float:
     """A scorer that rewards a coarser position grid (as the trained captures' views do) and nothing else."""
     return 40.0 + 10.0 * math.log2(max(enc.section.position.step))

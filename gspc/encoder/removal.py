@@ -67,10 +67,6 @@ class RemovalParams:
     work: int = 16 * 250_000
     # A stronger removal is taken only this far closer (dB), so that a tie does not move the file.
     min_gain_db: float = 0.1
-    # A step that falls short of that but within this of the best so far goes on to the next (not taken
-    # itself): a tie is no sign of a loss, and on the district's tiles the next steps gained dB where the
-    # first tied (bench/tiles.md, "What other tiles hide").
-    tie_db: float = 0.1
     # Then these offsets of the position grid's bits per axis (CodecParams.position_offset), in order while
     # each gains as a removal step must; each search starts at first_lambda_ratio of the kept lambda (its
     # inverse for a finer grid). The preset names them (gspc/presets.py, gspc/encoder/prepare.py
@@ -248,9 +244,7 @@ def choose_removal(
             break
         stronger = replace(precision, prune=precision.prune * step, prune_cap=rp.cap)
         if not attempt(replace(params, lam=guess, precision=stronger)):
-            t = trials[-1]
-            if t.bytes > first.num_bytes or t.psnr < best.psnr - rp.tie_db:
-                break  # a step that loses ends it: the statues lose at the first
+            break  # a step that does not gain ends it: the statues lose at the first
         # Each step's lambda falls by about the same ratio (bench/precision.md, "Removal chosen per scene").
         guess = trials[-1].lam * trials[-1].lam / (trials[-2].lam if len(trials) > 1 else first.lam)
     for offset in rp.position_offsets:
