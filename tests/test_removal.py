@@ -70,14 +70,25 @@ def test_a_better_removal_is_kept_with_its_own_parameters_in_no_more_bytes(monke
     assert "the preset's" in choice.summary()
 
 
-def test_a_worse_removal_keeps_the_presets_coding_and_ends_the_search(monkeypatch):
-    # The scorer punishes every removed Gaussian: the preset's coding stays, after one step.
+def test_a_worse_removal_keeps_the_presets_coding(monkeypatch):
+    # The scorer punishes every removed Gaussian: the preset's coding stays, after every step is tried.
     scene, cams, params, sig, first = _small()
     monkeypatch.setattr(removal, "scorer", lambda *a: lambda enc: 20.0 + 1e-2 * enc.decoded.num_gaussians)
     rp = RemovalParams(steps=(2, 4, 8), position_offsets=())
     choice = choose_removal(scene, first, params, None, sig, cams, (0, 0, 0), rp)
     assert choice.encoded is first and choice.params is params
-    assert len(choice.trials) == 1
+    assert len(choice.trials) == 3
+
+
+def test_a_step_that_loses_does_not_end_the_search(monkeypatch):
+    # x2 scores under the preset's coding, x4 1 dB over it, x8 under again: every step is tried, x4 kept.
+    scene, cams, params, sig, first = _small()
+    scores = iter([40.0, 39.0, 41.0, 39.5])  # the preset's, x2, x4, x8
+    monkeypatch.setattr(removal, "scorer", lambda *a: lambda enc: next(scores))
+    rp = RemovalParams(steps=(2, 4, 8), position_offsets=())
+    choice = choose_removal(scene, first, params, None, sig, cams, (0, 0, 0), rp)
+    assert [t.prune for t in choice.trials] == [params.precision.prune * k for k in (2, 4, 8)]
+    assert choice.params.precision.prune == params.precision.prune * 4
 
 
 def _coarser_scores_better(enc) -> float:

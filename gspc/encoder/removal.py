@@ -8,11 +8,12 @@ Gaussians that barely paint, scenes their authors already pruned (the SOG statue
 (bench/precision.md, "Removal chosen per scene"). So the encoder measures, as its check weighs side
 information against the same bytes on attributes: for each stronger removal in turn it searches the lambda
 that codes the scene in at most the preset's bytes, renders that coding at views halfway between some of its
-cameras and their nearest others, and keeps it while it is closer to the original's renders there than the
-best so far by a margin. The comparison is at equal bytes, so the file keeps the preset's rate and only its
-quality moves; not along a slope read off nearby codings (the statues' curves bend either way, and such a
-slope chose a removal well under a statue's curve), nor at the cameras themselves (removal takes what they
-show least, so they flatter it) (bench/precision.md, "Removal chosen per scene").
+cameras and their nearest others, and keeps the one closest to the original's renders there, where it beats
+the best so far by a margin (every step is tried: a weaker one can lose where a stronger one gains). The
+comparison is at equal bytes, so the file keeps the preset's rate and only its quality moves; not along a
+slope read off nearby codings (the statues' curves bend either way, and such a slope chose a removal well
+under a statue's curve), nor at the cameras themselves (removal takes what they show least, so they flatter
+it) (bench/precision.md, "Removal chosen per scene").
 
 Then, with the removal kept, the position grid a bit coarser or finer per axis (``position_offsets``, the
 preset's: gspc/presets.py), in the same bytes and scored the same way: at the low preset's rate the trained
@@ -194,11 +195,11 @@ def choose_removal(
     grid: SharedGrid | None = None,
     occlusion: Occlusion | None = None,
 ) -> RemovalChoice:
-    """The removal for ``scene`` (``first``: its coding with ``params``): the preset's, or the strongest of
-    ``rp.steps`` tried until one fails to beat the best so far in ``first``'s bytes (none where the
-    parameters remove nothing); then the position grid, the rate's or moved by ``rp.position_offsets`` alike
-    (module docstring). No search without classes or with nothing to try, and none starts past
-    ``deadline``."""
+    """The removal for ``scene`` (``first``: its coding with ``params``): the preset's, or the best of
+    ``rp.steps``, each tried in ``first``'s bytes and kept where it beats the best so far (none where the
+    parameters remove nothing); then the position grid, the rate's or moved by ``rp.position_offsets``
+    while each gains (module docstring). No search without classes or with nothing to try, and none starts
+    past ``deadline``."""
     precision = params.precision
     steps = rp.steps if precision is not None and precision.prune > 0 else ()
     sh_options = rp.sh_options if scene.sh_degree > 0 else ()
@@ -243,8 +244,10 @@ def choose_removal(
         if deadline is not None and time.perf_counter() >= deadline:
             break
         stronger = replace(precision, prune=precision.prune * step, prune_cap=rp.cap)
-        if not attempt(replace(params, lam=guess, precision=stronger)):
-            break  # a step that does not gain ends it: the statues lose at the first
+        # A step that does not gain goes on to the next all the same: on the district's tiles x8 gained dB
+        # where x2 lost (bench/tiles.md, "What other tiles hide"). One whose search missed the bytes ends it.
+        if not attempt(replace(params, lam=guess, precision=stronger)) and trials[-1].bytes > first.num_bytes:
+            break
         # Each step's lambda falls by about the same ratio (bench/precision.md, "Removal chosen per scene").
         guess = trials[-1].lam * trials[-1].lam / (trials[-2].lam if len(trials) > 1 else first.lam)
     for offset in rp.position_offsets:
