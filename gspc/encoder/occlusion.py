@@ -1,7 +1,7 @@
 """What the other tiles hide of a tile: a tile is coded alone, but the scene shows it behind its neighbours.
 
-Measured alone, a tile counts as seen what other tiles hide: on the 1M district a fifth to a third of each
-tile's blending weight at its cameras lies behind other tiles (bench/tiles.md, "What other tiles hide"): the
+Measured alone, a tile counts as seen what other tiles hide: on the 1M district much of each tile's
+blending weight at its cameras lies behind other tiles (bench/tiles.md, "What other tiles hide"): the
 precision measure spends bits on it, and the searches score errors nobody sees. So before the tiles are
 coded, each tile is rendered alone to the depth where it turns opaque (its transmittance under
 OPAQUE_TRANSMITTANCE) at the scene's cameras and at the views halfway between them, and the scene's maps are
@@ -115,7 +115,7 @@ class Occlusion:
         return out
 
     def far_at(self, camera: Camera) -> np.ndarray | None:
-        """The map of ``camera`` (one of :attr:`cameras`, as it was given; None where none is known)."""
+        """The map of ``camera`` (one of :attr:`views`, as it was given; None where none is known)."""
         key = _key(camera)
         for c, f in zip(self.views, self.far):
             if _key(c) == key:
