@@ -157,6 +157,14 @@ class EncoderDecisions:
             f"({sum(t.seconds for t in tiles):.1f} s of tile work)",
             "lambda": lam_line,
         }
+        known = [t.occlusion for t in tiles if t.occlusion is not None]
+        if known:  # gspc/encoder/occlusion.py
+            seen = [k[0] for k in known]
+            out["occlusion"] = (
+                f"each tile measured with what the other tiles hide: their opaque depths in view at "
+                f"{min(seen)}-{max(seen)} of {known[0][1]} views (the cameras and halfway between them), "
+                f"maps at 1/{known[0][2]} of their pixels"
+            )
         chosen: dict[str, int] = {}
         for t in tiles:
             key = t.removal.chosen() if t.removal is not None else "the preset's removal and grid (no search)"

@@ -200,6 +200,8 @@ class TileCoding:
     fidelity_reached: bool = True
     share_db: float = 0.0
     side: TileSide | None = None  # where side information was weighed
+    # What its job knew of the other tiles: views where some of them is in view, views, map cell in pixels.
+    occlusion: tuple[int, int, int] | None = None
 
 
 def code_tile(job: TileJob) -> TileCoding:
@@ -310,7 +312,14 @@ def code_tile(job: TileJob) -> TileCoding:
         fidelity is None or fidelity.reached,
         job.share_db,
         None if side is None else _sent_side(side, enc),
+        _occlusion_counts(job.occlusion),
     )
+
+
+def _occlusion_counts(occ: Occlusion | None) -> tuple[int, int, int] | None:
+    if occ is None:
+        return None
+    return sum(f is not None for f in occ.far), len(occ.far), occ.cell
 
 
 def _tile_side(
