@@ -14,21 +14,18 @@ hides (under 1/1000 of their weight alone) and how many of those the occlusion m
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-
-from gspc.encoder.occlusion import Occluders, map_cell, opaque_depths, scene_views  # noqa: E402
-from gspc.encoder.significance import evenly_spaced, significance  # noqa: E402
-from gspc.encoder.tiles import plan_tiles  # noqa: E402
-from gspc.io import read_scene  # noqa: E402
-from gspc.io.camera_files import load_cameras  # noqa: E402
-from gspc.presets import quality_preset  # noqa: E402
+from gspc.encoder.occlusion import Occluders, map_cell, opaque_depths, scene_views
+from gspc.encoder.significance import evenly_spaced, significance
+from gspc.encoder.tiles import plan_tiles
+from gspc.io import read_scene
+from gspc.io.camera_files import load_cameras
+from gspc.presets import quality_preset
 
 
 def main() -> None:

@@ -67,7 +67,7 @@ def opaque_depths(scene: GaussianScene, cameras: Sequence[Camera], cell: int) ->
             maps.append(None)
             continue
         p = _projected(scene, cam)
-        full = kern.opaque_depths(*_arrays(p), cam.width, cam.height, OPAQUE_TRANSMITTANCE)
+        full = kern.opaque_depths(_arrays(p), cam.width, cam.height, OPAQUE_TRANSMITTANCE)
         maps.append(_cell_max(full, cell))
     return DepthMaps(cell, tuple(maps))
 
@@ -108,7 +108,7 @@ class Occlusion:
                 out.append(None)
                 continue
             p = _projected(scene, v)
-            first = kern.opaque_depths(*_arrays(p), v.width, v.height, 1.0 - 0.5 * ALPHA_MIN)
+            first = kern.opaque_depths(_arrays(p), v.width, v.height, 1.0 - 0.5 * ALPHA_MIN)
             front = -_cell_max(-first, self.cell) < far  # the nearest of each cell's pixels
             full = np.repeat(np.repeat(front, self.cell, 0), self.cell, 1)[: v.height, : v.width]
             out.append(torch.from_numpy(full[..., None].astype(np.float32)))
@@ -129,7 +129,7 @@ class Occlusion:
         if far is None:
             return None
         w, h = round(camera.width * zoom), round(camera.height * zoom)
-        return kern.shares_in_front(*_arrays(p), w, h, far, self.cell * zoom)
+        return kern.shares_in_front(_arrays(p), w, h, far, self.cell * zoom)
 
 
 class Occluders:

@@ -1,8 +1,10 @@
 """occlusion.py's per-pixel walks compiled for the CPU (numba): where a view turns opaque, and how much of
 each Gaussian's footprint lies in front of that.
 
-Both walk each Gaussian's alpha >= 1/255 box pixel by pixel with the renderer's alpha (spec 10.12: alpha =
-min(ALPHA_MAX, o exp(-q / 2)), q = d^T conic d at pixel centres, contributions under ALPHA_MIN skipped).
+Both take the projected Gaussians as one tuple (means2d, conics, opacities, depths, extents: float64
+arrays, occlusion.py ``_arrays``) and walk each Gaussian's alpha >= 1/255 box pixel by pixel with the
+renderer's alpha (spec 10.12: alpha = min(ALPHA_MAX, o exp(-q / 2)), q = d^T conic d at pixel centres,
+contributions under ALPHA_MIN skipped).
 """
 
 from __future__ import annotations
@@ -32,18 +34,10 @@ def _alpha(x, y, mx, my, a, b, c, o):
 
 
 @numba.njit(**JIT)
-def opaque_depths(
-    means2d: np.ndarray,
-    conics: np.ndarray,
-    opacities: np.ndarray,
-    depths: np.ndarray,
-    extents: np.ndarray,
-    width: int,
-    height: int,
-    transmittance: float,
-) -> np.ndarray:
+def opaque_depths(gaussians: tuple, width: int, height: int, transmittance: float) -> np.ndarray:
     """(height, width) float32: per pixel, the depth of the Gaussian that takes the pixel's transmittance to
     ``transmittance`` or under, walking them nearest first; +inf where it never falls that far."""
+    means2d, conics, opacities, depths, extents = gaussians
     far = np.full((height, width), np.inf, dtype=np.float32)
     trans = np.ones((height, width))
     for g in np.argsort(depths):
@@ -64,19 +58,10 @@ def opaque_depths(
 
 
 @numba.njit(**JIT)
-def shares_in_front(
-    means2d: np.ndarray,
-    conics: np.ndarray,
-    opacities: np.ndarray,
-    depths: np.ndarray,
-    extents: np.ndarray,
-    width: int,
-    height: int,
-    far: np.ndarray,
-    cell: float,
-) -> np.ndarray:
+def shares_in_front(gaussians: tuple, width: int, height: int, far: np.ndarray, cell: float) -> np.ndarray:
     """(M,) float64: per Gaussian, the alpha-weighted share of its footprint whose pixel lies in front of
     ``far`` (a map whose cell covers ``cell`` x ``cell`` of these pixels); 1 for one never drawn."""
+    means2d, conics, opacities, depths, extents = gaussians
     out = np.ones(len(depths))
     rows, cols = far.shape
     for g in range(len(depths)):
