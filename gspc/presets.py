@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
-from gspc.encoder.params import CodecParams
+from gspc.encoder.params import CodecParams, SHRules
 from gspc.encoder.precision_plan import PrecisionParams
 from gspc.errors import InputError
 
@@ -44,10 +44,11 @@ class Preset:
     # bit finer (bench/precision.md, "Position precision chosen per scene" and "The high preset's positions
     # chosen per scene too").
     position_offsets: tuple[float, ...] = (-1.0,)
-    # Then, where the scene has view-dependent colour, every SH band kept without a dead zone, in the same
-    # bytes, kept where the same views show it closer: at the low preset's rate (gspc/encoder/removal.py;
+    # Then, where the scene has view-dependent colour, every SH band of every Gaussian (faint ones too)
+    # without a dead zone, in the same bytes, kept where the same views show it closer: at the low preset's
+    # rate, where keeping the faint Gaussians' too gained over every band alone (gspc/encoder/removal.py;
     # bench/precision.md, "SH choices checked per scene"). The high preset's finer steps keep it off.
-    sh_options: tuple[tuple[float, float], ...] = ((0.0, 0.0),)
+    sh_options: tuple[SHRules, ...] = (SHRules(0.0, 0.0, 0.0),)
     # Whether the encoder weighs side information at all: a file for viewers, which draw the attributes as
     # they decode (no restorer, no refinement), carries none and has its coded values tuned instead.
     side_info: bool = True

@@ -10,6 +10,7 @@ from scenes import random_scene
 import gspc.encoder.rate as rate
 from gspc.encoder import removal
 from gspc.encoder.coding import encode_attributes
+from gspc.encoder.params import SHRules
 from gspc.encoder.prepare import removal_params
 from gspc.encoder.removal import RemovalParams, Trial, better, choose_removal
 from gspc.encoder.significance import encoder_significance
@@ -25,8 +26,8 @@ def test_a_trial_is_better_only_in_no_more_bytes_and_past_the_margin():
     assert not better(best, Trial(0.07, 7.0, 1001, 45.0), 1000, 0.1)  # the search missed the bytes
 
 
-def _small():
-    scene = random_scene(1500, sh_degree=1, seed=5, log_scale=-3.5)
+def _small(opacity_logit: float = 1.0):
+    scene = random_scene(1500, sh_degree=1, seed=5, log_scale=-3.5, opacity_logit=opacity_logit)
     cams = synthesize_views(scene, 6, width=48, height=48)
     params = replace(quality_preset("low").attributes, lam=4.0)
     sig = encoder_significance(scene, cams)
@@ -138,7 +139,46 @@ def test_a_preset_that_removes_nothing_searches_only_the_grid(monkeypatch):
     assert again.chunks == choice.encoded.chunks
 
 
-def test_each_preset_names_its_grid_search():
+def test_each_preset_names_its_grid_search_and_sh_trials():
     assert removal_params(EncodeOptions(quality="low")).position_offsets == (-1.0,)
     assert removal_params(EncodeOptions(quality="high")).position_offsets == (1.0,)
+    # Low tries every SH band of every Gaussian without a dead zone; high keeps its rules.
+    assert removal_params(EncodeOptions(quality="low")).sh_options == (SHRules(0.0, 0.0, 0.0),)
+    assert removal_params(EncodeOptions(quality="high")).sh_options == ()
     assert removal_params(EncodeOptions(quality="high", removal_search=False)) is None
+
+
+def _sh_kept(enc) -> float:
+    """A scorer that rewards every Gaussian the coding keeps view-dependent colour for (as a glossy scene's
+    views do)."""
+    rest = enc.decoded.sh_rest.reshape(enc.decoded.num_gaussians, -1)
+    return 40.0 + 1e-2 * float((rest != 0).any(dim=1).sum())
+
+
+def test_sh_rules_that_keep_more_are_kept_where_they_score_better_in_no_more_bytes(monkeypatch):
+    # Every band, then faint Gaussians' too (most of this scene's are faint): each tried in turn in the
+    # preset's bytes, the last kept, and the coding kept is the one its parameters make.
+    scene, cams, params, sig, first = _small(opacity_logit=-1.5)
+    monkeypatch.setattr(removal, "scorer", lambda *a: _sh_kept)
+    bands, faint = SHRules(0.0, 0.0, params.sh_faint_alpha), SHRules(0.0, 0.0, 0.0)
+    rp = RemovalParams(steps=(), position_offsets=(), sh_options=(bands, faint))
+    choice = choose_removal(scene, first, params, None, sig, cams, (0, 0, 0), rp)
+    assert [t.sh for t in choice.trials] == [bands, faint]
+    assert choice.params.sh_rules == faint and choice.kept.sh == faint
+    assert choice.encoded.num_bytes <= first.num_bytes
+    assert again_same(scene, choice, sig)
+    assert "faint Gaussians' too" in choice.summary()
+
+
+def test_the_presets_sh_rules_stay_where_keeping_more_scores_worse(monkeypatch):
+    scene, cams, params, sig, first = _small()
+    monkeypatch.setattr(removal, "scorer", lambda *a: lambda enc: 80.0 - _sh_kept(enc))
+    rp = RemovalParams(steps=(), position_offsets=(), sh_options=(SHRules(0.0, 0.0, 0.0),))
+    choice = choose_removal(scene, first, params, None, sig, cams, (0, 0, 0), rp)
+    assert choice.encoded is first and choice.params.sh_rules == params.sh_rules
+    assert choice.chosen() == "the preset's removal and grid"
+
+
+def again_same(scene, choice, sig) -> bool:
+    """Whether ``choice``'s parameters code the scene into the coding it kept."""
+    return encode_attributes(scene, choice.params, significance=sig).chunks == choice.encoded.chunks

@@ -13,6 +13,9 @@ tuned to a small image. Scenes:
   fit_setup, as tools/bench_peers.py);
 - **statues** (``--statues``, SH degree 0): bench_setups.synth_setup: 60 views synthesised at 320x320 for the
   encoder, black background, scored at 12 views between them (``unseen``: none is an encoder camera);
+- **scenes** (``--scenes``): tools/bench_setups.py bench_scene's lego, donut, glossy and glossy-faint (the
+  last two generated, SH degree 3, written to a PLY for SPZ), every eighth of their cameras held out for
+  scoring (held_out);
 - **shells**: the statue ``--shells-object`` alone and inside tools/scenes.py's shells (``with_shells``: skies
   of large Gaussians at 10, 30 and 100 radii and far floaters), both at the object's statue setup, scored
   at ``--shell-views`` of the sphere the statues' 12 come from (12 by default; one view of a sky can decide
@@ -53,9 +56,11 @@ from bench_setups import (
     SHARED,
     UNSEEN_EXTRA,
     Setup,
+    bench_scene,
     bytes_at,
     default_encode_setup,
     fit_setup,
+    held_out,
     splat_transform,
     splat_transform_version,
     synth_setup,
@@ -65,6 +70,7 @@ from scenes import Shells, with_shells
 from gspc.cameras import Camera
 from gspc.encoder.coding import EncodedAttributes, encode_attributes
 from gspc.encoder.params import CodecParams
+from gspc.encoder.prepare import removal_params
 from gspc.encoder.removal import RemovalParams, choose_removal
 from gspc.encoder.significance import (
     SIGNIFICANCE_VIEWS,
@@ -79,8 +85,9 @@ from gspc.encoder.significance import (
 from gspc.encoder.tuning import TuningParams, tune_coding
 from gspc.format import container
 from gspc.format.chunks import SIDE
-from gspc.io import read_scene
+from gspc.io import read_scene, write_scene
 from gspc.metrics import mean_psnr, psnr
+from gspc.options import EncodeOptions
 from gspc.presets import quality_preset
 from gspc.reconstruct import render_images
 from gspc.scene import GaussianScene
@@ -216,7 +223,7 @@ class Bench:
     and where it is scored."""
 
     name: str
-    kind: str  # "bird", "statue" or "shells"
+    kind: str  # "bird", "statue", "scene" or "shells"
     path: Path | None  # the file SPZ is written from (None: a generated scene)
     scene: GaussianScene
     encoder_cams: list[Camera]
@@ -268,8 +275,8 @@ def coding(b: Bench, variant: Variant, lam: float) -> tuple[EncodedAttributes, C
     params = variant.params(lam)
     enc = encode_attributes(b.scene, params, visible=b.visible, **extra)
     cams, bg = b.encoder_cams, b.views.background
-    if variant.chooses_removal:
-        rp = RemovalParams(position_offsets=quality_preset(variant.presets[0][0]).position_offsets)
+    if variant.chooses_removal:  # the search `gspc encode` runs, its SH trials included
+        rp = removal_params(EncodeOptions(quality=variant.presets[0][0])) or RemovalParams()
         choice = choose_removal(b.scene, enc, params, b.visible, b.measure, cams, bg, rp)
         enc, params = choice.encoded, choice.params
     if variant.tunes:
@@ -459,6 +466,7 @@ def shells_section(
 def main(
     bird: str = typer.Option("/work/fits/bird_q4_100k", help="a tools/fit_scene.py output ('' to skip)"),
     statues: str = typer.Option(STATUES, help="statues (SH degree 0) in ../shared/data/statues, by name"),
+    scenes: str = typer.Option("", help="bench_setups.bench_scene's, by name (lego,donut,glossy)"),
     shells_object: str = typer.Option("massa", help="the statue the shells surround ('' to skip)"),
     covers: str = typer.Option(
         "1,0.1", help="the shells' sky cover (tools/scenes.py Shells.cover), each a world"
@@ -497,6 +505,12 @@ def main(
         path = statue_dir / f"{name}.sog"
         setup = synth_setup(name, path, unseen=True)
         benches.append(Bench.of(name, "statue", path, read_scene(path), setup))
+    for name in [x for x in scenes.split(",") if x]:
+        scene, cams, background = bench_scene(name)
+        path = tmp / f"{name}.ply"  # SPZ's input, written from what gspc read
+        write_scene(scene, path)
+        train, held = held_out(cams)
+        benches.append(Bench.of(name, "scene", path, scene, Setup(name, path, train, held, background)))
 
     results: list[tuple[Bench, Point | None, dict[str, list[Point]]]] = []
     if benches:  # compile and warm the renderer's kernels once, so the first measure's time is its own

@@ -1,5 +1,6 @@
-"""One tiled encode (and its decode) on 1 local worker, 2 local processes and a 2-CPU local Ray instance:
-wall and CPU seconds, bytes identical, per-task times and sizes, and the scaling they predict (bench/ray.md).
+"""One tiled encode (and its decode) on 1 local worker, 2 local processes, a 2-CPU local Ray instance and a
+2-worker local Dask distributed cluster: wall and CPU seconds, bytes identical, per-task times and sizes, and
+the scaling they predict (bench/ray.md).
 
     nice -n 10 python tools/bench_ray.py --scene /work/district_small/district_200000 --tile-size 65536 \\
         -o bench/ray.md
@@ -9,9 +10,12 @@ workers included) for wall and CPU seconds. The child opens the executor itself,
 its own, then codes the scene as ``gspc encode`` does (gspc/pipeline.py encode_rows) with the scene
 folder's cameras and the preset's options, and reports each tile's Gaussians, bytes and seconds. Ray runs
 twice: each worker reading its tile from the file, and the driver shipping each tile's rows as an object
-reference (``--ship-inputs``). The scaling model is ordered list scheduling of the measured 1-worker task
-times (a task goes to the first free worker, in task order, as the executors hand them out), plus the
-driver's serial part and the executor's start.
+reference (``--ship-inputs``). Dask (``pip install 'dask[distributed]'``, the [tools] extra) runs the same
+task functions through an executor of this bench's own (``DaskExecutor``: gspc itself runs on local
+processes or Ray), to measure whether it would fit better; its decode runs on 2 local processes (gspc's
+decode takes no executor from outside). The scaling model is ordered list scheduling of the measured
+1-worker task times (a task goes to the first free worker, in task order, as the executors hand them out),
+plus the driver's serial part and the executor's start.
 """
 
 from __future__ import annotations
@@ -24,6 +28,7 @@ import platform
 import subprocess
 import sys
 import time
+from contextlib import nullcontext
 from pathlib import Path
 
 from bench_tiles import _sample, _tree
@@ -34,7 +39,47 @@ RUNS = (  # name, workers, ray, ship inputs
     ("2 local processes", 2, None, False),
     ("Ray, 2 CPUs, workers read the file", 2, "auto", False),
     ("Ray, 2 CPUs, rows shipped as object refs", 2, "auto", True),
+    ("Dask, 2 workers, workers read the file", 2, "dask", False),
+    ("Dask, 2 workers, rows shipped with each task", 2, "dask", True),
 )
+
+
+def dask_executor(workers: int):
+    """An executor (gspc/workers.py) on a local Dask distributed cluster of ``workers`` one-thread worker
+    processes; its tasks run as gspc's Ray tasks do (one thread, GSPC_THREADS=1)."""
+    from distributed import Client, LocalCluster
+
+    from gspc.workers import Executor, _call, _init_worker
+
+    def task(fn, job):
+        _init_worker()
+        return _call(fn, job)
+
+    class DaskExecutor(Executor):
+        def __init__(self) -> None:
+            self.slots = workers
+            self.cluster = LocalCluster(
+                n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None
+            )
+            self.client = Client(self.cluster)
+
+        def describe(self) -> str:
+            return f"a local Dask cluster ({workers} workers)"
+
+        def _submit(self, fn, job):
+            return self.client.submit(task, fn, job, pure=False)
+
+        def _result(self, handle):
+            return handle.result()
+
+        def _cancel(self, handle) -> None:
+            handle.cancel()
+
+        def close(self) -> None:
+            self.client.close()
+            self.cluster.close()
+
+    return DaskExecutor()
 
 
 def child(spec: dict) -> dict:
@@ -63,15 +108,17 @@ def child(spec: dict) -> dict:
         tiles.code_tile = timed
     t0 = time.perf_counter()
     scene = Path(spec["scene"])
+    dask = spec["ray"] == "dask"
+    ray = None if dask else spec["ray"]
     opts = EncodeOptions(
-        tile_size=spec["tile_size"], workers=spec["workers"], ray=spec["ray"], ship_inputs=spec["ship"]
+        tile_size=spec["tile_size"], workers=spec["workers"], ray=ray, ship_inputs=spec["ship"]
     )
     opts.validate()
     cameras = load_cameras(scene / "cameras.json")
     rows = large_ply(scene / "point_cloud.ply", opts)
     assert rows is not None, "a scene larger than one tile"
     s0 = time.perf_counter()
-    with open_executor(opts.workers, opts.ray) as ex:
+    with nullcontext(dask_executor(opts.workers)) if dask else open_executor(opts.workers, opts.ray) as ex:
         start = time.perf_counter() - s0
         rep = Report()
         data = encode_rows(rows, cameras, opts, None, rep, ex)
@@ -86,7 +133,7 @@ def child(spec: dict) -> dict:
     plan_s = time.perf_counter() - p0
     d0 = time.perf_counter()
     decoded = out.with_suffix(".ply")
-    dec = decode(out, decoded, DecodeOptions(workers=spec["workers"], ray=spec["ray"]))
+    dec = decode(out, decoded, DecodeOptions(workers=spec["workers"], ray=ray))
     decode_wall = time.perf_counter() - d0
     return {
         "ran_on": rep.decisions.ran_on,
@@ -161,7 +208,7 @@ def report(rows: list[dict], scene: str, tile_size: int, machine: str) -> str:
         "reading, the executor's start, coding the tiles, writing the file. CPU: every process of the run",
         "(Ray's GCS, raylet and workers included) from Python's start to the end of the decode after the",
         "encode. Decode wall: the file decoded to a PLY on the same workers (on Ray, a second instance's",
-        "start included). The tiles stage plans the tiles and codes them.",
+        "start included; Dask's on 2 local processes). The tiles stage plans the tiles and codes them.",
         "",
         "| run | load avg at start, end | encode wall s | CPU s (all processes) | executor start s "
         "| tiles stage s | decode wall s | file bytes | same bytes as 1 worker | decoded PLY the same |",
@@ -212,6 +259,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scene", type=Path, default=Path("/work/district_small/district_200000"))
     ap.add_argument("--tile-size", type=int, default=1 << 16)
+    ap.add_argument("--lam", type=float, default=None, help="this lambda (default: the preset)")
     ap.add_argument("--work", type=Path, default=Path("/tmp/bench_ray"))
     ap.add_argument("--runs", default=",".join(str(k) for k in range(len(RUNS))), help="indices into RUNS")
     ap.add_argument("-o", "--out", type=Path, default=None, help="append the report here (default: print)")
@@ -236,6 +284,7 @@ def main() -> None:
             workers=workers,
             ray=ray,
             ship=ship,
+            lam=args.lam,
             out=str(args.work / f"{args.scene.name}-{k}.gspc"),
         )
         row = run_child(spec, args.work / "runs.log")

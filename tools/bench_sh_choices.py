@@ -1,11 +1,16 @@
-"""The SH choices checked per scene: the encoder's trial of every SH band kept without a dead zone, in the
-same bytes, against the presets' fixed SH rules (bench/precision.md, "SH choices checked per scene").
+"""The SH choices checked per scene: the encoder's trials of SH rules that drop less view-dependent colour, in
+the same bytes, against the presets' fixed SH rules (bench/precision.md, "SH choices checked per scene").
 
-    GSPC_THREADS=1 python tools/bench_sh_choices.py [--scenes lego,glossy,massa]
+    GSPC_THREADS=1 python tools/bench_sh_choices.py [--scenes lego,glossy,glossy-faint,massa]
+        [--presets low,high] [--variants off,bands,faint,both] [--lam 8]
 
-Per scene and preset, the default encode (no side information, as a viewer gets it) with the SH trial and
-without it (RemovalParams.sh_options empty): bytes, the SH choice kept, and float PSNR against the original's
-renders at held-out views (every eighth of the scene's cameras, which the encoder does not see).
+A scene is one of tools/bench_setups.py bench_scene's names or a tools/fit_scene.py output folder (the
+bird: /work/fits/bird_q4_100k). Per scene, preset and variant of the trials (RemovalParams.sh_options:
+``off`` none; ``bands`` every band kept, no dead zone; ``faint`` that and faint Gaussians' SH rest kept
+too; ``both`` the two in turn; ``preset`` the preset's own), the default encode (no side information, as a
+viewer gets it): bytes, the SH rules kept, and float PSNR against the original's renders at held-out views
+(every eighth of the scene's cameras, or the fit's own held-out ones, which the encoder does not see).
+``--lam``: at that rate instead of the preset's fidelity (equal bytes but for the trials' own search).
 """
 
 from __future__ import annotations
@@ -13,45 +18,75 @@ from __future__ import annotations
 import argparse
 import time
 from dataclasses import replace
+from pathlib import Path
 
 import torch
-from bench_setups import bench_scene, float_psnr, held_out
+from bench_setups import bench_scene, fit_setup, float_psnr, held_out
 
 import gspc.encoder.decisions as decisions
+from gspc.cameras import Camera
+from gspc.encoder.params import SHRules
+from gspc.io import read_scene
 from gspc.options import EncodeOptions
 from gspc.pipeline import decode_bytes, encode_scene
 from gspc.reconstruct import render_images
+from gspc.scene import GaussianScene
+
+BANDS = SHRules(0.0, 0.0, 0.02)
+FAINT = SHRules(0.0, 0.0, 0.0)
+VARIANTS: dict[str, tuple[SHRules, ...] | None] = {
+    "off": (),
+    "bands": (BANDS,),
+    "faint": (FAINT,),
+    "both": (BANDS, FAINT),
+    "preset": None,
+}
+
+
+def scene_and_views(
+    name: str,
+) -> tuple[GaussianScene, list[Camera], list[Camera], tuple[float, float, float]]:
+    """(scene, the encoder's cameras, held-out cameras, background) of bench_scene's ``name``, or of a
+    tools/fit_scene.py output folder (its own held-out photos' cameras)."""
+    if Path(name).is_dir():
+        s = fit_setup(Path(name))
+        return read_scene(s.scene_path), s.train_cams, s.eval_cams, s.background
+    scene, cams, bg = bench_scene(name)
+    return (scene, *held_out(cams), bg)
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--scenes", default="lego,glossy,massa")
+    ap.add_argument("--scenes", default="lego,glossy,glossy-faint,massa")
+    ap.add_argument("--presets", default="low,high")
+    ap.add_argument("--variants", default="off,preset")
+    ap.add_argument("--lam", type=float, default=None)
     args = ap.parse_args()
     torch.set_num_threads(1)
-    print("| scene | preset | SH trial | bytes | held-out PSNR dB | kept | encode s |")
+    print("| scene | preset | SH trials | bytes | held-out PSNR dB | kept | encode s |")
     print("|---|---|---|---:|---:|---|---:|")
     real = decisions.removal_params
     for name in args.scenes.split(","):
-        scene, cams, bg = bench_scene(name)
-        train, held = held_out(cams)
+        scene, train, held, bg = scene_and_views(name)
         refs = render_images(scene, held, bg)
-        for quality in ("low", "high"):
-            for trial in (True, False):
-                decisions.removal_params = (
-                    real
-                    if trial
-                    else (lambda opts: replace(real(opts), sh_options=()) if real(opts) else None)
-                )
+        for quality in args.presets.split(","):
+            for variant in args.variants.split(","):
+                options = VARIANTS[variant]
+
+                def params(opts, options=options):
+                    rp = real(opts)
+                    return rp if rp is None or options is None else replace(rp, sh_options=options)
+
+                decisions.removal_params = params
                 t0 = time.perf_counter()
-                opts = EncodeOptions(quality=quality, side_info=False, background=bg)
+                opts = EncodeOptions(quality=quality, side_info=False, background=bg, lam=args.lam)
                 data, rep = encode_scene(scene, train, opts)
                 seconds = time.perf_counter() - t0
                 dec, _ = decode_bytes(data)
                 p = float_psnr(render_images(dec, held, bg), refs)
                 kept = rep.decisions.removal.chosen() if rep.decisions.removal else "no search"
                 print(
-                    f"| {name} | {quality} | {'on' if trial else 'off'} | {len(data):,} | {p:.2f} | {kept} | "
-                    f"{seconds:.0f} |",
+                    f"| {name} | {quality} | {variant} | {len(data):,} | {p:.2f} | {kept} | {seconds:.0f} |",
                     flush=True,
                 )
     decisions.removal_params = real

@@ -124,9 +124,10 @@ def spz_range_scene(n: int = 300, degree: int = 3, seed: int = 3) -> GaussianSce
     )
 
 
-def glossy_scene(n: int = 30_000, seed: int = 0) -> GaussianScene:
+def glossy_scene(n: int = 30_000, seed: int = 0, opacity: float = 1.5) -> GaussianScene:
     """An object of strongly view-dependent colour (SH degree 3, bands as strong as the DC, decaying gently
-    with degree), the kind of glossy material whose SH the codec's fixed SH rules would cost most."""
+    with degree), the kind of glossy material whose SH the codec's fixed SH rules would cost most.
+    ``opacity``: the mean opacity logit (1.5: mostly opaque; -1: mostly faint, as trained captures are)."""
     g = np.random.default_rng(seed)
     k = 15
     decay = np.repeat([1.0, 0.8, 0.6], [3, 5, 7])[None, :, None]
@@ -134,7 +135,7 @@ def glossy_scene(n: int = 30_000, seed: int = 0) -> GaussianScene:
         g.normal(0, 0.3, (n, 3)),
         g.normal(0, 1, (n, 4)),
         g.normal(-3.6, 0.3, (n, 3)),
-        g.normal(1.5, 1.0, n),
+        g.normal(opacity, 1.0, n),
         g.normal(0, 0.5, (n, 3)),
         g.normal(0, 0.35, (n, k, 3)) * decay,
         3,

@@ -18,6 +18,25 @@ from gspc.errors import InputError
 
 
 @dataclass(frozen=True)
+class SHRules:
+    """How the encoder drops view-dependent colour, each an encoder-only choice: a Gaussian's SH band is kept
+    where it moves the views by ``keep`` of its coded steps (PrecisionParams.sh_keep; 0: every band), the SH
+    rest rounds ``deadzone`` extra steps towards zero (CodecParams.sh_deadzone), and a Gaussian whose alpha
+    is under ``faint_alpha`` x lambda carries none (CodecParams.sh_faint_alpha; 0: every Gaussian has
+    one)."""
+
+    keep: float
+    deadzone: float
+    faint_alpha: float
+
+    def words(self) -> str:
+        bands = "every SH band kept" if self.keep == 0 else f"SH bands kept from {self.keep:g} steps"
+        zone = "no" if self.deadzone == 0 else f"a {self.deadzone:g}"
+        faint = ", faint Gaussians' too" if self.faint_alpha == 0 else ""
+        return f"{bands}{faint}, {zone} dead zone"
+
+
+@dataclass(frozen=True)
 class CodecParams:
     lam: float = 1.0
     position_bits: float | None = None  # None: follow lam (see position_precision)
@@ -83,6 +102,21 @@ class CodecParams:
             return self
         knee, exponent = self.unrefined_knee, self.unrefined_lam_exponent
         return replace(self, geometry_knee=knee, geometry_lam_exponent=exponent)
+
+    @property
+    def sh_rules(self) -> SHRules | None:
+        """The rules these parameters drop view-dependent colour by (None: no per-Gaussian precision)."""
+        if self.precision is None:
+            return None
+        return SHRules(self.precision.sh_keep, self.sh_deadzone, self.sh_faint_alpha)
+
+    def with_sh_rules(self, rules: SHRules) -> CodecParams:
+        """These parameters dropping view-dependent colour by ``rules`` (per-Gaussian precision only)."""
+        if self.precision is None:
+            raise InputError("SH rules need per-Gaussian precision")
+        precision = replace(self.precision, sh_keep=rules.keep)
+        faint = rules.faint_alpha
+        return replace(self, precision=precision, sh_deadzone=rules.deadzone, sh_faint_alpha=faint)
 
     def with_lambda(self, lam: float) -> CodecParams:
         if not lam > 0:

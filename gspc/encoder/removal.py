@@ -21,6 +21,11 @@ captures code the same bytes closer a bit coarser (their Gaussians are large aga
 preset's the statues a bit finer; the others keep the rate's grid (bench/precision.md, "Position precision
 chosen per scene"). A preset that removes nothing (the high one) searches only the grid.
 
+Last, where the scene has view-dependent colour, the SH rules (which bands each Gaussian keeps, the dead
+zone, the faint Gaussians that carry none: gspc/encoder/params.py SHRules) against ones that drop less
+(``sh_options``), in the same bytes, scored the same way: what those rules drop is worth more on some scenes
+than on others (bench/precision.md, "SH choices checked per scene").
+
 Only an encoder choice: the file holds what was kept, its classes and its grid, as always.
 """
 
@@ -36,7 +41,7 @@ import torch
 from gspc.cameras import Camera
 from gspc.encoder.coding import EncodedAttributes, SharedGrid
 from gspc.encoder.occlusion import Occlusion
-from gspc.encoder.params import CodecParams
+from gspc.encoder.params import CodecParams, SHRules
 from gspc.encoder.precision_plan import Significance
 from gspc.encoder.rate import search_lambda
 from gspc.encoder.significance import evenly_spaced_indices
@@ -73,11 +78,10 @@ class RemovalParams:
     # inverse for a finer grid). The preset names them (gspc/presets.py, gspc/encoder/prepare.py
     # removal_params); none by default.
     position_offsets: tuple[float, ...] = ()
-    # Then, in a scene with view-dependent colour, these (sh_keep, SH dead zone) pairs in place of the
-    # parameters' own (PrecisionParams.sh_keep, CodecParams.sh_deadzone), each kept where it gains as a
-    # removal step must: the SH choices drop information whose worth differs by scene as the removal's does
-    # (bench/precision.md, "SH choices checked per scene"). None by default.
-    sh_options: tuple[tuple[float, float], ...] = ()
+    # Then, in a scene with view-dependent colour, these SH rules in place of the parameters' own, in order,
+    # each kept where it gains as a removal step must: the SH choices drop information whose worth differs by
+    # scene as the removal's does (bench/precision.md, "SH choices checked per scene"). None by default.
+    sh_options: tuple[SHRules, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -87,20 +91,14 @@ class Trial:
     bytes: int
     psnr: float  # mean over the scoring views, dB against the original's renders
     position_offset: float = 0.0
-    sh: tuple[float, float] | None = None  # (sh_keep, SH dead zone) tried; None: the parameters' own
+    sh: SHRules | None = None  # the SH rules tried; None: the parameters' own
 
     def label(self, base: Trial) -> str:
         if self.sh is not None:
-            return _sh_words(self.sh)
+            return self.sh.words()
         if self.position_offset:
             return f"positions {self.position_offset:+g} bit"
         return f"x{self.prune / base.prune:g}"
-
-
-def _sh_words(sh: tuple[float, float]) -> str:
-    keep, deadzone = sh
-    bands = "every SH band kept" if keep == 0 else f"SH bands kept from {keep:g} steps"
-    return f"{bands}, {'no' if deadzone == 0 else f'a {deadzone:g}'} dead zone"
 
 
 @dataclass(frozen=True)
@@ -122,7 +120,7 @@ class RemovalChoice:
         prune = self.params.precision.prune if self.params.precision is not None else 0.0
 
         def made(t: Trial) -> bool:
-            sh_ok = t.sh is None or t.sh == (self.params.precision.sh_keep, self.params.sh_deadzone)
+            sh_ok = t.sh is None or t.sh == self.params.sh_rules
             return (t.lam, t.prune, t.position_offset) == (lam, prune, offset) and sh_ok
 
         match = [t for t in self.trials if made(t)]
@@ -137,7 +135,7 @@ class RemovalChoice:
         if t.position_offset:
             parts.append(f"positions {t.position_offset:+g} bit")
         if t.sh is not None:
-            parts.append(_sh_words(t.sh))
+            parts.append(t.sh.words())
         return ", ".join(parts)
 
     def summary(self) -> str:
@@ -218,7 +216,7 @@ def choose_removal(
     best, kept = base, (first, params)
     trials: list[Trial] = []
 
-    def attempt(p: CodecParams, offset: float = 0.0, sh: tuple[float, float] | None = None) -> bool:
+    def attempt(p: CodecParams, offset: float = 0.0, sh: SHRules | None = None) -> bool:
         """Code ``p`` in ``first``'s bytes and keep it where it beats the best; whether it did."""
         nonlocal best, kept
         enc = search_lambda(
@@ -258,14 +256,12 @@ def choose_removal(
         ratio = rp.first_lambda_ratio if offset < 0 else 1.0 / rp.first_lambda_ratio
         if not attempt(replace(p, lam=p.lam * ratio, position_offset=offset), offset):
             break
-    for keep, deadzone in sh_options:
+    for rules in sh_options:
         if deadline is not None and time.perf_counter() >= deadline:
             break
         p = kept[1]
         # Keeping more of the view-dependent colour takes bytes from the rest: a higher lambda.
-        moved = replace(p, lam=p.lam / rp.first_lambda_ratio, sh_deadzone=deadzone)
-        moved = replace(moved, precision=replace(p.precision, sh_keep=keep))
-        attempt(moved, p.position_offset, (keep, deadzone))
+        attempt(replace(p, lam=p.lam / rp.first_lambda_ratio).with_sh_rules(rules), p.position_offset, rules)
     if len(trials) < stages:  # ended early: the stage is done all the same
         _tick(progress, stages, stages)
     seconds = time.perf_counter() - t0
