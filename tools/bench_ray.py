@@ -111,7 +111,11 @@ def child(spec: dict) -> dict:
     dask = spec["ray"] == "dask"
     ray = None if dask else spec["ray"]
     opts = EncodeOptions(
-        tile_size=spec["tile_size"], workers=spec["workers"], ray=ray, ship_inputs=spec["ship"]
+        tile_size=spec["tile_size"],
+        workers=spec["workers"],
+        ray=ray,
+        ship_inputs=spec["ship"],
+        lam=spec.get("lam"),
     )
     opts.validate()
     cameras = load_cameras(scene / "cameras.json")
