@@ -13,9 +13,9 @@ tuned to a small image. Scenes:
   fit_setup, as tools/bench_peers.py);
 - **statues** (``--statues``, SH degree 0): bench_setups.synth_setup: 60 views synthesised at 320x320 for the
   encoder, black background, scored at 12 views between them (``unseen``: none is an encoder camera);
-- **scenes** (``--scenes``): tools/bench_setups.py bench_scene's lego, donut, glossy and glossy-faint (the
-  last two generated, SH degree 3, written to a PLY for SPZ), every eighth of their cameras held out for
-  scoring (held_out);
+- **scenes** (``--scenes``): tools/bench_setups.py bench_scene's lego, lego-sog, donut, glossy and
+  glossy-faint (each written to a PLY from what gspc read, SPZ's input), every eighth of their cameras held
+  out for scoring (held_out);
 - **shells**: the statue ``--shells-object`` alone and inside tools/scenes.py's shells (``with_shells``: skies
   of large Gaussians at 10, 30 and 100 radii and far floaters), both at the object's statue setup, scored
   at ``--shell-views`` of the sphere the statues' 12 come from (12 by default; one view of a sky can decide
