@@ -74,8 +74,9 @@ def test_a_scene_larger_than_a_tile_is_a_tiled_file(tiled):
     assert all(t.n <= MIN_TILE_SIZE for t in f.tiles.tiles)
     assert "tiles" in rep.info and rep.info["side info"] == "none (--no-side-info)"
     # Each tile was measured with what the others hide, at the scene's cameras and the views between them.
-    seen, views, _ = rep.decisions.tiles[0].occlusion
-    assert views % 2 == 0 and 0 < seen <= views  # a view halfway from each camera
+    known = rep.decisions.tiles[0].occlusion
+    views = known.views
+    assert views % 2 == 0 and 0 < known.seen <= views  # a view halfway from each camera
     assert rep.info["occlusion"].startswith("each tile measured with what the other tiles hide"), rep.info
     assert f" of {views} views (the cameras and halfway between them)" in rep.info["occlusion"]
     # Each tile aimed at the preset's fidelity: the header states the lowest tile's, and `gspc info` says it.

@@ -25,14 +25,14 @@ from bench_setups import bench_scene, fit_setup, float_psnr, held_out
 
 import gspc.encoder.decisions as decisions
 from gspc.cameras import Camera
-from gspc.encoder.params import SHRules
+from gspc.encoder.params import CodecParams, SHRules
 from gspc.io import read_scene
 from gspc.options import EncodeOptions
 from gspc.pipeline import decode_bytes, encode_scene
 from gspc.reconstruct import render_images
 from gspc.scene import GaussianScene
 
-BANDS = SHRules(0.0, 0.0, 0.02)
+BANDS = SHRules(0.0, 0.0, CodecParams().sh_faint_alpha)  # every band, faint Gaussians still without
 FAINT = SHRules(0.0, 0.0, 0.0)
 VARIANTS: dict[str, tuple[SHRules, ...] | None] = {
     "off": (),

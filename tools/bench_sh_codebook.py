@@ -36,7 +36,10 @@ from gspc.reconstruct import render_images
 from gspc.scene import GaussianScene
 
 # The codec's SH rules: the low preset's, and the trial's that keeps every band of every Gaussian.
-RULES = {"the preset's SH rules": None, "every band of every Gaussian": SHRules(0.0, 0.0, 0.0)}
+RULES: dict[str, SHRules | None] = {
+    "the preset's SH rules": None,
+    "every band of every Gaussian": quality_preset("low").sh_options[0],
+}
 
 
 def with_rest(scene: GaussianScene, rest: np.ndarray) -> GaussianScene:

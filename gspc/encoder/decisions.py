@@ -159,11 +159,11 @@ class EncoderDecisions:
         }
         known = [t.occlusion for t in tiles if t.occlusion is not None]
         if known:  # gspc/encoder/occlusion.py
-            seen = [k[0] for k in known]
+            seen = [k.seen for k in known]
             out["occlusion"] = (
                 f"each tile measured with what the other tiles hide: their opaque depths in view at "
-                f"{min(seen)}-{max(seen)} of {known[0][1]} views (the cameras and halfway between them), "
-                f"maps at 1/{known[0][2]} of their pixels"
+                f"{min(seen)}-{max(seen)} of {known[0].views} views (the cameras and halfway between them), "
+                f"maps at 1/{known[0].cell} of their pixels"
             )
         chosen: dict[str, int] = {}
         for t in tiles:

@@ -79,6 +79,16 @@ def scene_views(cameras: Sequence[Camera]) -> tuple[Camera, ...]:
 
 
 @dataclass(frozen=True)
+class OcclusionKnown:
+    """What a tile's job knew of the other tiles, for its summary: at how many of its views some of them is
+    in view, of how many, and the maps' cell in pixels."""
+
+    seen: int
+    views: int
+    cell: int
+
+
+@dataclass(frozen=True)
 class Occlusion:
     """What a tile's job carries: per view of :func:`scene_views`, the depth where the other tiles turn
     opaque (None: nothing of theirs in view)."""
@@ -86,6 +96,9 @@ class Occlusion:
     views: tuple[Camera, ...]  # the scene's cameras, then the views halfway between them
     far: tuple[np.ndarray | None, ...]
     cell: int
+
+    def known(self) -> OcclusionKnown:
+        return OcclusionKnown(sum(f is not None for f in self.far), len(self.far), self.cell)
 
     def scoring_views(self, cameras: Sequence[Camera], picked: Sequence[int]) -> list[Camera]:
         """For each of ``cameras[i]``, i in ``picked`` (the scene's cameras), the view halfway to its nearest

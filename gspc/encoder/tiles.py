@@ -40,7 +40,15 @@ from gspc.codec import positions as pos
 from gspc.device import check_device
 from gspc.encoder.coding import EncodedAttributes, SharedGrid, prune_mask
 from gspc.encoder.fidelity import FidelityParams, code_to_fidelity, tuned_to_fidelity
-from gspc.encoder.occlusion import DepthMaps, Occluders, Occlusion, map_cell, opaque_depths, scene_views
+from gspc.encoder.occlusion import (
+    DepthMaps,
+    Occluders,
+    Occlusion,
+    OcclusionKnown,
+    map_cell,
+    opaque_depths,
+    scene_views,
+)
 from gspc.encoder.params import CodecParams
 from gspc.encoder.policy import SideInfoDecision, Tune
 from gspc.encoder.prepare import CodedAttributes, code_attributes, measure_scene
@@ -200,8 +208,7 @@ class TileCoding:
     fidelity_reached: bool = True
     share_db: float = 0.0
     side: TileSide | None = None  # where side information was weighed
-    # What its job knew of the other tiles: views where some of them is in view, views, map cell in pixels.
-    occlusion: tuple[int, int, int] | None = None
+    occlusion: OcclusionKnown | None = None  # what its job knew of the other tiles
 
 
 def code_tile(job: TileJob) -> TileCoding:
@@ -312,14 +319,8 @@ def code_tile(job: TileJob) -> TileCoding:
         fidelity is None or fidelity.reached,
         job.share_db,
         None if side is None else _sent_side(side, enc),
-        _occlusion_counts(job.occlusion),
+        None if job.occlusion is None else job.occlusion.known(),
     )
-
-
-def _occlusion_counts(occ: Occlusion | None) -> tuple[int, int, int] | None:
-    if occ is None:
-        return None
-    return sum(f is not None for f in occ.far), len(occ.far), occ.cell
 
 
 def _tile_side(
