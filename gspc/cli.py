@@ -217,6 +217,7 @@ def encode(
     device: str = _option(EncodeOptions, "device"),
     time_budget: float | None = _option(EncodeOptions, "time_budget"),
     tile_size: int = _option(EncodeOptions, "tile_size"),
+    tile_neighbours: bool = _option(EncodeOptions, "tile_neighbours"),
     workers: int | None = _option(EncodeOptions, "workers"),
     ray: str | None = _option(EncodeOptions, "ray"),
     ship_inputs: bool = _option(EncodeOptions, "ship_inputs"),
@@ -254,6 +255,7 @@ def encode(
         device=device,
         time_budget=time_budget,
         tile_size=tile_size,
+        tile_neighbours=tile_neighbours,
         workers=workers,
         ray=ray,
         ship_inputs=ship_inputs,
@@ -470,10 +472,11 @@ def _tiled_info(path: Path, reader) -> None:
     sizes = reader.tile_bytes()
     if sides:
         own = f"{len(sides)} of {len(tiles.tiles)} tiles, {sum(sides.values()):,} B"
-        out.print(f"side information of their own (refined tile by tile): {own}")
+        drawn = ", each drawn with the tiles it names" if any(t.drawn for t in tiles.tiles) else ""
+        out.print(f"side information of their own (refined tile by tile{drawn}): {own}")
     t = Table(show_header=True)
     box_col = "box (x, y, z from .. to)"
-    for col in ("tile", "Gaussians", "bytes", "B/Gaussian", box_col, "grid", "classes", "side B"):
+    for col in ("tile", "Gaussians", "bytes", "B/Gaussian", box_col, "grid", "classes", "side B", "drawn"):
         t.add_column(col, justify="left" if col.startswith("box") else "right")
     for k, tile in enumerate(tiles.tiles[:INFO_TILES]):
         b = tile.box
@@ -482,6 +485,7 @@ def _tiled_info(path: Path, reader) -> None:
         t.add_row(
             str(k), f"{tile.n:,}", f"{sizes[k]:,}", f"{sizes[k] / tile.n:.2f}", box, grid,
             str(len(tile.section.all_classes)), f"{sides[k]:,}" if k in sides else "-",
+            " ".join(map(str, tile.drawn)) or "-",
         )  # fmt: skip
     out.print(t)
     if len(tiles.tiles) > INFO_TILES:

@@ -286,6 +286,9 @@ MAX_SYNTH_VIEWS = 10_000
 # Tiles one file may hold: a tile has up to seven chunks and a file 65,535 (spec section 7), so 8,192 tiles
 # of the encoder's default size hold far more Gaussians than any scene yet captured.
 MAX_TILES = 1 << 13
+# Tiles one tile's side information may draw with its own Gaussians (spec 10.15): a cube of neighbours
+# (26) with room to spare; the Gaussians they add to its renders are bounded by its work budget.
+MAX_DRAWN_TILES = 64
 # Gaussians the encoder puts in one tile by default (--tile-size): the chosen trade of bytes (each tile pays
 # its own entropy models) against memory and parallel work (bench/tiles.md).
 DEFAULT_TILE_SIZE = 1 << 18

@@ -255,6 +255,11 @@ class EncodeOptions:
         "Gaussians per spatial tile: a larger scene is coded as tiles a decoder reads one at a time "
         "(0: one block whatever the size; bench/tiles.md)",
     )
+    tile_neighbours: bool = knob(
+        True,
+        "a tile's side information shows the tiles next to it too, drawn and never refined "
+        "(--no-tile-neighbours: its own Gaussians alone, format 1.6)",
+    )
     workers: int | None = knob(
         None,
         "worker processes that code tiles side by side (default: the cores this process may use, "

@@ -21,7 +21,7 @@ from gspc.atomic import atomic_write, atomic_write_bytes
 from gspc.cameras import Camera
 from gspc.codec.attributes import DecodedSection, decode_section
 from gspc.codec.precision import PrecisionMap
-from gspc.codec.tiles import TileDecodeJob, decode_tile
+from gspc.codec.tiles import TileDecodeJob, decode_tile, file_tile_jobs
 from gspc.device import check_device, renderer_info
 from gspc.encoder.decisions import EncoderDecisions, decide, decide_tiled, file_bytes, is_tiled
 from gspc.encoder.policy import SideInfoDecision
@@ -259,15 +259,19 @@ def _tile_scenes(
     total = sum(reader.tile_bytes())
     coordinates = reader.header.scene.coordinates if reader.header.scene else None
     tiles = reader.tiles.tiles
-    jobs = (
-        TileReconstructJob(
+
+    def job(k: int) -> TileReconstructJob:
+        side = reader.tile_side(k) if settings is not None else None
+        drawn = tiles[k].drawn if side is not None else ()  # the tiles its views show (spec 10.15)
+        return TileReconstructJob(
             TileDecodeJob(k, reader.tile(k), tiles[k].section, tiles[k].box, total),
-            reader.tile_side(k) if settings is not None else None,
+            side,
             reader.tile_allowances[k],
             settings,
+            tuple(TileDecodeJob(j, reader.tile(j), tiles[j].section, tiles[j].box, total) for j in drawn),
         )
-        for k in chosen
-    )
+
+    jobs = (job(k) for k in chosen)
     stage = "tiles" if settings is None else "tiles with their side information"
     for tile in run_tasks(reconstruct_tile, jobs, workers, _tile_name, len(chosen), progress, stage):
         tile.scene.coordinates = coordinates
@@ -302,9 +306,11 @@ def _refine_line(log: list[TileOutcome]) -> str:
     if not refined:
         reasons = sorted({t.why_not or "" for t in log})
         return f"none (tiles: {'; '.join(reasons)})"
+    drawn = sum(t.drawn for t in log)
+    beside = f", {drawn:,} Gaussians of the tiles next to them drawn beside them" if drawn else ""
     return (
         f"{len(refined)} of {len(log)} tiles refined with their own side information, "
-        f"{min(refined)}-{max(refined)} iterations"
+        f"{min(refined)}-{max(refined)} iterations{beside}"
     )
 
 
@@ -405,11 +411,7 @@ def _decode_attributes(file: GspcFile) -> DecodedSection:
     """The file's attributes: its one section, or every tile's in file order (spec 10.14)."""
     if file.tiles is None:
         return decode_section(file.attribute_chunks, file.header.attributes)
-    total = sum(sum(len(p) for p in c.values()) for c in file.tile_chunks)
-    parts = [
-        decode_tile(TileDecodeJob(k, c, t.section, t.box, total))
-        for k, (t, c) in enumerate(zip(file.tiles.tiles, file.tile_chunks))
-    ]
+    parts = [decode_tile(job) for job in file_tile_jobs(file.tiles.tiles, file.tile_chunks)]
     return DecodedSection(GaussianScene.concat(parts), None)
 
 
@@ -418,16 +420,15 @@ def _decode_tiled_bytes(file: GspcFile, opts: DecodeOptions, stages: Stages, rep
     side information where it carries some (spec 10.15)."""
     has_sides = any(side is not None for side in file.tile_sides)
     settings = _tile_settings(file.header, has_sides, opts)
-    total = sum(sum(len(p) for p in c.values()) for c in file.tile_chunks)
+    jobs = file_tile_jobs(file.tiles.tiles, file.tile_chunks)
     log: list[TileOutcome] = []
     parts = []
     with stages.stage("tiles"):
-        for k, (t, c) in enumerate(zip(file.tiles.tiles, file.tile_chunks)):
+        for k, t in enumerate(file.tiles.tiles):
+            side = file.tile_sides[k] if has_sides else None
+            drawn = t.drawn if side is not None else ()  # the tiles its views show (spec 10.15)
             job = TileReconstructJob(
-                TileDecodeJob(k, c, t.section, t.box, total),
-                file.tile_sides[k] if has_sides else None,
-                file.tile_allowances[k],
-                settings,
+                jobs[k], side, file.tile_allowances[k], settings, tuple(jobs[j] for j in drawn)
             )
             tile = reconstruct_tile(job)
             log.append(tile.outcome)

@@ -239,15 +239,16 @@ def decoder_refinement(
     lr_scale: float = 1.0,
     in_place: bool = False,
     precision: PrecisionMap | None = None,
+    drawn: GaussianScene | None = None,
 ) -> Refinement:
     """The decoder's refinement of G~ against ``targets`` (:func:`decoder_schedule`), inside the
     quantisation cells of the attribute ``section`` (None: free refinement; at version 4 with the file's
     ``precision``), ready to run. ``in_place``: G~ itself is refined (a caller that keeps no use for it saves
-    a copy)."""
+    a copy). ``drawn``: a tile's neighbours, rendered with G~ and never refined (spec 10.15)."""
     bg = torch.tensor(background, dtype=decoded.means.dtype, device=decoded.means.device)
     cells = quantisation_cells(decoded, section, precision) if section is not None else None
     schedule = decoder_schedule(iterations, lr_scale, view_coverage(decoded, cameras))
-    return Refinement(decoded, cameras, targets, schedule, bg, cells, seed, in_place=in_place)
+    return Refinement(decoded, cameras, targets, schedule, bg, cells, seed, in_place=in_place, drawn=drawn)
 
 
 def refine_in_cells(
@@ -264,10 +265,11 @@ def refine_in_cells(
     deadline: float | None = None,
     in_place: bool = False,
     precision: PrecisionMap | None = None,
+    drawn: GaussianScene | None = None,
 ) -> Refined:
     """:func:`decoder_refinement` run to its end, or to ``deadline`` when one is given."""
     run = decoder_refinement(
-        decoded, section, cameras, targets, iterations, background, seed, lr_scale, in_place, precision
+        decoded, section, cameras, targets, iterations, background, seed, lr_scale, in_place, precision, drawn
     )
     limit = Deadline(deadline) if deadline is not None else None
     run.run(deadline=limit, progress=refine_progress(progress, stage, iterations))
@@ -286,14 +288,18 @@ def reconstruct(
     seed: int = 0,
     lr_scale: float = 1.0,
     precision: PrecisionMap | None = None,
+    drawn: GaussianScene | None = None,
 ) -> Refined:
     """The decoder's reconstruction (spec 10.8), of a file or of one tile (10.15): G~ rendered at the stored
     ``views``, the renders restored with their residuals, G~ refined against them in its cells
-    (``section``; None: cells off) in place, each step a stage of ``stages`` (its progress and deadline)."""
+    (``section``; None: cells off) in place, each step a stage of ``stages`` (its progress and deadline).
+    ``drawn``: the Gaussians of the tiles a tile's views show with its own, rendered, never refined."""
     stages = stages if stages is not None else Stages()
     cams = [v.camera.to_camera() for v in views]
+    shown = scene if drawn is None else GaussianScene.concat([scene, drawn])
     with stages.stage("render", announce=False):
-        degraded = render_images(scene, cams, background, stages.progress, "render coded")
+        degraded = render_images(shown, cams, background, stages.progress, "render coded")
+    del shown
     with stages.stage("restore", announce=False):
         targets = restored_targets(degraded, views, images, restorer, stages.progress)
     del degraded
@@ -311,4 +317,5 @@ def reconstruct(
             deadline=stages.deadline,
             in_place=True,  # G~ is not needed after
             precision=precision,
+            drawn=drawn,
         )

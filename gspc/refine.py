@@ -170,7 +170,8 @@ class Refinement:
     goes on only where the score leaves its decision open; gspc/encoder/policy.py).
 
     The input is left unchanged unless ``in_place`` (which saves a copy of the scene: 59 float32 values per
-    Gaussian at SH degree 3), where it is the result. See :func:`refine` for the arguments."""
+    Gaussian at SH degree 3), where it is the result. ``drawn``: Gaussians rendered with the scene but never
+    refined (a tile's neighbours, spec 10.15). See :func:`refine` for the arguments."""
 
     def __init__(
         self,
@@ -183,9 +184,13 @@ class Refinement:
         seed: int = 0,
         attributes: Sequence[str] = ATTRIBUTE_NAMES,
         in_place: bool = False,
+        drawn: GaussianScene | None = None,
     ) -> None:
         _check_inputs(cameras, targets, attributes)
         self._scene = scene.map(lambda t: t.detach()) if in_place else scene.detach()
+        self._drawn = None
+        if drawn is not None and drawn.num_gaussians:
+            self._drawn = drawn.to(self._scene.means.device, self._scene.means.dtype).detach()
         if schedule.resolution != 1.0:
             cameras = [c.scaled(schedule.resolution) for c in cameras]
         dtype, device = self._scene.means.dtype, self._scene.means.device
@@ -229,7 +234,8 @@ class Refinement:
             for g, lr0 in zip(self._groups, self._base):
                 g["lr"] = lr0 * factor
             v = int(torch.randint(len(self._cameras), (1,), generator=self._gen))
-            image = render(self._scene, self._cameras[v], self._background).image
+            shown = self._scene if self._drawn is None else GaussianScene.concat([self._scene, self._drawn])
+            image = render(shown, self._cameras[v], self._background).image
             target = self._targets[v]
             loss = (1 - SSIM_WEIGHT) * (image - target).abs().mean() + SSIM_WEIGHT * (1 - ssim(image, target))
             self._opt.zero_grad()
@@ -269,6 +275,7 @@ def refine(
     progress: Callable[[int, int, float], None] | None = None,
     attributes: Sequence[str] = ATTRIBUTE_NAMES,
     in_place: bool = False,
+    drawn: GaussianScene | None = None,
 ) -> Refined:
     """Optimise ``attributes`` of ``scene`` so its renders at ``cameras`` match ``targets`` (H, W, 3).
 
@@ -277,7 +284,8 @@ def refine(
     :class:`Deadline`); without it the run depends on its inputs alone. ``progress(done, total, loss)`` is
     called after every step (``total`` shrinks if a deadline cuts the schedule). Returns the new, detached
     scene and the iterations run; the input is left unchanged unless ``in_place``, where it is the result.
+    ``drawn``: Gaussians rendered with ``scene`` at every step, never refined.
     """
-    run = Refinement(scene, cameras, targets, schedule, background, cells, seed, attributes, in_place)
+    run = Refinement(scene, cameras, targets, schedule, background, cells, seed, attributes, in_place, drawn)
     run.run(deadline=Deadline(deadline) if deadline is not None else None, progress=progress)
     return run.result()

@@ -1,20 +1,22 @@
 """One tile of a tiled file decoded and, where it carries side information of its own (a TSID chunk, spec
-10.15), restored and refined: the decoder's reconstruction (gspc/reconstruct.py) on the tile's Gaussians
-alone, at the tile's views, bounded by the tile's share of the file's budget. A task of plain data, so tiles
-reconstruct side by side in worker processes (gspc/workers.py), each the same wherever it runs.
+10.15), restored and refined: the decoder's reconstruction (gspc/reconstruct.py) on the tile's Gaussians, at
+the tile's views, with the tiles its index names drawn beside them (decoded, never refined), bounded by the
+tile's share of the file's budget. A task of plain data, so tiles reconstruct side by side in worker
+processes (gspc/workers.py), each the same wherever it runs: its result depends on the file alone.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-from gspc.codec.tiles import TileDecodeJob, decode_tile_section
+from gspc.codec.tiles import TileDecodeJob, decode_tile, decode_tile_section
 from gspc.device import check_device
 from gspc.format.side_chunk import SideViews
 from gspc.jit import compile_kernels, uncompiled_kernels
 from gspc.limits import RenderAllowance, default_refine_iterations
 from gspc.options import DecodeOptions
-from gspc.reconstruct import check_decode_work, decode_work, reconstruct, refine_iterations
+from gspc.reconstruct import DecodeWork, check_decode_work, decode_work, reconstruct, refine_iterations
+from gspc.render.work import drawn_at
 from gspc.restore.restorer import load_restorer
 from gspc.scene import GaussianScene
 
@@ -36,6 +38,7 @@ class TileReconstructJob:
     side: SideViews | None  # the tile's TSID, read and checked (None: the tile has none)
     allowance: RenderAllowance  # the tile's share of the file's budget (spec 10.15)
     settings: TileSideSettings | None  # None: the attributes only (no tile of the file carries side info)
+    drawn: tuple[TileDecodeJob, ...] = ()  # the tiles its views show with its own (spec 10.15)
 
 
 @dataclass(frozen=True)
@@ -45,6 +48,7 @@ class TileOutcome:
     iterations: int  # the refinement run (0: none)
     why_not: str | None  # why the tile was not refined, where it was not
     views: int  # its side information's views
+    drawn: int = 0  # the Gaussians of other tiles its refinement drew (spec 10.15)
 
 
 @dataclass(frozen=True)
@@ -55,7 +59,8 @@ class TileReconstruction:
 
 def reconstruct_tile(job: TileReconstructJob) -> TileReconstruction:
     """The tile's Gaussians: decoded, then restored and refined against its own views where it carries side
-    information and the options allow (spec 10.15; the decoder procedure of 10.8 on the tile alone)."""
+    information and the options allow (spec 10.15; the decoder procedure of 10.8 on the tile, the tiles its
+    index names drawn beside it)."""
     decoded = decode_tile_section(job.attributes)
     scene, s = decoded.scene, job.settings
     views = len(job.side.views) if job.side is not None else 0
@@ -71,9 +76,7 @@ def reconstruct_tile(job: TileReconstructJob) -> TileReconstruction:
     device = check_device(opts.device)
     if device.type == "cpu" and uncompiled_kernels():
         compile_kernels(None)
-    cams = [v.camera.to_camera() for v in job.side.views]
-    work = decode_work(scene, cams, job.side.images, job.allowance)
-    check_decode_work(work, job.allowance)
+    drawn, work = tile_views_work(scene, job.side, job.drawn, job.allowance)
     if opts.iterations is None:
         iterations = refine_iterations(s.file_iterations, work, job.allowance)
         if iterations == 0:
@@ -93,8 +96,34 @@ def reconstruct_tile(job: TileReconstructJob) -> TileReconstruction:
         seed=opts.seed,
         lr_scale=opts.lr_scale,
         precision=decoded.precision,
+        drawn=None if drawn is None else drawn.to(device),
     )
-    return TileReconstruction(refined.scene.to("cpu"), TileOutcome(refined.iterations, None, views))
+    shown = 0 if drawn is None else drawn.num_gaussians
+    return TileReconstruction(refined.scene.to("cpu"), TileOutcome(refined.iterations, None, views, shown))
+
+
+def tile_views_work(
+    scene: GaussianScene, side: SideViews, drawn_tiles: tuple[TileDecodeJob, ...], allowance: RenderAllowance
+) -> tuple[GaussianScene | None, DecodeWork]:
+    """What a tile's views show beside its own Gaussians (:func:`drawn_scene`), and the work they ask,
+    refused (CodecError) beyond the tile's allowance (spec 10.15)."""
+    cams = [v.camera.to_camera() for v in side.views]
+    drawn = drawn_scene(drawn_tiles, cams)
+    shown = scene if drawn is None else GaussianScene.concat([scene, drawn])
+    work = decode_work(shown, cams, side.images, allowance)
+    check_decode_work(work, allowance)
+    return drawn, work
+
+
+def drawn_scene(jobs: tuple[TileDecodeJob, ...], cams: list) -> GaussianScene | None:
+    """The Gaussians of the tiles ``jobs`` that have a pair at some view ``cams`` (the others draw nothing
+    there: spec 10.15), each tile decoded and culled in turn so that at most one whole tile is held."""
+    parts = []
+    for j in jobs:
+        tile = decode_tile(j)
+        parts.append(tile.subset(drawn_at(tile, cams)))
+    parts = [p for p in parts if p.num_gaussians]
+    return GaussianScene.concat(parts) if parts else None
 
 
 def _no_refinement(side: SideViews | None, s: TileSideSettings | None) -> str | None:

@@ -1,4 +1,4 @@
-"""A gspc 1.6 reader written from spec/gspc-format.md alone, as an outside implementer would write one.
+"""A gspc 1.7 reader written from spec/gspc-format.md alone, as an outside implementer would write one.
 
 It imports numpy, msgpack, zstandard and imagecodecs only, never gspc: the range decoder, the probability
 tables, the matrix coder and every payload layout follow the spec's words (section numbers in comments), in
@@ -829,6 +829,10 @@ def read_tiles(
         box = t["box"]
         need(isinstance(box, list) and len(box) == 6 and all(finite_float(x) for x in box), "tile box")
         need(all(box[a] <= box[a + 3] for a in range(3)), "tile box low above high")
+    for k, t in enumerate(tiles):  # 1.7: the tiles drawn with tile k's views, other tiles, each once
+        drawn = t.get("drawn", [])
+        ok = isinstance(drawn, list) and len(drawn) <= 64 and len(set(map(repr, drawn))) == len(drawn)
+        need(ok and all(type(j) is int and 0 <= j < len(tiles) and j != k for j in drawn), "tile's drawn")
     degrees = {t["attributes"].get("sh_degree") for t in tiles}
     need(len(degrees) == 1, "tiles of different SH degrees")
     # The index first; each attribute chunk (and each TSID, 10.15) names a tile; a tile's chunks after the

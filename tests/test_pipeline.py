@@ -330,3 +330,16 @@ def test_the_encoder_tunes_its_coded_values_unless_told_not_to(encoded, tmp_path
 def test_bad_tune_iterations_are_refused(tmp_path, value):
     with pytest.raises(InputError, match="--tune-iterations"):
         encode(tmp_path / "in.ply", tmp_path / "x.gspc", opts=EncodeOptions(tune_iterations=value))
+
+
+def test_a_target_that_sends_no_side_information_spends_it_on_attributes(tmp_path):
+    # gspc/encoder/side_decision.py: the attributes are coded again in what side information would leave;
+    # where the check then drops it (refinement did not improve the views), the file is the attributes in
+    # the whole target, as --no-side-info codes them, not in what the dropped residuals left.
+    src, out, alone = tmp_path / "in.ply", tmp_path / "o.gspc", tmp_path / "a.gspc"
+    write_ply(random_scene(3000, sh_degree=1, seed=11), src)
+    small = dict(synth_views=8, max_side=32, tune_iterations=0, check_iterations=20, target_size=12000)
+    rep = encode(src, out, opts=EncodeOptions(**small))
+    assert rep.info["side info"].startswith("none: refinement did not improve"), rep.info["side info"]
+    encode(src, alone, opts=EncodeOptions(**small, side_info=False))
+    assert out.stat().st_size >= 0.99 * alone.stat().st_size, rep.info["side info"]

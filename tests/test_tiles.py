@@ -1,7 +1,8 @@
 """Spatial tiles (format 1.5, spec 10.14): a scene larger than a tile coded as tiles a decoder reads one at a
 time, with the same bytes for any number of workers; a region decoded alone; hostile tile indexes refused;
-each tile's own side information (format 1.6, 10.15) refining it alone."""
+each tile's own side information (format 1.6, 10.15) refining it with its neighbours drawn (1.7)."""
 
+import re
 from dataclasses import replace
 
 import msgpack
@@ -181,6 +182,10 @@ def test_hostile_tile_indexes_are_refused(tiled):
         "before the tile index": _rewritten(out, order=lambda chs: [*chs[1:], chs[0]]),
         # one tile alone is not a tiled file
         "2..": _rewritten(out, [tiles[0]]),
+        # tiles drawn with a tile's views (spec 10.15): itself, one the file does not hold, one twice
+        "drawn tiles": _rewritten(out, [replace(tiles[0], drawn=(0,)), *tiles[1:]]),
+        "distinct other": _rewritten(out, [replace(tiles[0], drawn=(len(tiles),)), *tiles[1:]]),
+        "at most": _rewritten(out, [replace(tiles[0], drawn=(1, 1)), *tiles[1:]]),
     }
     for needle, data in cases.items():
         with pytest.raises(CodecError, match=needle):
@@ -258,28 +263,34 @@ def sided(tmp_path_factory):
     return src, out, rep
 
 
-def test_tiles_carry_their_own_side_information_and_refine_alone(sided, tmp_path):
+def test_tiles_carry_their_own_side_information_drawn_with_their_neighbours(sided, tmp_path):
     src, out, rep = sided
     f = read_file(out.read_bytes())
-    assert f.version == (1, 6) and len(f.tile_sides) == len(f.tiles.tiles) >= 2
-    assert all(s is not None and s.images for s in f.tile_sides), rep.info
+    sent = [k for k, side in enumerate(f.tile_sides) if side is not None]
+    assert f.version == (1, 7) and len(sent) >= 2 and all(f.tile_sides[k].images for k in sent), rep.info
     assert all(not c.required for c in f.chunks if c.type == "TSID")  # a 1.5 reader skips them
-    assert rep.info["side info"].startswith(f"each tile's own: sent for {len(f.tiles.tiles)} of"), rep.info
-    assert rep.info["decoder refines"].startswith(f"each of {len(f.tiles.tiles)} tiles against its own views")
+    # The views of a tile that sends some show the tiles next to it: here, four tiles side by side.
+    assert all(bool(t.drawn) == (k in sent) and k not in t.drawn for k, t in enumerate(f.tiles.tiles))
+    tiles = len(f.tiles.tiles)
+    assert rep.info["side info"].startswith(f"each tile's own: sent for {len(sent)} of {tiles}"), rep.info
+    assert "each drawn with its neighbouring tiles" in rep.info["side info"], rep.info
+    assert rep.info["decoder refines"].startswith(f"each of {len(sent)} tiles against its own views")
     # The same bytes on two workers, and the same bits decoded there.
     two = tmp_path / "two.gspc"
     encode(src, two, opts=EncodeOptions(**SIDED, workers=2))
     assert two.read_bytes() == out.read_bytes()
     opts = DecodeOptions(iterations=3, workers=1)
     whole, drep = decode_bytes(out.read_bytes(), opts)
-    assert drep.info["refine"].startswith(f"{len(f.tiles.tiles)} of {len(f.tiles.tiles)} tiles refined")
+    assert drep.info["refine"].startswith(f"{len(sent)} of {tiles} tiles refined"), drep.info
+    assert "of the tiles next to them drawn beside them" in drep.info["refine"], drep.info
     plain, _ = decode_bytes(out.read_bytes(), replace(opts, refine=False))
     assert not torch.equal(whole.sh_dc, plain.sh_dc)  # refinement moved the values
     a, b = tmp_path / "a.ply", tmp_path / "b.ply"
     decode(out, a, opts)
     decode(out, b, replace(opts, workers=2))
     assert a.read_bytes() == b.read_bytes()
-    # A tile refines alone: decoded as part of a region, it comes out as in the whole scene.
+    # A tile's neighbours are drawn as decoded, never refined: decoded as part of a region (its neighbours
+    # outside it), a tile comes out as in the whole scene.
     box = f.tiles.tiles[1].box
     inner = tuple((box[i] + box[i + 3]) / 2 for i in range(3))
     part = tmp_path / "part.ply"
@@ -290,6 +301,17 @@ def test_tiles_carry_their_own_side_information_and_refine_alone(sided, tmp_path
     for name in ("means", "sh_dc", "opacities", "log_scales"):
         expect = torch.cat([getattr(whole, name)[start[k] : start[k + 1]] for k in rows])
         assert torch.equal(getattr(ours, name), expect), name
+
+
+def test_tiles_alone_are_format_1_6_and_refine_alone(tmp_path):
+    src, out = tmp_path / "in.ply", tmp_path / "alone.gspc"
+    write_ply(scene(), src)
+    encode(src, out, opts=EncodeOptions(**SIDED, workers=1, tile_neighbours=False))
+    f = read_file(out.read_bytes())
+    sent = sum(side is not None for side in f.tile_sides)
+    assert f.version == (1, 6) and not any(t.drawn for t in f.tiles.tiles) and sent >= 2
+    whole, rep = decode_bytes(out.read_bytes(), DecodeOptions(iterations=3))
+    assert rep.info["refine"].startswith(f"{sent} of {len(f.tiles.tiles)} tiles refined"), rep.info
 
 
 @pytest.mark.slow
@@ -338,6 +360,42 @@ def test_each_tiles_check_is_summarised():
     """A tile's check weighs its side information against the same bytes on its attributes; the summary
     gives what the checks measured, and why none was sent."""
     _, rep = encode_scene(scene(), opts=EncodeOptions(**{**SIDED, "check_iterations": 20, "lam": 20.0}))
-    assert rep.info["tile checks"].startswith("4 tiles: refined with their side information"), rep.info
+    checks = rep.info["tile checks"]  # the tiles with a residual worth sending (of 4)
+    assert re.match(r"[1-4] tiles: refined with their side information", checks), checks
     side = rep.info["side info"]
     assert side.startswith("each tile's own: sent for") or side.startswith("none sent: "), side
+
+
+def test_a_tiles_neighbours_are_the_tiles_its_box_meets():
+    # gspc/encoder/tiles.py plan_neighbours: boxes that meet (grown by a twentieth of the tile's diagonal),
+    # never the tile itself; three unit cubes in a row, the last 1.5 apart.
+    from gspc.encoder.tiles import plan_neighbours
+
+    rng = np.random.default_rng(0)
+    cubes = [np.vstack([[0, 0, 0], [1, 1, 1], rng.random((48, 3))]) + [x, 0, 0] for x in (0.0, 1.0, 3.5)]
+    rows = [np.arange(50 * k, 50 * (k + 1)) for k in range(3)]
+    assert plan_neighbours(rows, np.concatenate(cubes)) == [(1,), (0,), ()]
+
+
+def test_the_tiles_a_tile_draws_count_in_its_work(sided):
+    # spec 10.15: the drawn tiles' Gaussians that a view sees count in its pairs and in the first work, so a
+    # tile that stays within its allowance alone is refused once what it draws passes it.
+    from gspc.codec.tiles import decode_tile, file_tile_jobs
+    from gspc.limits import RenderAllowance
+    from gspc.tile_reconstruct import tile_views_work
+
+    _, out, _ = sided
+    f = read_file(out.read_bytes())
+    k = next(k for k, t in enumerate(f.tiles.tiles) if t.drawn)
+    jobs = file_tile_jobs(f.tiles.tiles, f.tile_chunks)
+    scene = decode_tile(jobs[k])
+    roomy = RenderAllowance(1 << 30, 1 << 30, 1 << 40, f"tile {k}", "spec 10.15")
+    drawn = tuple(jobs[j] for j in f.tiles.tiles[k].drawn)
+    _, alone = tile_views_work(scene, f.tile_sides[k], (), roomy)
+    shown, work = tile_views_work(scene, f.tile_sides[k], drawn, roomy)
+    assert shown is not None and work.num_gaussians == alone.num_gaussians + shown.num_gaussians
+    assert sum(work.pairs) > sum(alone.pairs) and work.first > alone.first
+    tight = RenderAllowance(1 << 30, max(alone.pairs), alone.first, f"tile {k}", "spec 10.15")
+    tile_views_work(scene, f.tile_sides[k], (), tight)  # alone, within it
+    with pytest.raises(CodecError, match=f"tile {k}"):
+        tile_views_work(scene, f.tile_sides[k], drawn, tight)

@@ -18,8 +18,10 @@ side``: the preset with each tile's own side information (spec 10.15) against th
 the preset and in the same bytes, every eighth camera held out of the encoder and scored (the others are
 where side information may be sent, so scoring there would flatter it); ``--plan closeups``: the same
 question on tools/make_scale_scenes.py's scenes (``--scenes /work/scale``) with the close-up cameras of
-tools/bench_scale_pipeline.py, every fourth held out, at ``--lam``: tiles each with their own side
-information, one block with the scene's, and the tiles' attributes alone in the first's bytes. Results
+tools/bench_scale_pipeline.py, every fourth held out: one block with the scene's side information at
+``--lam``, then in its bytes tiles of ``--tile-size`` each with their own (their neighbours drawn, and
+alone) and the tiles' attributes alone; ``--plan fit``: the same on one scene folder (``--scenes``, with its
+cameras.json: a fit of tools/fit_scene.py), every eighth camera held out. Results
 are appended as JSON lines to ``--log`` as they come (a long run can be read while it runs) and the report
 is written from all of them at the end.
 """
@@ -31,9 +33,12 @@ import json
 import math
 import os
 import platform
+import re
 import subprocess
 import sys
 import time
+from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -164,10 +169,51 @@ def one(
     return row
 
 
-def closeup_rows(folder: Path, work: Path, lam: float, workers: int) -> list[dict]:
-    """``--plan closeups`` on one scale scene: its rows."""
-    import torch
+@dataclass(frozen=True)
+class HeldOutScene:
+    """A scene, its cameras and which of them are held out of the encoder (every ``every``-th)."""
+
+    name: str
+    ply: Path
+    cams: list
+    every: int
+
+
+def closeup_scene(folder: Path) -> HeldOutScene:
+    """``--plan closeups``: a scale scene with the close-up cameras, every fourth held out."""
     from bench_scale_pipeline import closeup_cameras
+
+    meta = json.loads((folder / "scene.json").read_text())
+    cams = next(c for c in (closeup_cameras(meta, k) for k in range(1, 64)) if len(c) >= 112)
+    return HeldOutScene(folder.name, folder / "point_cloud.ply", cams, 4)
+
+
+def fit_scene(folder: Path) -> HeldOutScene:
+    """``--plan fit``: a scene folder (point_cloud.ply and cameras.json, tools/fit_scene.py's), every eighth
+    camera held out, at 400 pixels."""
+    from gspc.io.camera_files import load_cameras
+    from gspc.views import limit_size
+
+    cams = limit_size(load_cameras(folder / "cameras.json"), 400)
+    return HeldOutScene(folder.name, folder / "point_cloud.ply", cams, 8)
+
+
+def held_out_rows(
+    scene: HeldOutScene,
+    work: Path,
+    lam: float,
+    workers: int,
+    tile_size: int,
+    only: str = "",
+    earlier: Sequence[dict] = (),
+) -> list[dict]:
+    """One block with the scene's side information at ``lam``, then in its bytes tiles each with their own
+    (their neighbours drawn, and alone), the tiles' attributes alone and the tiles' own sent unchecked, each
+    encoded with the scene's cameras but those it holds out and scored there against the original's renders
+    (float PSNR). ``only``: the variants whose name holds it (or, with |, any of them). ``earlier``: rows
+    already measured. Every row after the first is coded in the bytes of the one-block row, where the log
+    holds one, else of this run's first row."""
+    import torch
 
     from gspc.io import read_scene
     from gspc.io.cameras_json import save_cameras_json
@@ -176,37 +222,57 @@ def closeup_rows(folder: Path, work: Path, lam: float, workers: int) -> list[dic
     from gspc.views import split_test_views
 
     torch.set_num_threads(1)
-    meta = json.loads((folder / "scene.json").read_text())
-    cams = next(c for c in (closeup_cameras(meta, k) for k in range(1, 64)) if len(c) >= 112)
-    train, test = split_test_views(cams, every=4)
-    save_cameras_json([cams[i] for i in train], work / f"{folder.name}-closeups.json")
+    name, ply, cams = scene.name, scene.ply, scene.cams
+    train, test = split_test_views(cams, every=scene.every)
+    given = work / f"{name}-given.json"
+    save_cameras_json([cams[i] for i in train], given)
     held = [cams[i] for i in test]
-    reference = render_images(read_scene(folder / "point_cloud.ply"), held, (0.0, 0.0, 0.0))
-    common = ["--cameras", str(work / f"{folder.name}-closeups.json"), "--lambda", f"{lam:g}"]
+    original = read_scene(ply)
+    reference = render_images(original, held, (0.0, 0.0, 0.0))
+    common = ["--cameras", str(given), "--lambda", f"{lam:g}"]
+    tiled = ["--workers", str(workers), "--tile-size", str(tile_size)]
+    unchecked, alone = ["--check-iterations", "0"], ["--no-tile-neighbours"]
     variants = [
-        ("tiles, each its own side information", ["--workers", str(workers)]),
         ("one block, the scene's side information", ["--tile-size", "0"]),
-        ("tiles, attributes alone in the same bytes", ["--workers", str(workers), "--no-side-info"]),
+        ("tiles, each its own side information, neighbours drawn", tiled),
+        ("tiles, each its own side information, alone", [*tiled, *alone]),
+        ("tiles, attributes alone", [*tiled, "--no-side-info"]),
+        # What refinement per tile does where it runs: the checks' verdicts set aside.
+        ("tiles, each its own side information unchecked, neighbours drawn", [*tiled, *unchecked]),
+        ("tiles, each its own side information unchecked, alone", [*tiled, *unchecked, *alone]),
     ]
     rows: list[dict] = []
-    for name, args in variants:
-        out = work / f"{folder.name}-{lam:g}-{name.split(',')[0].replace(' ', '_')}.gspc"
-        if name.endswith("same bytes"):
-            args = [*args, "--target-size", str(rows[0]["bytes"])]
-        enc = run_gspc(
-            ["encode", str(folder / "point_cloud.ply"), "-o", str(out), *common, *args], work / "gspc.log"
-        )
-        tiled = ["--workers", str(workers)] if "--tile-size" not in args else []
-        dec = run_gspc(["decode", str(out), "-o", str(out.with_suffix(".ply")), *tiled], work / "gspc.log")
+    lead = variants[0][0]
+    first = [r for r in earlier if r["scene"] == name and r["lambda"] == lam and r["variant"] == lead]
+    for variant, args in variants:
+        if not any(o in variant for o in only.split("|")):
+            continue
+        slug = variant.replace(",", "").replace("'", "").replace(" ", "_")
+        out = work / f"{name}-{lam:g}-{tile_size}-{slug}.gspc"
+        if variant != lead and (first or rows):  # in the lead's bytes (the log's), else this run's first's
+            args = [*args, "--target-size", str((first + rows)[0]["bytes"])]
+        log = work / f"{out.stem}.log"
+        log.unlink(missing_ok=True)
+        enc = run_gspc(["encode", str(ply), "-o", str(out), *common, *args], log)
+        side = _summary_line(log.read_text(), "side info")
+        workers_arg = args[:2] if args[0] == "--workers" else []
+        dec = run_gspc(["decode", str(out), "-o", str(out.with_suffix(".ply")), *workers_arg], log)
         images = render_images(read_scene(out.with_suffix(".ply")), held, (0.0, 0.0, 0.0))
         p = float(
             np.mean([-10 * math.log10(max(float(mse(a, b)), 1e-12)) for a, b in zip(images, reference)])
         )
-        rows.append({"scene": folder.name, "gaussians": int(meta.get("gaussians", 0)), "variant": name,
-                     "tile_size": 0 if "--tile-size" in args else 1 << 18, "lambda": lam, "workers": workers,
-                     "bytes": out.stat().st_size, "psnr": p, "encode": enc, "decode": dec})  # fmt: skip
+        rows.append({"scene": name, "gaussians": original.num_gaussians, "variant": variant,
+                     "tile_size": 0 if args[:2] == ["--tile-size", "0"] else tile_size, "lambda": lam,
+                     "workers": workers, "bytes": out.stat().st_size, "psnr": p, "side info": side,
+                     "encode": enc, "decode": dec})  # fmt: skip
         print(json.dumps(rows[-1]), flush=True)
     return rows
+
+
+def _summary_line(text: str, key: str) -> str:
+    """The line ``key`` of a gspc summary (run with COLUMNS=300, so on one line), or "" where it has none."""
+    m = re.search(rf"^{re.escape(key)}: (.*)$", text, re.M)
+    return m.group(1).strip() if m else ""
 
 
 def plan_rows(
@@ -280,6 +346,11 @@ def report(rows: list[dict], machine: str) -> str:
             f"{e['cpu']:.0f} | {e['rss_mb']:.0f} ({e['largest_mb']:.0f}) | {d['wall']:.1f} | "
             f"{d['rss_mb']:.0f} ({d['largest_mb']:.0f}) |"
         )
+    sides = [r for r in rows if r.get("side info")]
+    if sides:
+        lines += ["", "What each encoder's summary said of side information:"]
+        for r in sides:
+            lines.append(f"- {r['scene']}, {r['variant']}, lambda {_lam(r['lambda'])}: {r['side info']}")
     # Each scene's variants against its own one block (a scene without one, a scale run, has no ratio).
     ratios = []
     for scene in sorted({r["scene"] for r in rows}):
@@ -296,11 +367,12 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scenes", type=Path, default=Path("/work/district"))
     ap.add_argument("--sizes", default="1000000")
-    plans = ("compare", "occlusion", "scale", "preset", "side", "closeups")
+    plans = ("compare", "occlusion", "scale", "preset", "side", "closeups", "fit")
     ap.add_argument("--plan", choices=plans, default="compare")
-    ap.add_argument("--variants", default="", help="run only the plan's variants whose name holds this")
+    ap.add_argument("--variants", default="", help="run only the variants whose name holds this (or, with |)")
     ap.add_argument("--lams", default="8,11", help="--plan occlusion: the lambdas")
-    ap.add_argument("--lam", type=float, default=8.0, help="--plan closeups: the rate")
+    ap.add_argument("--lam", type=float, default=8.0, help="--plan closeups, fit: the rate")
+    ap.add_argument("--tile-size", type=int, default=1 << 18, help="--plan closeups, fit: the tiles' size")
     ap.add_argument("--workers", default="1,2", help="--plan scale, preset: the worker counts to run")
     ap.add_argument("--work", type=Path, default=Path("/work/bench_tiles"))
     ap.add_argument("--log", type=Path, default=None, help="rows as JSON lines (default: WORK/rows.jsonl)")
@@ -312,9 +384,14 @@ def main() -> None:
     rows = [json.loads(x) for x in log.read_text().splitlines()] if log.exists() else []
     done = {(r["scene"], r["variant"], r["lambda"], r["workers"]) for r in rows}
     sizes, counts = [int(s) for s in args.sizes.split(",")], tuple(int(w) for w in args.workers.split(","))
-    if args.plan == "closeups":  # tools/make_scale_scenes.py's scenes, scale_N
-        for n in sizes:
-            for row in closeup_rows(args.scenes / f"scale_{n}", args.work, args.lam, counts[-1]):
+    if args.plan in ("closeups", "fit"):  # tools/make_scale_scenes.py's scenes (scale_N), or scene folders
+        folders = [args.scenes / f"scale_{n}" for n in sizes] if args.plan == "closeups" else [args.scenes]
+        held_out = closeup_scene if args.plan == "closeups" else fit_scene
+        for folder in folders:
+            found = held_out_rows(
+                held_out(folder), args.work, args.lam, counts[-1], args.tile_size, args.variants, list(rows)
+            )
+            for row in found:
                 with open(log, "a") as f:
                     f.write(json.dumps(row) + "\n")
                 rows.append(row)
@@ -328,7 +405,7 @@ def main() -> None:
         scene_dir = args.scenes / f"district_{n}"
         if (scene_dir.name, variant, "the preset's" if lam is None else lam, workers) in done:
             continue
-        if args.variants not in variant:
+        if not any(o in variant for o in args.variants.split("|")):
             continue
         side = variant.endswith("side information")
         target = None

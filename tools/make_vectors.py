@@ -1537,7 +1537,8 @@ def tile_side_chunk() -> bytes:
 
 def tile_side_vectors(ok, bad_codec, sections: list, tiles: list, tiled) -> None:
     """Side information per tile (format 1.6, spec 10.15): tile_vectors' three tiles with a TSID on tiles 0
-    and 2, decoded with their views, and one refused file for each rule of 10.15."""
+    and 2, decoded with their views, and one refused file for each rule of 10.15; the same with the tiles
+    drawn with a tile's views (1.7), and one refused file for each rule of a tile's ``drawn`` list."""
     from gspc.format.side_chunk import pack_side
     from gspc.format.view_records import ViewRecord
     from gspc.limits import PIXEL_FLOOR, PIXELS_PER_FILE_BYTE
@@ -1599,6 +1600,24 @@ def tile_side_vectors(ok, bad_codec, sections: list, tiles: list, tiled) -> None
         "without a tile index",
         minor=6,
     )
+    # Format 1.7: tiles drawn with a tile's views (10.14 `drawn`, 10.15).
+    with_drawn = [dict(tiles[0], drawn=[1, 2]), tiles[1], dict(tiles[2], drawn=[1])]
+    drawn_meta, drawn_base = tiled(with_drawn)
+    ok(
+        "codec_tile_sides_drawn",
+        "format 1.7: codec_tile_sides with tile 0's views showing tiles 1 and 2 beside it and tile 2's "
+        "tile 1 (the index's drawn lists); decoded as codec_tile_sides",
+        drawn_meta,
+        placed(placed(drawn_base, tsid(side0, 0), before=1), tsid(side2, 2), before=2),
+        minor=7,
+    )
+    for name, desc, drawn in [
+        ("codec_invalid_drawn_self", "tile 0's drawn list names tile 0", [0]),
+        ("codec_invalid_drawn_none", "tile 0's drawn list names tile 3 of 3", [3]),
+        ("codec_invalid_drawn_twice", "tile 0's drawn list names tile 1 twice", [1, 1]),
+    ]:
+        m, chs = tiled([dict(tiles[0], drawn=drawn), *tiles[1:]])
+        bad_codec(name, desc, m, placed(chs, tsid(side0, 0), before=1), "drawn", minor=7)
 
 
 def all_vectors() -> list[Vector]:

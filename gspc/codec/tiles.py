@@ -3,6 +3,7 @@ in worker processes (gspc/workers.py) with the same bits wherever they run."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -10,7 +11,7 @@ import numpy as np
 from gspc.codec.attributes import DecodedSection, decode_section
 from gspc.errors import CodecError
 from gspc.format.attribute_section import AttributeSection
-from gspc.format.tiles import Box
+from gspc.format.tiles import Box, Tile
 from gspc.limits import DecodeBudget
 from gspc.scene import GaussianScene
 
@@ -22,6 +23,12 @@ class TileDecodeJob:
     section: AttributeSection
     box: Box
     file_bytes: int  # the attribute payload bytes of all the file's tiles (the budget's share)
+
+
+def file_tile_jobs(tiles: Sequence[Tile], chunks: Sequence[dict[str, bytes]]) -> list[TileDecodeJob]:
+    """Every tile's decoding job, of a tile index's tiles and each one's attribute payloads."""
+    total = sum(sum(len(p) for p in c.values()) for c in chunks)
+    return [TileDecodeJob(k, c, t.section, t.box, total) for k, (t, c) in enumerate(zip(tiles, chunks))]
 
 
 def decode_tile(job: TileDecodeJob) -> GaussianScene:

@@ -24,6 +24,7 @@ import numpy as np
 
 from gspc import __version__
 from gspc.cameras import Camera
+from gspc.codec.tiles import decode_tile, file_tile_jobs
 from gspc.encoder.coding import EncodedAttributes, prune_mask
 from gspc.encoder.fidelity import Fidelity, FidelityParams, code_to_fidelity, tuned_to_fidelity
 from gspc.encoder.params import CodecParams
@@ -46,7 +47,7 @@ from gspc.encoder.side_decision import CHUNK_ENTRY_BYTES, SideChoice, side_infor
 from gspc.encoder.tiles import SceneRows, TileCoding, TileSettings, code_tiles
 from gspc.encoder.tuning import TuningReport, tune_coding
 from gspc.errors import CodecError, InputError
-from gspc.format.file import pack_file, pack_tiled_file
+from gspc.format.file import GspcFile, pack_file, pack_tiled_file, read_file
 from gspc.format.header import FileHeader, SceneSummary, SideInfoHeader
 from gspc.format.view_records import check_view_pixels
 from gspc.limits import ENCODE_WORKER_BYTES, RenderAllowance
@@ -56,6 +57,7 @@ from gspc.reconstruct import check_decode_work, decode_work, refine_iterations
 from gspc.restore.restorer import load_restorer
 from gspc.scene import GaussianScene
 from gspc.stages import Stages
+from gspc.tile_reconstruct import tile_views_work
 from gspc.workers import Executor, executor_for
 
 # The file's bytes around the attributes' own (preamble, the header beyond the attribute section, the
@@ -279,7 +281,14 @@ def _decide_tiled_on(
     # Each tile weighs side information of its own (spec 10.15) where the options and preset ask for any.
     side = opts if opts.side_info and quality_preset(opts.quality).side_info else None
     settings = TileSettings(
-        tuple(cams), params, opts.background, removal_params(opts), tuning_params(opts), fp, side
+        tuple(cams),
+        params,
+        opts.background,
+        removal_params(opts),
+        tuning_params(opts),
+        fp,
+        side,
+        opts.tile_neighbours,
     )
     target = None if opts.target_size is None else opts.target_size
     for _ in range(TARGET_RETRIES + 1):
@@ -330,9 +339,11 @@ def _tiles_side_line(codings: list[TileCoding], opts: EncodeOptions) -> str:
         return f"none sent: {_reasons(weighed)}"
     size = sum(len(c.side.payload) for c in sent)
     views = sum(c.side.views_with_residual for c in sent)
+    drawn = sum(len(c.tile.drawn) for c in sent)
+    beside = f", each drawn with its neighbouring tiles ({drawn / len(sent):.1f} on average)" if drawn else ""
     line = (
         f"each tile's own: sent for {len(sent)} of {len(codings)} tiles ({_reasons(sent)}), {views} views "
-        f"with a residual, {size:,} B"
+        f"with a residual, {size:,} B{beside}"
     )
     unsent = [c for c in weighed if not _sends(c)]
     return f"{line}; not sent: {_reasons(unsent)}" if unsent else line
@@ -595,6 +606,7 @@ def _tiled_file_bytes(decisions: EncoderDecisions, opts: EncodeOptions) -> bytes
     sides = decisions.tile_sides
     data = pack_tiled_file(header, [(t.tile, t.chunks) for t in tiles], None, sides)
     sizes = [sum(len(p) for p in t.chunks.values()) + len(s or b"") for t, s in zip(tiles, sides)]
+    written = read_file(data) if any(t.tile.drawn for t in tiles) else None
     for k, t in enumerate(tiles):  # each tile's views within its share of the file's budget (spec 10.15)
         if _sends(t):
             share = RenderAllowance.of_tile(k, sizes[k], sum(sizes))
@@ -602,6 +614,15 @@ def _tiled_file_bytes(decisions: EncoderDecisions, opts: EncodeOptions) -> bytes
                 if sum(t.side.work.pixels) > share.pixels:
                     raise CodecError(f"its views ask for more than its {share.pixels:,} pixels")
                 check_decode_work(t.side.work, share)
+                if written is not None and t.tile.drawn:  # as a decoder counts it: the neighbours decoded
+                    _check_drawn_work(written, k)
             except CodecError as e:
                 raise InputError(f"tile {k}: {e}; lower --max-side or --views-fraction") from None
     return data
+
+
+def _check_drawn_work(file: GspcFile, k: int) -> None:
+    """Refuse (CodecError) a tile whose views, with the tiles it draws decoded, ask beyond its share."""
+    jobs = file_tile_jobs(file.tiles.tiles, file.tile_chunks)
+    drawn = tuple(jobs[j] for j in file.tiles.tiles[k].drawn)
+    tile_views_work(decode_tile(jobs[k]), file.tile_sides[k], drawn, file.tile_allowances[k])

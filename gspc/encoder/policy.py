@@ -172,6 +172,9 @@ class CheckInputs:
     # The encoder's tuning (None: the file is not tuned): a refinement that beats the untuned rival must
     # also beat the rival tuned, the file the encoder would write in its place.
     tune: Tune | None = None
+    # A tile's neighbours, drawn with it at every view and never refined (spec 10.15; None: alone): the
+    # original's, which the decoder's coded ones differ from only where they are coded.
+    drawn: GaussianScene | None = None
 
 
 @dataclass
@@ -195,13 +198,19 @@ def check_side_info(inp: CheckInputs, progress: Progress | None = None) -> Check
     """Keep the side information only if the decoder's refinement, run here, beats at the check views the
     coded scene and the same bytes spent on attributes by ``margin_db``."""
     enc = inp.attributes
-    scene = inp.scene.to(inp.device)
+    drawn = None if inp.drawn is None else inp.drawn.to(inp.device)
+
+    def shown(s: GaussianScene) -> GaussianScene:
+        return s if drawn is None else GaussianScene.concat([s, drawn])
+
+    scene = shown(inp.scene.to(inp.device))
     reference = render_images(scene, inp.check_cameras, inp.background, progress, "check render original")
+    del scene
 
     # Capped per view: a tile's check views may show none of its error (identical to 8 bits), and an
     # infinite score would make every refinement, gain or loss, look alike (spec 10.15's tiles).
     def score(s: GaussianScene) -> float:
-        images = render_images(s.to(inp.device), inp.check_cameras, inp.background)
+        images = render_images(shown(s.to(inp.device)), inp.check_cameras, inp.background)
         return mean_psnr(images, reference, capped=True)
 
     t0 = time.perf_counter()
@@ -221,6 +230,7 @@ def check_side_info(inp: CheckInputs, progress: Progress | None = None) -> Check
         inp.iterations,
         inp.background,
         precision=enc.precision,
+        drawn=drawn,
     )
     trial = inp.policy.trial_length(inp.iterations)
     run.run(trial, deadline, _stage_report(progress, "check refine (trial)", 0, trial))

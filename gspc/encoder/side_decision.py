@@ -58,12 +58,15 @@ def side_information(
     attribute_budget: int | None,
     at_fidelity: bool = False,
     tune: Tune | None = None,
+    drawn: GaussianScene | None = None,
 ) -> SideChoice:
     """Render the sampled views, code their residuals and, where the check runs, keep the side information
     only if it pays for its bytes (gspc/encoder/policy.py). With a byte budget, the attributes are coded
     again in what the side information leaves (its residuals made again for that coding) first. Coded to a
     fidelity (``at_fidelity``), side information that does not pay costs no bytes at all. ``tune``: the
-    encoder's tuning of a file without side information, which the check's rival gets too (None: untuned)."""
+    encoder's tuning of a file without side information, which the check's rival gets too (None: untuned).
+    ``drawn``: a tile's neighbours (their original Gaussians), shown with it in every view and score and
+    never refined (spec 10.15)."""
     enc = coded.encoded
     runs = iteration_counts(opts, enc.decoded.num_gaussians)
     view_indices, view_cams = sample_side_views(cams, opts)
@@ -75,7 +78,10 @@ def side_information(
         else:
             reason = "none (no view sampled)"
         return SideChoice(unrefined_coding(scene, coded, stages), None, runs.refine, reason)
-    original, rendered, candidates = _candidates(scene, enc, view_cams, opts, runs.check, stages, device)
+    original, rendered, candidates = _candidates(
+        scene, enc, view_cams, opts, runs.check, stages, device, drawn=drawn
+    )
+    whole = coded  # in the whole budget: what a file that sends none spends it on
     if attribute_budget is not None and candidates[0].payload is not None:
         room = attribute_budget - len(candidates[0].payload) - CHUNK_ENTRY_BYTES
         with stages.stage("attributes"):
@@ -94,17 +100,17 @@ def side_information(
             enc, coded.params.with_lambda(enc.lam), coded.visible, coded.significance, grid=coded.grid
         )
         original, rendered, candidates = _candidates(
-            scene, enc, view_cams, opts, runs.check, stages, device, original
+            scene, enc, view_cams, opts, runs.check, stages, device, original, drawn
         )
     # No residual anywhere: no chunk at all (cameras alone would be dead weight).
     side = candidates[0] if candidates[0].payload is not None else None
     if side is None:
         reason = "none (no view's residual was worth sending)"
-        return SideChoice(unrefined_coding(scene, coded, stages), None, runs.refine, reason)
+        return SideChoice(unrefined_coding(scene, whole, stages), None, runs.refine, reason)
     # No more iterations than a decode of a file of at least these payloads runs (spec 10.8).
     least = enc.num_bytes + min(len(c.payload) for c in candidates if c.payload is not None)
     runs = iteration_counts(
-        opts, enc.decoded.num_gaussians, work_bound(enc.decoded, view_cams, side.images, least)
+        opts, enc.decoded.num_gaussians, work_bound(_shown(enc.decoded, drawn), view_cams, side.images, least)
     )
     if runs.check == 0:
         return SideChoice(enc, side, runs.refine, _sent(side, "unchecked, --check-iterations 0"))
@@ -127,6 +133,7 @@ def side_information(
         deadline=stages.deadline,
         grid=coded.grid,
         tune=tune,
+        drawn=drawn,
     )
     with stages.stage("check"):
         result = check_side_info(inputs, stages.progress)
@@ -140,7 +147,7 @@ def side_information(
     if d.outcome is Outcome.DROPPED or (at_fidelity and d.outcome is Outcome.SPENT_ON_ATTRIBUTES):
         # Coded to a fidelity, the attributes already reach it: side information that does not pay
         # leaves its bytes unspent rather than on attributes past the target.
-        attributes, tuning = unrefined_coding(scene, coded, stages), None
+        attributes, tuning = unrefined_coding(scene, coded if at_fidelity else whole, stages), None
     return SideChoice(attributes, None, runs.refine, _not_sent(d, at_fidelity), d, tuning)
 
 
@@ -153,21 +160,37 @@ def _candidates(
     stages: Stages,
     device,
     original: list | None = None,
+    drawn: GaussianScene | None = None,
 ) -> tuple[list, list, list[SideCandidate]]:
-    """Renders of G (``original``, where already made) and G~ at the side-information views, and the
-    residuals' candidate codings (gspc/encoder/prepare.py side_candidates)."""
+    """Renders of G (``original``, where already made) and G~ at the side-information views, each with
+    ``drawn`` beside it, and the residuals' candidate codings (gspc/encoder/prepare.py side_candidates)."""
     with stages.stage("render", announce=False):
         bg = opts.background
         # The residuals go into the file: rendered by the file's renderer rules (spec 10.12), which the
         # torch renderer follows on every device and gsplat 1.5 does not (gspc/render/gsplat_backend.py).
         if original is None:
             original = render_images(
-                scene.to(device), view_cams, bg, stages.progress, "render original", "torch"
+                _shown(scene, drawn).to(device), view_cams, bg, stages.progress, "render original", "torch"
             )
-        coded = render_images(enc.decoded.to(device), view_cams, bg, stages.progress, "render coded", "torch")
+        coded = render_images(
+            _shown(enc.decoded, drawn).to(device), view_cams, bg, stages.progress, "render coded", "torch"
+        )
     with stages.stage("side info"):
         candidates = side_candidates(opts, view_cams, view_residuals(original, coded), check_iterations)
     return original, coded, candidates
+
+
+def side_cameras(cams: list[Camera], opts: EncodeOptions) -> list[Camera]:
+    """Every camera :func:`side_information` renders a scene at: its views and its check's (a tile's
+    neighbours need be read only where these see them)."""
+    view_indices, view_cams = sample_side_views(cams, opts)
+    if not view_indices:
+        return []
+    return view_cams + check_cameras(cams, view_indices, opts.check_views)
+
+
+def _shown(scene: GaussianScene, drawn: GaussianScene | None) -> GaussianScene:
+    return scene if drawn is None else GaussianScene.concat([scene, drawn])
 
 
 def _sent(side: SideCandidate, why: str) -> str:

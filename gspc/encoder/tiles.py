@@ -18,8 +18,10 @@ hide").
 
 Asked for side information, a tile gets its own (spec 10.15), made and checked as a whole scene's is
 (gspc/encoder/side_decision.py): views among the cameras that see it, residuals of its Gaussians rendered
-alone, sent only where its check finds that the decoder's refinement with them beats the same bytes on the
-tile's attributes; a tile sent none has its values tuned.
+with its neighbours' (the tiles whose boxes meet its own, drawn and never refined; the original's, where the
+decoder draws them decoded: their coding errors show in the decoder's renders and targets alike), sent only
+where its check finds that the decoder's refinement with them beats the same bytes on the tile's
+attributes; a tile sent none has its values tuned.
 
 Coded to a fidelity, a tile gets its share of the scene's error: a view's squared error is the sum of the
 tiles' it shows, each scored over the whole image, so tiles coded to the target each left a scene of N tiles
@@ -54,12 +56,14 @@ from gspc.encoder.policy import SideInfoDecision, Tune
 from gspc.encoder.prepare import CodedAttributes, code_attributes, measure_scene
 from gspc.encoder.rate import coded_with
 from gspc.encoder.removal import RemovalChoice, RemovalParams
-from gspc.encoder.side_decision import SideChoice, side_information
+from gspc.encoder.side_decision import SideChoice, side_cameras, side_information
 from gspc.encoder.tuning import TuningParams, TuningReport, tune_coding
 from gspc.format.tiles import Box, Tile
+from gspc.limits import MAX_DRAWN_TILES
 from gspc.options import EncodeOptions
 from gspc.progress import Progress
 from gspc.reconstruct import DecodeWork, decode_work
+from gspc.render.work import drawn_at
 from gspc.restore.restorer import load_restorer
 from gspc.scene import GaussianScene
 from gspc.stages import Stages
@@ -172,6 +176,10 @@ class TileJob:
     share_db: float = 0.0  # what the fidelity's target was raised by: the tile's share of the views' error
     side: EncodeOptions | None = None  # weigh side information of the tile's own with these options
     occlusion: Occlusion | None = None  # what the other tiles hide of it (gspc/encoder/occlusion.py)
+    # The tiles its side information draws with it (spec 10.15), each as its source and rows are (rows
+    # None: the source is the tile's scene).
+    drawn: tuple[int, ...] = ()
+    drawn_tiles: tuple[tuple[object, np.ndarray | None], ...] = ()
 
 
 @dataclass(frozen=True)
@@ -264,9 +272,10 @@ def code_tile(job: TileJob) -> TileCoding:
         unrefined = coded.params.unrefined()  # the check's rival is coded for no refinement
         return unrefined if coded_with(enc, unrefined) else coded.params
 
-    side = None
+    side, drawn = None, None
     if job.side is not None and len(cams) > 1:  # the tile's own side information, checked (spec 10.15)
-        side = _tile_side(scene, cams, coded, job, tune)  # coded on the scene's grid, which its codings keep
+        drawn = _drawn(job, cams)
+        side = _tile_side(scene, cams, coded, job, tune, drawn)  # on the scene's grid, which its codings keep
         # Coded to a fidelity, a tile sent none keeps the coding that reached it (tuned below): the same bytes
         # coded for no refinement can fall far under the target at the coarse rates tiles take.
         if side.side is not None or job.fidelity is None:
@@ -303,9 +312,10 @@ def code_tile(job: TileJob) -> TileCoding:
         enc, tuning = tune(coded.encoded)
     candidates = int(prune_mask(scene, coded.params, coded.visible).sum())
     removal_choice = coded.removal if coded.removal is not None and coded.removal.base is not None else None
+    sent = side is not None and side.side is not None
     return TileCoding(
         job.number,
-        Tile(_box(enc), enc.section),
+        Tile(_box(enc), enc.section, job.drawn if sent else ()),
         enc.chunks,
         enc.kept,
         enc.lam,
@@ -318,31 +328,53 @@ def code_tile(job: TileJob) -> TileCoding:
         None if fidelity_db is None else fidelity_db - job.share_db,
         fidelity is None or fidelity.reached,
         job.share_db,
-        None if side is None else _sent_side(side, enc),
+        None if side is None else _sent_side(side, enc, drawn),
         None if job.occlusion is None else job.occlusion.known(),
     )
 
 
+def _drawn(job: TileJob, cams: list[Camera]) -> GaussianScene | None:
+    """The original Gaussians of the tiles drawn with this one that the side-information step's cameras
+    see, each tile read and culled in turn (None: none)."""
+    seen = side_cameras(cams, job.side) if job.drawn_tiles else []
+    if not seen:
+        return None
+    parts = []
+    for source, rows in job.drawn_tiles:
+        tile = source if rows is None else source.rows(rows)
+        parts.append(tile.subset(drawn_at(tile, seen)))
+    parts = [p for p in parts if p.num_gaussians]
+    return GaussianScene.concat(parts) if parts else None
+
+
 def _tile_side(
-    scene: GaussianScene, cams: list[Camera], coded: CodedAttributes, job: TileJob, tune: Tune
+    scene: GaussianScene,
+    cams: list[Camera],
+    coded: CodedAttributes,
+    job: TileJob,
+    tune: Tune,
+    drawn: GaussianScene | None,
 ) -> SideChoice:
-    """The side-information step on the tile alone, on this process's CPU (a worker has no other device)."""
+    """The side-information step on the tile, its neighbours ``drawn`` beside it, on this process's CPU (a
+    worker has no other device)."""
     opts = job.side
     device = check_device("cpu")
     restorer = load_restorer(opts.restorer, device=device)
     stages = Stages()
     at_fidelity = job.fidelity is not None
     return side_information(
-        scene, cams, coded, restorer, opts, device, stages, job.byte_target, at_fidelity, tune
+        scene, cams, coded, restorer, opts, device, stages, job.byte_target, at_fidelity, tune, drawn
     )
 
 
-def _sent_side(side: SideChoice, enc: EncodedAttributes) -> TileSide:
-    """What the file records of a tile's side-information step: its payload and the work its views ask."""
+def _sent_side(side: SideChoice, enc: EncodedAttributes, drawn: GaussianScene | None) -> TileSide:
+    """What the file records of a tile's side-information step: its payload and the work its views ask
+    (with its neighbours as the original has them; the file's check counts them decoded)."""
     if side.side is None:
         return TileSide(None, side.reason, side.refine_iterations, None, 0, side.check)
     cams = [v.camera.to_camera() for v in side.side.records]
-    work = decode_work(enc.decoded, cams, side.side.images, None)
+    shown = enc.decoded if drawn is None else GaussianScene.concat([enc.decoded, drawn])
+    work = decode_work(shown, cams, side.side.images, None)
     views = side.side.views_with_residual
     return TileSide(side.side.payload, side.reason, side.refine_iterations, work, views, side.check)
 
@@ -371,6 +403,27 @@ class TileSettings:
     tuning: TuningParams | None
     fidelity: FidelityParams | None = None
     side: EncodeOptions | None = None  # each tile weighs side information of its own (spec 10.15)
+    neighbours: bool = True  # its views show the tiles next to it too (False: the tile alone)
+
+
+# A tile's side information draws the tiles whose boxes come within this share of its box's diagonal of it:
+# those that share a face, an edge or a corner with it on the grid (bench/tiles.md, "Neighbours drawn").
+NEIGHBOUR_MARGIN = 0.05
+
+
+def plan_neighbours(rows: Sequence[np.ndarray], positions: np.ndarray) -> list[tuple[int, ...]]:
+    """Each tile's neighbours: the tiles whose boxes of positions meet its own grown by NEIGHBOUR_MARGIN,
+    nearest first, at most MAX_DRAWN_TILES."""
+    boxes = np.array([[*positions[r].min(0), *positions[r].max(0)] for r in rows])
+    out = []
+    for k, b in enumerate(boxes):
+        gaps = np.maximum(0.0, np.maximum(boxes[:, :3] - b[3:], b[:3] - boxes[:, 3:]))
+        distance = np.linalg.norm(gaps, axis=1)
+        distance[k] = np.inf
+        near = distance <= NEIGHBOUR_MARGIN * np.linalg.norm(b[3:] - b[:3])
+        order = [int(j) for j in np.argsort(distance, kind="stable") if near[j]]
+        out.append(tuple(sorted(order[:MAX_DRAWN_TILES])))
+    return out
 
 
 def code_tiles(
@@ -389,6 +442,9 @@ def code_tiles(
     shares = np.zeros(len(plan.rows))
     if settings.fidelity is not None:
         shares = error_shares(plan.rows, positions, log_scales, list(settings.cameras))
+    drawn: list[tuple[int, ...]] = [() for _ in plan.rows]
+    if settings.side is not None and settings.neighbours:
+        drawn = plan_neighbours(plan.rows, positions)
     del positions, log_scales
     occluders = None
     if len(plan.rows) > 1:
@@ -412,6 +468,8 @@ def code_tiles(
                 float(shares[k]),
                 settings.side,
                 None if occluders is None else occluders.others(k),
+                drawn[k],
+                tuple(source.tile(plan.rows[j]) for j in drawn[k]),
             )
 
     def run(targets: list[int] | None, stage: str) -> list[TileCoding]:

@@ -20,6 +20,7 @@ from gspc.format.chunks import ATTRIBUTE_TYPES, SIDE, TIDX, TSID
 from gspc.format.header import FileHeader
 from gspc.format.side_chunk import SideViews, read_side_views, read_tile_side
 from gspc.format.tiles import (
+    TILE_DRAWN_VERSION,
     TILE_SIDE_VERSION,
     TILED_VERSION,
     Tile,
@@ -234,7 +235,10 @@ def pack_tiled_file(
     side: bytes | None,
     tile_sides: Sequence[bytes | None] = (),
 ) -> bytes:
-    """The tiled file of these parts (:func:`tiled_file_chunks`), marked format 1.6 where a tile carries side
-    information of its own, else 1.5 (spec section 3)."""
+    """The tiled file of these parts (:func:`tiled_file_chunks`), marked format 1.7 where a tile's side
+    information draws other tiles, 1.6 where a tile carries side information of its own, else 1.5 (spec
+    section 3)."""
     version = TILE_SIDE_VERSION if any(s is not None for s in tile_sides) else TILED_VERSION
+    if any(t.drawn for t, _ in tiles):
+        version = TILE_DRAWN_VERSION
     return container.pack(header.to_dict(), tiled_file_chunks(tiles, side, tile_sides), version)

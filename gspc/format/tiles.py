@@ -1,5 +1,5 @@
-"""Spatial tiles (format 1.5, spec 10.14; their side information, 1.6, 10.15): the tile index and the rules
-that tie each tile to its chunks.
+"""Spatial tiles (format 1.5, spec 10.14; their side information, 1.6, 10.15, drawn with neighbouring tiles,
+1.7): the tile index and the rules that tie each tile to its chunks.
 
 A tiled file codes its scene as tiles, each an attribute section (spec 10.0) a decoder can decode alone: the
 ``TIDX`` chunk lists every tile's box and section, and tile ``k``'s attribute chunks carry index ``k``, all
@@ -18,12 +18,14 @@ import msgpack
 from gspc.errors import CodecError
 from gspc.format.attribute_section import AttributeSection, check_attribute_chunks
 from gspc.format.chunks import ATTRIBUTE_TYPES, TIDX, TSID
-from gspc.limits import MAX_TILES, RenderAllowance, max_coded_gaussians
+from gspc.limits import MAX_DRAWN_TILES, MAX_TILES, RenderAllowance, max_coded_gaussians
 
-# The format versions a file with a tile index is written as (spec section 3): 1.6 where a tile carries side
-# information of its own (a TSID chunk, 10.15), 1.5 otherwise.
+# The format versions a file with a tile index is written as (spec section 3): 1.7 where a tile's side
+# information shows other tiles drawn with it (the index's ``drawn``, 10.15), 1.6 where a tile carries side
+# information of its own (a TSID chunk), 1.5 otherwise.
 TILED_VERSION = (1, 5)
 TILE_SIDE_VERSION = (1, 6)
+TILE_DRAWN_VERSION = (1, 7)
 Box = tuple[float, float, float, float, float, float]  # lo x, y, z, hi x, y, z
 
 
@@ -33,6 +35,9 @@ class Tile:
 
     box: Box
     section: AttributeSection
+    # The tiles whose decoded Gaussians its side information's views show with its own (spec 10.15); ():
+    # the tile alone.
+    drawn: tuple[int, ...] = ()
 
     @property
     def n(self) -> int:
@@ -62,10 +67,13 @@ class TileIndex:
 
 def pack_tile_index(tiles: Sequence[Tile]) -> bytes:
     """The TIDX payload (spec 10.14): a msgpack array of one map per tile."""
-    return msgpack.packb(
-        [{"box": [float(x) for x in t.box], "attributes": t.section.to_dict()} for t in tiles],
-        use_bin_type=True,
-    )
+    entries = []
+    for t in tiles:
+        entry = {"box": [float(x) for x in t.box], "attributes": t.section.to_dict()}
+        if t.drawn:
+            entry["drawn"] = [int(j) for j in t.drawn]
+        entries.append(entry)
+    return msgpack.packb(entries, use_bin_type=True)
 
 
 def _refuse_ext(code: int, data: bytes) -> None:
@@ -96,7 +104,8 @@ def read_tile_index(payload: bytes) -> TileIndex:
     for k, entry in enumerate(raw):
         if not isinstance(entry, dict) or "box" not in entry or "attributes" not in entry:
             raise CodecError(f"tile {k} of chunk {TIDX} is not a map with a box and attributes")
-        tiles.append(Tile(_box(entry["box"], k), AttributeSection.from_dict(entry["attributes"])))
+        drawn = _drawn(entry.get("drawn", []), k, len(raw))
+        tiles.append(Tile(_box(entry["box"], k), AttributeSection.from_dict(entry["attributes"]), drawn))
     degrees = {t.section.sh_degree for t in tiles}
     if len(degrees) != 1:
         raise CodecError(f"the tiles of chunk {TIDX} have SH degrees {sorted(degrees)}; a scene has one")
@@ -110,6 +119,17 @@ def _box(value: object, k: int) -> Box:
     if any(value[a] > value[a + 3] for a in range(3)):
         raise CodecError(f"tile {k}'s box has a lower corner above its upper one")
     return tuple(value)  # type: ignore[return-value]
+
+
+def _drawn(value: object, k: int, tiles: int) -> tuple[int, ...]:
+    ok = isinstance(value, list) and len(value) <= MAX_DRAWN_TILES
+    ok = ok and all(isinstance(j, int) and not isinstance(j, bool) and 0 <= j < tiles for j in value)
+    if not ok or k in value or len(set(value)) != len(value):
+        raise CodecError(
+            f"tile {k}'s drawn tiles are not an array of at most {MAX_DRAWN_TILES} distinct other tiles' "
+            "numbers"
+        )
+    return tuple(value)
 
 
 def tile_chunks(chunks: Sequence, index: TileIndex) -> list[dict[str, bytes]]:

@@ -11,24 +11,44 @@ from gspc.render.project import project
 from gspc.render.rules import TILE
 
 
-def box_pairs(means2d: torch.Tensor, extents: torch.Tensor, width: int, height: int) -> int:
-    """The (Gaussian, tile) pairs of the boxes of half-sizes ``extents`` (M, 2) around ``means2d`` (M, 2):
-    for each Gaussian drawn (extents >= 0), the TILE x TILE tiles of a ``width`` x ``height`` image whose
-    pixel centres (x + 0.5) its box reaches on both axes. The compositor's lists (gspc/render/rasterize.py
-    bin_tiles) hold at most these: its exact test drops the tiles of a box that the ellipse misses."""
+def box_spans(means2d: torch.Tensor, extents: torch.Tensor, width: int, height: int) -> torch.Tensor:
+    """Each Gaussian's (Gaussian, tile) pairs, (M,) float64: for a Gaussian drawn (extents >= 0), the TILE x
+    TILE tiles of a ``width`` x ``height`` image whose pixel centres (x + 0.5) its box of half-sizes
+    ``extents`` (M, 2) around ``means2d`` (M, 2) reaches on both axes. The compositor's lists
+    (gspc/render/rasterize.py bin_tiles) hold at most these: its exact test drops the tiles of a box that the
+    ellipse misses."""
     size = torch.tensor([-(-width // TILE), -(-height // TILE)], dtype=torch.float64, device=means2d.device)
     m, e = means2d.detach().to(torch.float64), extents.detach().to(torch.float64)
     lo = torch.ceil((m - e - (TILE - 0.5)) / TILE).clamp_min(0.0)
     hi = torch.minimum(torch.floor((m + e - 0.5) / TILE), size - 1)
     span = (hi - lo + 1).clamp_min(0.0) * (e[:, :1] >= 0)
-    return int((span[:, 0] * span[:, 1]).sum())
+    return span[:, 0] * span[:, 1]
+
+
+def box_pairs(means2d: torch.Tensor, extents: torch.Tensor, width: int, height: int) -> int:
+    """The (Gaussian, tile) pairs of all the boxes (:func:`box_spans`)."""
+    return int(box_spans(means2d, extents, width, height).sum())
 
 
 @torch.no_grad()
-def view_pairs(scene, camera: Camera) -> int:
-    """The Gaussian-tile pairs of ``scene`` (a GaussianScene) at ``camera``: :func:`box_pairs` of its
+def view_spans(scene, camera: Camera) -> torch.Tensor:
+    """Each Gaussian's pairs of ``scene`` (a GaussianScene) at ``camera``: :func:`box_spans` of its
     projection (the renderer's own, gspc/render/project.py)."""
     p = project(
         scene.means, scene.quats, scene.log_scales, scene.opacities, scene.sh_dc, scene.sh_rest, camera, 0
     )
-    return box_pairs(p.means2d, p.extents, camera.width, camera.height)
+    return box_spans(p.means2d, p.extents, camera.width, camera.height)
+
+
+def view_pairs(scene, camera: Camera) -> int:
+    """The Gaussian-tile pairs of ``scene`` at ``camera`` (:func:`view_spans`)."""
+    return int(view_spans(scene, camera).sum())
+
+
+def drawn_at(scene, cameras) -> torch.Tensor:
+    """Which Gaussians of ``scene`` have a pair at some camera of ``cameras``: the others draw nothing
+    there, so a scene drawn beside a refined one (spec 10.15) keeps only these."""
+    keep = torch.zeros(scene.num_gaussians, dtype=torch.bool, device=scene.means.device)
+    for cam in cameras:
+        keep |= view_spans(scene, cam) > 0
+    return keep

@@ -95,6 +95,9 @@ export const ZSTD_BLOCK_MAX = 2 ** 17;
 // Tiles of one file: 2 .. 8192. A tile brings up to seven chunks and a file holds at most 65,535 (spec 7).
 export const MIN_TILES = 2;
 export const MAX_TILES = 8192;
+// Tiles one tile's side-information views may draw beside its own (a tile map's `drawn`, format 1.7, spec
+// 10.14): at most 64, each another tile of the file, none twice.
+export const MAX_DRAWN_TILES = 64;
 // What decoding tile k may spend, P_k its attribute payload bytes and P all tiles': table entries
 // max(floor(2^25 P_k / P), 16 P_k) and decompressed model-list bytes max(floor(2^23 P_k / P), 32 P_k). The
 // floors of one file are shared by its tiles in proportion to their bytes: without the share, a file of

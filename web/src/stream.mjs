@@ -60,8 +60,8 @@ class GspcReader {
   }
 
   get tiles() {
-    if (!this.index) return [{ number: 0, box: null, count: this.header.attributes.n, bytes: this.size }];
-    return this.index.tiles.map((t, k) => ({ number: k, box: t.box, count: t.section.n, bytes: this.tileLayout.tiles[k].bytes }));
+    if (!this.index) return [{ number: 0, box: null, count: this.header.attributes.n, bytes: this.size, drawn: [] }];
+    return this.index.tiles.map((t, k) => ({ number: k, box: t.box, count: t.section.n, bytes: this.tileLayout.tiles[k].bytes, drawn: t.drawn }));
   }
 
   get count() {

@@ -8,7 +8,7 @@
 
 import { ATTRIBUTE_TYPES, checkAttributeChunks, decodeAttributes } from './attributes.mjs';
 import { CodecError, show } from './errors.mjs';
-import { MAX_TILES, MIN_TILES, maxCodedGaussians, tileModelBytes, tileTableEntries } from './limits.mjs';
+import { MAX_DRAWN_TILES, MAX_TILES, MIN_TILES, maxCodedGaussians, tileModelBytes, tileTableEntries } from './limits.mjs';
 import { TileBudget } from './models.mjs';
 import { MsgReader, MsgpackError, kindOf } from './msgpack.mjs';
 import { readAttributeSection } from './section.mjs';
@@ -31,9 +31,21 @@ function readBox(value, k) {
   return value.slice();
 }
 
+function readDrawn(value, k, count) {
+  if (value === undefined) return [];
+  // msgpack integers read as BigInt (msgpack.mjs): a float is not a tile's number.
+  const ok = Array.isArray(value) && value.length <= MAX_DRAWN_TILES && new Set(value).size === value.length
+    && value.every((j) => typeof j === 'bigint' && j >= 0n && j < BigInt(count) && j !== BigInt(k));
+  if (!ok) {
+    throw new CodecError(`tile ${k}'s drawn tiles are ${show(value)}, not an array of at most ${MAX_DRAWN_TILES} distinct other tiles' numbers`);
+  }
+  return value.map(Number);
+}
+
 /**
  * The tile index of a TIDX payload (spec 10.14): {tiles: [{number, box (6 numbers: low x, y, z, high x, y,
- * z), section (readAttributeSection)}], count (all tiles' Gaussians), shDegree}. The msgpack rules of spec
+ * z), section (readAttributeSection), drawn (the tiles its side-information views show beside it, format
+ * 1.7)}], count (all tiles' Gaussians), shDegree}. The msgpack rules of spec
  * section 4 hold; CodecError names the first bad field.
  */
 export function readTileIndex(payload) {
@@ -62,7 +74,8 @@ export function readTileIndex(payload) {
       if (err instanceof CodecError) throw new CodecError(`tile ${k}: ${err.message}`);
       throw err;
     }
-    return { number: k, box, section };
+    const drawn = readDrawn(entry.get('drawn'), k, value.length);
+    return { number: k, box, section, drawn };
   });
   const degrees = [...new Set(tiles.map((t) => t.section.shDegree))];
   if (degrees.length !== 1) {
