@@ -291,10 +291,13 @@ def _decide_tiled_on(
         opts.tile_neighbours,
     )
     target = None if opts.target_size is None else opts.target_size
+    at_rate = None  # a retry codes only the tiles in their new shares
     for _ in range(TARGET_RETRIES + 1):
         budget = None if target is None else target - _tiled_framing(source.num_gaussians, opts.tile_size)
         with stages.stage("tiles", announce=False):
-            plan, codings = code_tiles(source, settings, opts.tile_size, ex, budget, stages.progress)
+            plan, codings, at_rate = code_tiles(
+                source, settings, opts.tile_size, ex, budget, stages.progress, at_rate
+            )
         given = sum(c.given for c in codings)
         candidates = sum(c.candidates for c in codings)
         coded = sum(c.tile.n for c in codings)

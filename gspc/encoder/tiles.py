@@ -426,6 +426,18 @@ def plan_neighbours(rows: Sequence[np.ndarray], positions: np.ndarray) -> list[t
     return out
 
 
+@dataclass(frozen=True)
+class TilesAtRate:
+    """A run's tiles, what their jobs need, and each one's coding at the rate: kept so that a byte target
+    the file's framing missed codes only the tiles in their new shares again."""
+
+    plan: TilePlan
+    shares: np.ndarray  # each tile's share of the views' error (dB; zeros without a fidelity)
+    drawn: tuple[tuple[int, ...], ...]  # each tile's neighbours, drawn with its side information
+    occluders: Occluders | None
+    codings: tuple[TileCoding, ...]
+
+
 def code_tiles(
     source,
     settings: TileSettings,
@@ -433,22 +445,27 @@ def code_tiles(
     workers: int,
     byte_target: int | None = None,
     progress: Progress | None = None,
-) -> tuple[TilePlan, list[TileCoding]]:
+    at_rate: TilesAtRate | None = None,
+) -> tuple[TilePlan, list[TileCoding], TilesAtRate]:
     """The tiles of ``source`` (gspc/io/ply.py PlyRows, or :class:`SceneRows`) and each one's coding, on
     ``workers`` processes. With ``byte_target``, the tiles' attribute bytes in all are brought under it:
-    each tile gets its share, in proportion to what it codes at the rate, and is coded again in it."""
-    positions, log_scales = source.positions(), source.log_scales()
-    plan = plan_tiles(positions, log_scales, settings.params.position_precision, tile_size)
-    shares = np.zeros(len(plan.rows))
-    if settings.fidelity is not None:
-        shares = error_shares(plan.rows, positions, log_scales, list(settings.cameras))
-    drawn: list[tuple[int, ...]] = [() for _ in plan.rows]
-    if settings.side is not None and settings.neighbours:
-        drawn = plan_neighbours(plan.rows, positions)
-    del positions, log_scales
-    occluders = None
-    if len(plan.rows) > 1:
-        occluders = opaque_scene(source, plan, settings.cameras, workers, progress)
+    each tile gets its share, in proportion to what it codes at the rate, and is coded again in it.
+    ``at_rate``: an earlier call's tiles and codings at the rate, which this one does not make again."""
+    if at_rate is None:
+        positions, log_scales = source.positions(), source.log_scales()
+        plan = plan_tiles(positions, log_scales, settings.params.position_precision, tile_size)
+        shares = np.zeros(len(plan.rows))
+        if settings.fidelity is not None:
+            shares = error_shares(plan.rows, positions, log_scales, list(settings.cameras))
+        drawn: list[tuple[int, ...]] = [() for _ in plan.rows]
+        if settings.side is not None and settings.neighbours:
+            drawn = plan_neighbours(plan.rows, positions)
+        del positions, log_scales
+        occluders = None
+        if len(plan.rows) > 1:
+            occluders = opaque_scene(source, plan, settings.cameras, workers, progress)
+        at_rate = TilesAtRate(plan, shares, tuple(drawn), occluders, ())
+    plan, shares, drawn, occluders = at_rate.plan, at_rate.shares, at_rate.drawn, at_rate.occluders
 
     def jobs(targets: list[int] | None):
         for k, rows in enumerate(plan.rows):
@@ -475,10 +492,12 @@ def code_tiles(
     def run(targets: list[int] | None, stage: str) -> list[TileCoding]:
         return list(run_tasks(code_tile, jobs(targets), workers, _job_name, len(plan.rows), progress, stage))
 
-    codings = run(None, "tiles")
+    if not at_rate.codings:
+        at_rate = replace(at_rate, codings=tuple(run(None, "tiles")))
+    codings = list(at_rate.codings)
     if byte_target is not None:
         codings = run(retarget(codings, byte_target), "tiles in the target")
-    return plan, codings
+    return plan, codings, at_rate
 
 
 @dataclass(frozen=True)
