@@ -255,10 +255,12 @@ class EncodeOptions:
         "Gaussians per spatial tile: a larger scene is coded as tiles a decoder reads one at a time "
         "(0: one block whatever the size; bench/tiles.md)",
     )
+    # Off by default: drawing them measured no better than a tile alone, for more encode and decode time
+    # (bench/tiles.md, "Neighbours drawn").
     tile_neighbours: bool = knob(
-        True,
-        "a tile's side information shows the tiles next to it too, drawn and never refined "
-        "(--no-tile-neighbours: its own Gaussians alone, format 1.6)",
+        False,
+        "a tile's side information shows the tiles next to it too, drawn and never refined (format 1.7; "
+        "default: each tile's own Gaussians alone)",
     )
     workers: int | None = knob(
         None,

@@ -259,7 +259,7 @@ def sided(tmp_path_factory):
     d = tmp_path_factory.mktemp("sided")
     src, out = d / "in.ply", d / "s.gspc"
     write_ply(scene(), src)
-    rep = encode(src, out, opts=EncodeOptions(**SIDED, workers=1))
+    rep = encode(src, out, opts=EncodeOptions(**SIDED, workers=1, tile_neighbours=True))
     return src, out, rep
 
 
@@ -277,7 +277,7 @@ def test_tiles_carry_their_own_side_information_drawn_with_their_neighbours(side
     assert rep.info["decoder refines"].startswith(f"each of {len(sent)} tiles against its own views")
     # The same bytes on two workers, and the same bits decoded there.
     two = tmp_path / "two.gspc"
-    encode(src, two, opts=EncodeOptions(**SIDED, workers=2))
+    encode(src, two, opts=EncodeOptions(**SIDED, workers=2, tile_neighbours=True))
     assert two.read_bytes() == out.read_bytes()
     opts = DecodeOptions(iterations=3, workers=1)
     whole, drep = decode_bytes(out.read_bytes(), opts)
@@ -306,7 +306,7 @@ def test_tiles_carry_their_own_side_information_drawn_with_their_neighbours(side
 def test_tiles_alone_are_format_1_6_and_refine_alone(tmp_path):
     src, out = tmp_path / "in.ply", tmp_path / "alone.gspc"
     write_ply(scene(), src)
-    encode(src, out, opts=EncodeOptions(**SIDED, workers=1, tile_neighbours=False))
+    encode(src, out, opts=EncodeOptions(**SIDED, workers=1))  # the default: each tile alone
     f = read_file(out.read_bytes())
     sent = sum(side is not None for side in f.tile_sides)
     assert f.version == (1, 6) and not any(t.drawn for t in f.tiles.tiles) and sent >= 2

@@ -231,14 +231,15 @@ def held_out_rows(
     reference = render_images(original, held, (0.0, 0.0, 0.0))
     common = ["--cameras", str(given), "--lambda", f"{lam:g}"]
     tiled = ["--workers", str(workers), "--tile-size", str(tile_size)]
-    unchecked, alone = ["--check-iterations", "0"], ["--no-tile-neighbours"]
+    unchecked = ["--check-iterations", "0"]
+    drawn, alone = ["--tile-neighbours"], ["--no-tile-neighbours"]
     variants = [
         ("one block, the scene's side information", ["--tile-size", "0"]),
-        ("tiles, each its own side information, neighbours drawn", tiled),
+        ("tiles, each its own side information, neighbours drawn", [*tiled, *drawn]),
         ("tiles, each its own side information, alone", [*tiled, *alone]),
         ("tiles, attributes alone", [*tiled, "--no-side-info"]),
         # What refinement per tile does where it runs: the checks' verdicts set aside.
-        ("tiles, each its own side information unchecked, neighbours drawn", [*tiled, *unchecked]),
+        ("tiles, each its own side information unchecked, neighbours drawn", [*tiled, *unchecked, *drawn]),
         ("tiles, each its own side information unchecked, alone", [*tiled, *unchecked, *alone]),
     ]
     rows: list[dict] = []

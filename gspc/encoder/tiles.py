@@ -18,10 +18,10 @@ hide").
 
 Asked for side information, a tile gets its own (spec 10.15), made and checked as a whole scene's is
 (gspc/encoder/side_decision.py): views among the cameras that see it, residuals of its Gaussians rendered
-with its neighbours' (the tiles whose boxes meet its own, drawn and never refined; the original's, where the
-decoder draws them decoded: their coding errors show in the decoder's renders and targets alike), sent only
-where its check finds that the decoder's refinement with them beats the same bytes on the tile's
-attributes; a tile sent none has its values tuned.
+alone or, asked (--tile-neighbours), with its neighbours' (the tiles whose boxes meet its own, drawn and
+never refined; the original's, where the decoder draws them decoded: their coding errors show in the
+decoder's renders and targets alike), sent only where its check finds that the decoder's refinement with
+them beats the same bytes on the tile's attributes; a tile sent none has its values tuned.
 
 Coded to a fidelity, a tile gets its share of the scene's error: a view's squared error is the sum of the
 tiles' it shows, each scored over the whole image, so tiles coded to the target each left a scene of N tiles
@@ -403,7 +403,7 @@ class TileSettings:
     tuning: TuningParams | None
     fidelity: FidelityParams | None = None
     side: EncodeOptions | None = None  # each tile weighs side information of its own (spec 10.15)
-    neighbours: bool = True  # its views show the tiles next to it too (False: the tile alone)
+    neighbours: bool = False  # its views show the tiles next to it too (False: the tile alone)
 
 
 # A tile's side information draws the tiles whose boxes come within this share of its box's diagonal of it:
