@@ -35,7 +35,7 @@ from gspc.progress import Progress
 from gspc.refine import Deadline, Refined, Refinement, Schedule
 from gspc.render import render
 from gspc.render.work import view_pairs
-from gspc.scene import GaussianScene
+from gspc.scene import GaussianScene, with_drawn
 from gspc.stages import Stages
 from gspc.visibility import sampling_coverage
 
@@ -296,10 +296,8 @@ def reconstruct(
     ``drawn``: the Gaussians of the tiles a tile's views show with its own, rendered, never refined."""
     stages = stages if stages is not None else Stages()
     cams = [v.camera.to_camera() for v in views]
-    shown = scene if drawn is None else GaussianScene.concat([scene, drawn])
     with stages.stage("render", announce=False):
-        degraded = render_images(shown, cams, background, stages.progress, "render coded")
-    del shown
+        degraded = render_images(with_drawn(scene, drawn), cams, background, stages.progress, "render coded")
     with stages.stage("restore", announce=False):
         targets = restored_targets(degraded, views, images, restorer, stages.progress)
     del degraded

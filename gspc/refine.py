@@ -24,7 +24,7 @@ from gspc.cameras import Camera
 from gspc.codec.cells import clamp_into
 from gspc.codec.quantisers import Box
 from gspc.errors import InputError
-from gspc.scene import ATTRIBUTE_NAMES, GaussianScene
+from gspc.scene import ATTRIBUTE_NAMES, GaussianScene, with_drawn
 
 # INRIA 3DGS learning rates (means are scaled by the scene extent), the base the schedule multiplies.
 BASE_LR = {
@@ -234,8 +234,7 @@ class Refinement:
             for g, lr0 in zip(self._groups, self._base):
                 g["lr"] = lr0 * factor
             v = int(torch.randint(len(self._cameras), (1,), generator=self._gen))
-            shown = self._scene if self._drawn is None else GaussianScene.concat([self._scene, self._drawn])
-            image = render(shown, self._cameras[v], self._background).image
+            image = render(with_drawn(self._scene, self._drawn), self._cameras[v], self._background).image
             target = self._targets[v]
             loss = (1 - SSIM_WEIGHT) * (image - target).abs().mean() + SSIM_WEIGHT * (1 - ssim(image, target))
             self._opt.zero_grad()

@@ -137,6 +137,12 @@ def _all_finite(t: torch.Tensor, rows: int = 65536) -> bool:
     return all(bool(torch.isfinite(t[i : i + rows]).all()) for i in range(0, len(t), rows))
 
 
+def with_drawn(scene: GaussianScene, drawn: GaussianScene | None) -> GaussianScene:
+    """``scene`` with ``drawn`` after it (a tile's neighbours, rendered with it: spec 10.15), or ``scene``
+    itself where there is none."""
+    return scene if drawn is None else GaussianScene.concat([scene, drawn])
+
+
 def make_scene(
     means,
     quats,

@@ -18,7 +18,7 @@ from gspc.options import DecodeOptions
 from gspc.reconstruct import DecodeWork, check_decode_work, decode_work, reconstruct, refine_iterations
 from gspc.render.work import drawn_at
 from gspc.restore.restorer import load_restorer
-from gspc.scene import GaussianScene
+from gspc.scene import GaussianScene, with_drawn
 
 
 @dataclass(frozen=True)
@@ -109,8 +109,7 @@ def tile_views_work(
     refused (CodecError) beyond the tile's allowance (spec 10.15)."""
     cams = [v.camera.to_camera() for v in side.views]
     drawn = drawn_scene(drawn_tiles, cams)
-    shown = scene if drawn is None else GaussianScene.concat([scene, drawn])
-    work = decode_work(shown, cams, side.images, allowance)
+    work = decode_work(with_drawn(scene, drawn), cams, side.images, allowance)
     check_decode_work(work, allowance)
     return drawn, work
 

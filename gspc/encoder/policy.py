@@ -28,7 +28,7 @@ from gspc.metrics import mean_psnr
 from gspc.progress import Progress
 from gspc.reconstruct import decoder_refinement, render_images, restored_targets
 from gspc.refine import Deadline
-from gspc.scene import GaussianScene
+from gspc.scene import GaussianScene, with_drawn
 
 # The encoder's tuning of a coding's values within a byte limit (gspc/encoder/tuning.py tune_coding, with the
 # run's cameras and settings): what a file without side information gets before it is written.
@@ -199,18 +199,14 @@ def check_side_info(inp: CheckInputs, progress: Progress | None = None) -> Check
     coded scene and the same bytes spent on attributes by ``margin_db``."""
     enc = inp.attributes
     drawn = None if inp.drawn is None else inp.drawn.to(inp.device)
-
-    def shown(s: GaussianScene) -> GaussianScene:
-        return s if drawn is None else GaussianScene.concat([s, drawn])
-
-    scene = shown(inp.scene.to(inp.device))
+    scene = with_drawn(inp.scene.to(inp.device), drawn)
     reference = render_images(scene, inp.check_cameras, inp.background, progress, "check render original")
     del scene
 
     # Capped per view: a tile's check views may show none of its error (identical to 8 bits), and an
     # infinite score would make every refinement, gain or loss, look alike (spec 10.15's tiles).
     def score(s: GaussianScene) -> float:
-        images = render_images(shown(s.to(inp.device)), inp.check_cameras, inp.background)
+        images = render_images(with_drawn(s.to(inp.device), drawn), inp.check_cameras, inp.background)
         return mean_psnr(images, reference, capped=True)
 
     t0 = time.perf_counter()

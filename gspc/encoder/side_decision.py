@@ -27,7 +27,7 @@ from gspc.encoder.tuning import TuningReport
 from gspc.options import EncodeOptions
 from gspc.presets import quality_preset
 from gspc.reconstruct import render_images, work_bound
-from gspc.scene import GaussianScene
+from gspc.scene import GaussianScene, with_drawn
 from gspc.stages import Stages
 
 # A SIDE chunk's table entry and padding, about (spec section 5): what side information adds to a file
@@ -109,9 +109,8 @@ def side_information(
         return SideChoice(unrefined_coding(scene, whole, stages), None, runs.refine, reason)
     # No more iterations than a decode of a file of at least these payloads runs (spec 10.8).
     least = enc.num_bytes + min(len(c.payload) for c in candidates if c.payload is not None)
-    runs = iteration_counts(
-        opts, enc.decoded.num_gaussians, work_bound(_shown(enc.decoded, drawn), view_cams, side.images, least)
-    )
+    bound = work_bound(with_drawn(enc.decoded, drawn), view_cams, side.images, least)
+    runs = iteration_counts(opts, enc.decoded.num_gaussians, bound)
     if runs.check == 0:
         return SideChoice(enc, side, runs.refine, _sent(side, "unchecked, --check-iterations 0"))
     inputs = CheckInputs(
@@ -169,11 +168,10 @@ def _candidates(
         # The residuals go into the file: rendered by the file's renderer rules (spec 10.12), which the
         # torch renderer follows on every device and gsplat 1.5 does not (gspc/render/gsplat_backend.py).
         if original is None:
-            original = render_images(
-                _shown(scene, drawn).to(device), view_cams, bg, stages.progress, "render original", "torch"
-            )
+            shown = with_drawn(scene, drawn).to(device)
+            original = render_images(shown, view_cams, bg, stages.progress, "render original", "torch")
         coded = render_images(
-            _shown(enc.decoded, drawn).to(device), view_cams, bg, stages.progress, "render coded", "torch"
+            with_drawn(enc.decoded, drawn).to(device), view_cams, bg, stages.progress, "render coded", "torch"
         )
     with stages.stage("side info"):
         candidates = side_candidates(opts, view_cams, view_residuals(original, coded), check_iterations)
@@ -187,10 +185,6 @@ def side_cameras(cams: list[Camera], opts: EncodeOptions) -> list[Camera]:
     if not view_indices:
         return []
     return view_cams + check_cameras(cams, view_indices, opts.check_views)
-
-
-def _shown(scene: GaussianScene, drawn: GaussianScene | None) -> GaussianScene:
-    return scene if drawn is None else GaussianScene.concat([scene, drawn])
 
 
 def _sent(side: SideCandidate, why: str) -> str:

@@ -65,7 +65,7 @@ from gspc.progress import Progress
 from gspc.reconstruct import DecodeWork, decode_work
 from gspc.render.work import drawn_at
 from gspc.restore.restorer import load_restorer
-from gspc.scene import GaussianScene
+from gspc.scene import GaussianScene, with_drawn
 from gspc.stages import Stages
 from gspc.visibility import seeing_cameras
 from gspc.workers import run_tasks
@@ -373,8 +373,7 @@ def _sent_side(side: SideChoice, enc: EncodedAttributes, drawn: GaussianScene | 
     if side.side is None:
         return TileSide(None, side.reason, side.refine_iterations, None, 0, side.check)
     cams = [v.camera.to_camera() for v in side.side.records]
-    shown = enc.decoded if drawn is None else GaussianScene.concat([enc.decoded, drawn])
-    work = decode_work(shown, cams, side.side.images, None)
+    work = decode_work(with_drawn(enc.decoded, drawn), cams, side.side.images, None)
     views = side.side.views_with_residual
     return TileSide(side.side.payload, side.reason, side.refine_iterations, work, views, side.check)
 
