@@ -135,6 +135,7 @@ def child(spec: dict) -> dict:
     precision = codec_params(opts).position_precision
     plan = plan_tiles(rows.positions(), rows.log_scales(), precision, opts.tile_size)
     plan_s = time.perf_counter() - p0
+    Path(spec["phase"]).write_text("decode")  # the sampler's peaks from here on are the decode's
     d0 = time.perf_counter()
     decoded = out.with_suffix(".ply")
     dec = decode(out, decoded, DecodeOptions(workers=spec["workers"], ray=ray))
@@ -153,6 +154,8 @@ def child(spec: dict) -> dict:
         "decode_stages": dec.seconds,
         "tiles": [
             {"given": t.given, "coded": t.tile.n, "bytes": t.num_bytes, "seconds": t.seconds}
+            | {"side": None if t.side is None else t.side.reason}
+            | {"side_sent": t.side is not None and t.side.payload is not None}
             | ({"cpu": cpu[k]} if cpu else {})
             for k, t in enumerate(rep.decisions.tiles)
         ],
@@ -161,29 +164,41 @@ def child(spec: dict) -> dict:
 
 
 def run_child(spec: dict, log: Path) -> dict:
-    """``spec`` in a fresh process, sampled with everything below it every fifth of a second."""
+    """``spec`` in a fresh process, sampled with everything below it every fifth of a second: CPU seconds,
+    and the peak resident memory of all its processes together and of the largest one, for the encode and
+    for the decode apart (MB)."""
     env = dict(os.environ, GSPC_THREADS="1")
     env["PYTHONPATH"] = os.pathsep.join([str(REPO), str(REPO / "tools"), env.get("PYTHONPATH", "")])
     result = log.with_suffix(".child.json")
     result.unlink(missing_ok=True)
+    phase = log.with_suffix(".phase")
+    phase.unlink(missing_ok=True)
+    spec = dict(spec, phase=str(phase))
     cmd = [sys.executable, str(Path(__file__).resolve()), "--child", json.dumps(spec)]
     cmd += ["--result", str(result)]
     cpu: dict[int, float] = {}
+    peaks = {"encode": [0, 0], "decode": [0, 0]}  # kB: all processes together, the largest one
     load = os.getloadavg()[0]
     with open(log, "ab") as out:
         t0 = time.perf_counter()
         proc = subprocess.Popen(cmd, env=env, stdout=out, stderr=out)
         while proc.poll() is None:
+            rss = []
             for p in _tree(proc.pid):
                 s = _sample(p)
                 if s is not None:
                     cpu[p] = s[1]
+                    rss.append(s[0])
+            peak = peaks["decode" if phase.exists() else "encode"]
+            peak[0] = max(peak[0], sum(rss))
+            peak[1] = max(peak[1], max(rss, default=0))
             time.sleep(0.2)
         wall = time.perf_counter() - t0
     if proc.returncode:
         raise SystemExit(f"{spec['name']} failed; see {log}")
     row = json.loads(result.read_text())
     row.update(name=spec["name"], wall=wall, cpu=sum(cpu.values()), processes=len(cpu))
+    row.update(peak_mb={k: [v / 1024 for v in kb] for k, kb in peaks.items()})
     row.update(load=(load, os.getloadavg()[0]))
     return row
 
@@ -201,6 +216,13 @@ def _load(row: dict) -> str:
     return f"{row['load'][0]:.1f}, {row['load'][1]:.1f}" if "load" in row else "not sampled"
 
 
+def _peaks(row: dict, phase: str) -> str:
+    if "peak_mb" not in row:
+        return "not sampled"
+    total, largest = row["peak_mb"][phase]
+    return f"{total:,.0f} ({largest:,.0f})"
+
+
 def report(rows: list[dict], scene: str, tile_size: int, machine: str) -> str:
     base = next((r for r in rows if r["name"] == RUNS[0][0]), rows[0])  # 1 worker, where it ran
     same = all(r["sha256"] == base["sha256"] for r in rows)
@@ -215,14 +237,16 @@ def report(rows: list[dict], scene: str, tile_size: int, machine: str) -> str:
         "start included; Dask's on 2 local processes). The tiles stage plans the tiles and codes them.",
         "",
         "| run | load avg at start, end | encode wall s | CPU s (all processes) | executor start s "
-        "| tiles stage s | decode wall s | file bytes | same bytes as 1 worker | decoded PLY the same |",
-        "|---|---|---:|---:|---:|---:|---:|---:|---|---|",
+        "| tiles stage s | decode wall s | peak MB encode: all (largest) | decode: all (largest) "
+        "| file bytes | same bytes as 1 worker | decoded PLY the same |",
+        "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---|---|",
     ]
     for r in rows:
         lines.append(
             f"| {r['name']} | {_load(r)} | {r['encode_wall_inside']:.1f} | "
             f"{r['cpu']:.0f} | {r['executor_start']:.1f} | "
-            f"{r['stages'].get('tiles', 0):.1f} | {r['decode_wall_inside']:.1f} | {r['bytes']:,} | "
+            f"{r['stages'].get('tiles', 0):.1f} | {r['decode_wall_inside']:.1f} | {_peaks(r, 'encode')} | "
+            f"{_peaks(r, 'decode')} | {r['bytes']:,} | "
             f"{'yes' if r['sha256'] == base['sha256'] else 'NO'} | "
             f"{'yes' if r['decoded_sha256'] == base['decoded_sha256'] else 'NO'} |"
         )
@@ -232,11 +256,13 @@ def report(rows: list[dict], scene: str, tile_size: int, machine: str) -> str:
     what = "; and its CPU seconds in the 1-worker run:" if has_cpu else ":"
     lines += [f"Per task (tile), wall seconds of its own work in each run (inside the task){what}", ""]
     names = [r["name"] for r in rows] + (["CPU s, 1 worker"] if has_cpu else [])
-    lines += ["| tile | Gaussians | coded | bytes | " + " | ".join(names) + " |"]
-    lines += ["|" + "---:|" * (4 + len(names))]
+    lines += ["| tile | Gaussians | coded | bytes | " + " | ".join(names) + " | its side information |"]
+    lines += ["|" + "---:|" * (4 + len(names)) + "---|"]
     for k, t in enumerate(base["tiles"]):
         secs = [f"{r['tiles'][k]['seconds']:.1f}" for r in rows] + ([f"{t['cpu']:.1f}"] if has_cpu else [])
-        lines.append(f"| {k} | {t['given']:,} | {t['coded']:,} | {t['bytes']:,} | {' | '.join(secs)} |")
+        side = t.get("side") or "not weighed"
+        cells = [f"{k}", f"{t['given']:,}", f"{t['coded']:,}", f"{t['bytes']:,}", *secs, side]
+        lines.append("| " + " | ".join(cells) + " |")
     # A task's CPU seconds are what it takes on a core of its own; its wall seconds here include the
     # other sessions' share of the cores.
     times = [t["cpu" if has_cpu else "seconds"] for t in base["tiles"]]
