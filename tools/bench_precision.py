@@ -12,13 +12,14 @@ tuned to a small image. Scenes:
   held-out ones (every 8th) for scoring, at their native size, on its background (tools/bench_setups.py
   fit_setup, as tools/bench_peers.py);
 - **statues** (``--statues``, SH degree 0): bench_setups.synth_setup: 60 views synthesised at 320x320 for the
-  encoder, black background, scored at 12 views between them (``unseen``: none is an encoder camera);
+  encoder, black background, scored at ``--statue-views`` views between them (12 by default; ``unseen``:
+  none is an encoder camera);
 - **scenes** (``--scenes``): tools/bench_setups.py bench_scene's lego, lego-sog, donut, glossy and
   glossy-faint (each written to a PLY from what gspc read, SPZ's input), every eighth of their cameras held
   out for scoring (held_out);
 - **shells**: the statue ``--shells-object`` alone and inside tools/scenes.py's shells (``with_shells``: skies
   of large Gaussians at 10, 30 and 100 radii and far floaters), both at the object's statue setup, scored
-  at ``--shell-views`` of the sphere the statues' 12 come from (12 by default; one view of a sky can decide
+  at ``--shell-views`` of the sphere the statues' views come from (12 by default; one view of a sky can decide
   a mean of 12, bench/tuning.md: 67 takes all of it).
 
 Codec alone (no side information, no refinement): per variant, a lambda sweep of ``encode_attributes`` with
@@ -471,6 +472,9 @@ def main(
     covers: str = typer.Option(
         "1,0.1", help="the shells' sky cover (tools/scenes.py Shells.cover), each a world"
     ),
+    statue_views: int = typer.Option(
+        12, help="views of the unseen sphere each statue is scored at (up to 67: all of them)"
+    ),
     shell_views: int = typer.Option(
         12,
         min=1,
@@ -503,7 +507,7 @@ def main(
         benches.append(Bench.of(Path(bird).name, "bird", s.scene_path, read_scene(s.scene_path), s))
     for name in [x for x in statues.split(",") if x]:
         path = statue_dir / f"{name}.sog"
-        setup = synth_setup(name, path, unseen=True)
+        setup = synth_setup(name, path, n_eval=statue_views, unseen=True)
         benches.append(Bench.of(name, "statue", path, read_scene(path), setup))
     for name in [x for x in scenes.split(",") if x]:
         scene, cams, background = bench_scene(name)
