@@ -269,8 +269,9 @@ def report(rows: list[dict], scene: str, tile_size: int, machine: str) -> str:
     serial = base["encode_wall_inside"] - base["stages"].get("tiles", 0) + base["plan_seconds"]
     lines += [
         "",
-        f"Model (from the 1-worker run): {len(times)} tasks of {min(times):.0f}-{max(times):.0f} "
-        f"{'CPU ' if has_cpu else ''}s ({sum(times):.0f} s in all); the driver's serial part {serial:.1f} s "
+        f"Model (from the {base['name']} run): {len(times)} tasks of {min(times):.0f}-{max(times):.0f} "
+        f"{'CPU ' if has_cpu else 'wall '}s ({sum(times):.0f} s in all); the driver's serial part "
+        f"{serial:.1f} s "
         f"(reading the positions, planning the tiles {base['plan_seconds']:.1f} s, packing and writing). "
         "Predicted encode wall on cores of its own (driver + ordered list scheduling of the tasks), without "
         "the executor's start:",
