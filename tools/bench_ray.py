@@ -155,7 +155,6 @@ def child(spec: dict) -> dict:
         "tiles": [
             {"given": t.given, "coded": t.tile.n, "bytes": t.num_bytes, "seconds": t.seconds}
             | {"side": None if t.side is None else t.side.reason}
-            | {"side_sent": t.side is not None and t.side.payload is not None}
             | ({"cpu": cpu[k]} if cpu else {})
             for k, t in enumerate(rep.decisions.tiles)
         ],
@@ -238,7 +237,7 @@ def report(rows: list[dict], scene: str, tile_size: int, machine: str) -> str:
         "",
         "| run | load avg at start, end | encode wall s | CPU s (all processes) | executor start s "
         "| tiles stage s | decode wall s | peak MB encode: all (largest) | decode: all (largest) "
-        "| file bytes | same bytes as 1 worker | decoded PLY the same |",
+        f"| file bytes | same bytes as {base['name']} | decoded PLY the same |",
         "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---|---|",
     ]
     for r in rows:
