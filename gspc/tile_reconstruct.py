@@ -16,7 +16,7 @@ from gspc.jit import compile_kernels, uncompiled_kernels
 from gspc.limits import RenderAllowance, default_refine_iterations
 from gspc.options import DecodeOptions
 from gspc.reconstruct import DecodeWork, check_decode_work, decode_work, reconstruct, refine_iterations
-from gspc.render.work import drawn_at
+from gspc.render.work import drawn_beside
 from gspc.restore.restorer import load_restorer
 from gspc.scene import GaussianScene, with_drawn
 
@@ -105,24 +105,14 @@ def reconstruct_tile(job: TileReconstructJob) -> TileReconstruction:
 def tile_views_work(
     scene: GaussianScene, side: SideViews, drawn_tiles: tuple[TileDecodeJob, ...], allowance: RenderAllowance
 ) -> tuple[GaussianScene | None, DecodeWork]:
-    """What a tile's views show beside its own Gaussians (:func:`drawn_scene`), and the work they ask,
-    refused (CodecError) beyond the tile's allowance (spec 10.15)."""
+    """What a tile's views show beside its own Gaussians (the tiles ``drawn_tiles``, each decoded in turn and
+    culled to what the views see), and the work they ask, refused (CodecError) beyond the tile's allowance
+    (spec 10.15)."""
     cams = [v.camera.to_camera() for v in side.views]
-    drawn = drawn_scene(drawn_tiles, cams)
+    drawn = drawn_beside((decode_tile(j) for j in drawn_tiles), cams)
     work = decode_work(with_drawn(scene, drawn), cams, side.images, allowance)
     check_decode_work(work, allowance)
     return drawn, work
-
-
-def drawn_scene(jobs: tuple[TileDecodeJob, ...], cams: list) -> GaussianScene | None:
-    """The Gaussians of the tiles ``jobs`` that have a pair at some view ``cams`` (the others draw nothing
-    there: spec 10.15), each tile decoded and culled in turn so that at most one whole tile is held."""
-    parts = []
-    for j in jobs:
-        tile = decode_tile(j)
-        parts.append(tile.subset(drawn_at(tile, cams)))
-    parts = [p for p in parts if p.num_gaussians]
-    return GaussianScene.concat(parts) if parts else None
 
 
 def _no_refinement(side: SideViews | None, s: TileSideSettings | None) -> str | None:

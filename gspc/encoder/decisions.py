@@ -47,7 +47,7 @@ from gspc.encoder.side_decision import CHUNK_ENTRY_BYTES, SideChoice, side_infor
 from gspc.encoder.tiles import SceneRows, TileCoding, TileSettings, code_tiles
 from gspc.encoder.tuning import TuningReport, tune_coding
 from gspc.errors import CodecError, InputError
-from gspc.format.file import GspcFile, pack_file, pack_tiled_file, read_file
+from gspc.format.file import pack_file, pack_tiled_file, read_file
 from gspc.format.header import FileHeader, SceneSummary, SideInfoHeader
 from gspc.format.view_records import check_view_pixels
 from gspc.limits import ENCODE_WORKER_BYTES, RenderAllowance
@@ -610,6 +610,7 @@ def _tiled_file_bytes(decisions: EncoderDecisions, opts: EncodeOptions) -> bytes
     data = pack_tiled_file(header, [(t.tile, t.chunks) for t in tiles], None, sides)
     sizes = [sum(len(p) for p in t.chunks.values()) + len(s or b"") for t, s in zip(tiles, sides)]
     written = read_file(data) if any(t.tile.drawn for t in tiles) else None
+    jobs = None if written is None else file_tile_jobs(written.tiles.tiles, written.tile_chunks)
     for k, t in enumerate(tiles):  # each tile's views within its share of the file's budget (spec 10.15)
         if _sends(t):
             share = RenderAllowance.of_tile(k, sizes[k], sum(sizes))
@@ -618,14 +619,9 @@ def _tiled_file_bytes(decisions: EncoderDecisions, opts: EncodeOptions) -> bytes
                     raise CodecError(f"its views ask for more than its {share.pixels:,} pixels")
                 check_decode_work(t.side.work, share)
                 if written is not None and t.tile.drawn:  # as a decoder counts it: the neighbours decoded
-                    _check_drawn_work(written, k)
+                    drawn = tuple(jobs[j] for j in t.tile.drawn)
+                    allowance = written.tile_allowances[k]
+                    tile_views_work(decode_tile(jobs[k]), written.tile_sides[k], drawn, allowance)
             except CodecError as e:
                 raise InputError(f"tile {k}: {e}; lower --max-side or --views-fraction") from None
     return data
-
-
-def _check_drawn_work(file: GspcFile, k: int) -> None:
-    """Refuse (CodecError) a tile whose views, with the tiles it draws decoded, ask beyond its share."""
-    jobs = file_tile_jobs(file.tiles.tiles, file.tile_chunks)
-    drawn = tuple(jobs[j] for j in file.tiles.tiles[k].drawn)
-    tile_views_work(decode_tile(jobs[k]), file.tile_sides[k], drawn, file.tile_allowances[k])

@@ -63,7 +63,7 @@ from gspc.limits import MAX_DRAWN_TILES
 from gspc.options import EncodeOptions
 from gspc.progress import Progress
 from gspc.reconstruct import DecodeWork, decode_work
-from gspc.render.work import drawn_at
+from gspc.render.work import drawn_beside
 from gspc.restore.restorer import load_restorer
 from gspc.scene import GaussianScene, with_drawn
 from gspc.stages import Stages
@@ -339,12 +339,8 @@ def _drawn(job: TileJob, cams: list[Camera]) -> GaussianScene | None:
     seen = side_cameras(cams, job.side) if job.drawn_tiles else []
     if not seen:
         return None
-    parts = []
-    for source, rows in job.drawn_tiles:
-        tile = source if rows is None else source.rows(rows)
-        parts.append(tile.subset(drawn_at(tile, seen)))
-    parts = [p for p in parts if p.num_gaussians]
-    return GaussianScene.concat(parts) if parts else None
+    tiles = (source if rows is None else source.rows(rows) for source, rows in job.drawn_tiles)
+    return drawn_beside(tiles, seen)
 
 
 def _tile_side(

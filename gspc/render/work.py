@@ -4,11 +4,14 @@ decoder, are bounded (gspc/limits.py) before any list is built."""
 
 from __future__ import annotations
 
+from collections.abc import Iterable
+
 import torch
 
 from gspc.cameras import Camera
 from gspc.render.project import project
 from gspc.render.rules import TILE
+from gspc.scene import GaussianScene
 
 
 def box_spans(means2d: torch.Tensor, extents: torch.Tensor, width: int, height: int) -> torch.Tensor:
@@ -52,3 +55,12 @@ def drawn_at(scene, cameras) -> torch.Tensor:
     for cam in cameras:
         keep |= view_spans(scene, cam) > 0
     return keep
+
+
+def drawn_beside(tiles: Iterable[GaussianScene], cameras) -> GaussianScene | None:
+    """The Gaussians of ``tiles`` (a tile's neighbours, spec 10.15) that have a pair at some camera of
+    ``cameras`` (None: none), each tile culled as it comes, so that a lazy iterable holds one whole tile at
+    a time."""
+    parts = [tile.subset(drawn_at(tile, cameras)) for tile in tiles]
+    parts = [p for p in parts if p.num_gaussians]
+    return GaussianScene.concat(parts) if parts else None
