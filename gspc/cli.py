@@ -360,11 +360,13 @@ def _position_grid_line(grid) -> str:
 
 
 def _precision_line(section) -> str:
-    """A version-4 file's precision classes (spec 10.13), from the header alone, for ``gspc info``."""
+    """A version-4 or -5 file's precision classes (spec 10.13) and SH codebook (10.16), from the header
+    alone, for ``gspc info``."""
     steps = [c.scale_step for c in section.all_classes]
+    book = f", the SH rest by a codebook of {section.codebook:,} entries" if section.codebook else ""
     return (
         f"precision: {len(steps)} classes per Gaussian (log-scale steps {min(steps):.3g} to "
-        f"{max(steps):.3g}), an SH degree per Gaussian (attribute codec version 4)"
+        f"{max(steps):.3g}), an SH degree per Gaussian{book} (attribute codec version {section.version})"
     )
 
 

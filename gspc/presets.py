@@ -47,8 +47,11 @@ class Preset:
     # Then, where the scene has view-dependent colour, every SH band of every Gaussian (faint ones too)
     # without a dead zone, in the same bytes, kept where the same views show it closer: at the low preset's
     # rate, where keeping the faint Gaussians' too gained over every band alone (gspc/encoder/removal.py;
-    # bench/precision.md, "SH choices checked per scene"). The high preset's finer steps keep it off.
-    sh_options: tuple[SHRules, ...] = (SHRules(0.0, 0.0, 0.0),)
+    # bench/precision.md, "SH choices checked per scene"); then the SH rest by a codebook of up to 4,096
+    # entries (attribute codec version 5), kept the same way: the lego fit codes closer with it, the glossy
+    # objects without (bench/precision.md, "The SH rest by codebook"). The high preset's finer steps keep
+    # both off.
+    sh_options: tuple[SHRules, ...] = (SHRules(0.0, 0.0, 0.0), SHRules(4.0, 0.0, 0.02, 4096))
     # Whether the encoder weighs side information at all: a file for viewers, which draw the attributes as
     # they decode (no restorer, no refinement), carries none and has its coded values tuned instead.
     side_info: bool = True

@@ -397,7 +397,7 @@ def unpack_bins(payload: bytes, count: int, what: str, budget: Budget | None = N
 def _decode_attributes(meta: dict, chunks: dict[str, bytes], budget: Budget | None) -> dict[str, np.ndarray]:
     a = meta["attributes"]
     version = a["version"]
-    need(is_int(version) and version in (1, 2, 3, 4), "codec version")
+    need(is_int(version) and version in (1, 2, 3, 4, 5), "codec version")
     n, deg = a["n"], a["sh_degree"]
     need(is_int(n) and 1 <= n <= MAX_GAUSSIANS, "Gaussian count")
     need(is_int(deg) and 0 <= deg <= 3, "SH degree")
@@ -406,9 +406,9 @@ def _decode_attributes(meta: dict, chunks: dict[str, bytes], budget: Budget | No
     need(n <= max(GAUSSIAN_FLOOR, 8 * payload // MIN_CODED_BITS), "Gaussian count vs payload")
     grid = a["position"]
     need(isinstance(grid, dict), "position map")
-    # 10.0: at version 4 the position keys say which grid it is, and that version's rules apply to it.
+    # 10.0: at versions 4 and 5 the position keys say which grid it is, and that version's rules apply.
     gv = version
-    if version == 4:
+    if version >= 4:
         has_far = "far_count" in grid or "far_shift" in grid
         gv = 3 if has_far else 2 if "centre" in grid or "radius" in grid else 1
     bits, lo, step = grid["bits"], grid["lo"], grid["step"]
@@ -439,12 +439,17 @@ def _decode_attributes(meta: dict, chunks: dict[str, bytes], budget: Budget | No
             need(radius * span >= 2.0**-24 * abs(centre[ax]), "position grid under binary32's grain")
     # 10.0, 10.13: class 0 is the section's own quantisers; at version 4 each classes map is one more.
     classes = [class_steps(a, k)]
-    if version == 4:
+    if version >= 4:
         maps = a["classes"]
         need(isinstance(maps, list) and len(maps) <= MAX_CLASS_MAPS, "classes: an array of at most 15 maps")
         classes += [class_steps(m, k) for m in maps]
     wanted = {"POSN", "OPAC", "SCAL", "ROTN", "SHDC"} | ({"SHRS"} if deg else set())
-    need(set(chunks) == wanted | ({"PREC"} if version == 4 else set()), "chunks")
+    need(set(chunks) == wanted | ({"PREC"} if version >= 4 else set()), "chunks")
+    entries = 0
+    if version == 5:  # 10.16: the SH rest by codebook, never at SH degree 0
+        entries = a["codebook"]
+        need(deg > 0, "a codebook at SH degree 0")
+        need(is_int(entries) and 1 <= entries <= min(2**16, n), "codebook entries")
 
     # 10.1 positions: one curve, or the near curve and the far set's (version 3)
     try:
@@ -499,14 +504,25 @@ def _decode_attributes(meta: dict, chunks: dict[str, bytes], budget: Budget | No
     need(all(0 <= x < c for x in cls), "PREC class outside 0 .. C - 1")
     need(all(0 <= d <= deg for d in degrees), "PREC SH degree outside 0 .. sh_degree")
     bins = {t: unpack_bins(chunks[t], c, t, budget) for t in ("OPAC", "SCAL", "ROTN", "SHDC")}
-    rest_bins = unpack_bins(chunks["SHRS"], c * deg, "SHRS", budget) if deg else []
+    bands = 0 if version == 5 else deg
+    rest_bins = unpack_bins(chunks["SHRS"], c * bands, "SHRS", budget) if bands else []
     for kk in range(c):
         rows = [i for i in range(n) if cls[i] == kk]
         decode_values(out, classes[kk], rows, {t: b[kk] for t, b in bins.items()})
-        for b in range(1, deg + 1):
+        for b in range(1, bands + 1):
             band_rows = [i for i in rows if degrees[i] >= b]
             cols = decode_ecm(rest_bins[kk * deg + b - 1], len(band_rows), 3 * (2 * b + 1))
             decode_band(out["sh_rest"], classes[kk], band_rows, cols, b * b - 1, 2 * b + 1)
+    if version == 5:
+        # 10.16: entries at class 0's steps, then each Gaussian of degree >= 1 its entry up to its degree.
+        table_bin, index_bin = unpack_bins(chunks["SHRS"], 2, "SHRS", budget)
+        table = decode_ecm(table_bin, entries, 3 * k)
+        coded = [i for i in range(n) if degrees[i] >= 1]
+        index = decode_ecm(index_bin, len(coded), 1)[0]
+        need(all(0 <= e < entries for e in index), "codebook index outside 0 .. E - 1")
+        for i, e in zip(coded, index):
+            cols = [[col[e]] for col in table[: 3 * ((degrees[i] + 1) ** 2 - 1)]]
+            decode_band(out["sh_rest"], classes[0], [i], cols, 0, (degrees[i] + 1) ** 2 - 1)
     return out
 
 

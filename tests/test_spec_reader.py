@@ -27,6 +27,7 @@ from gspc.encoder.precision_plan import PrecisionParams
 from gspc.errors import CodecError
 from gspc.format import container
 from gspc.format.attribute_section import AttributeSection
+from gspc.format.file import pack_file
 from gspc.format.header import FileHeader, SideInfoHeader
 from gspc.format.side_chunk import read_side_views
 from gspc.io import read_scene
@@ -218,6 +219,69 @@ def test_spec_precision_example():
     assert ref.log_scales[2].tolist() == [2.0, 2.5, 3.0]  # class 0's row 1 (4, 5, 6) x 0.5
     assert ref.sh_rest[0, :, 0].tolist() == [0.125, 0.5, 0.875]  # coefficient j, channel 0: column 3 j
     assert not ref.sh_rest[1:].any()  # degree 0: no SH rest
+
+
+@pytest.mark.parametrize("degree, grid", [(1, 1), (3, 2), (2, 3)])
+def test_spec_reader_decodes_the_sh_rest_by_codebook(degree, grid):
+    """Attribute codec version 5 (spec 10.16) on each position grid: the encoder's codebook, every decoded
+    value the same in both decoders, and a file marked 1.8."""
+    far = {1: 0, 2: 15, 3: 40}[grid]
+    scene = mv.unbounded_scene(300, far, 30 + degree, 0.5 if grid == 3 else 0.0, degree=degree)
+    sig = mv.synthetic_significance(scene.num_gaussians, degree, seed=degree)
+    data, enc = attribute_file(scene, replace(PRECISION, sh_codebook=64), sig)
+    assert enc.section.version == 5 and 1 <= enc.section.codebook <= 64
+    assert_same(sr.read_scene(data)[0], enc.decoded)
+    # gspc's writer marks the file 1.8, the lowest format version with attribute codec version 5 (spec 3).
+    header = FileHeader(enc.section, SideInfoHeader((0.0, 0.0, 0.0), "none", 0))
+    written = pack_file(header, enc.chunks, None)
+    assert struct.unpack_from("<HH", written, 8) == (1, 8)
+    assert_same(sr.read_scene(written)[0], enc.decoded)
+
+
+def test_spec_codebook_example():
+    """Section 10.16's example: SH degree 1, E = 2, PREC rows (0, 1), (0, 0), (1, 1): entries 2 x 9 at class
+    0's steps whatever the Gaussian's class, indices 2 x 1 for Gaussians 0 and 2."""
+    steps = {"opacity_levels": 8, "scale_step": 0.5, "rotation_levels": 4, "dc_step": 0.25}
+    a = {
+        "version": 5,
+        "n": 3,
+        "sh_degree": 1,
+        "position": {"bits": 2, "lo": [0.0, 0.0, 0.0], "step": [1.0, 1.0, 1.0]},
+        **steps,
+        "sh_steps": [0.125] * 3,
+        "classes": [dict(steps, sh_steps=[1.0] * 3)],
+        "codebook": 2,
+    }
+    rows = {0: [0, 1], 1: [2]}
+    rot = np.array([0, 2, 2, 2])
+    entries = np.arange(18, dtype=np.int64).reshape(2, 9) - 4
+
+    def bins(columns: int, value=None) -> bytes:
+        return msgpack.packb(
+            [encode_matrix(np.tile(rot if value is None else value, (len(r), 1))) for r in rows.values()]
+        )
+
+    chunks = {
+        "POSN": msgpack.packb([encode_matrix(np.array([[0], [1], [1]])), b""]),
+        "PREC": encode_matrix(np.array([[0, 1], [0, 0], [1, 1]])),
+        "OPAC": bins(1, np.array([3])),
+        "SCAL": bins(3, np.array([1, 2, 3])),
+        "ROTN": bins(4),
+        "SHDC": bins(3, np.array([1, 1, 1])),
+        "SHRS": msgpack.packb([encode_matrix(entries), encode_matrix(np.array([[1], [0]]))]),
+    }
+    meta = {"attributes": a, "side_info": {"background": [0.0, 0.0, 0.0], "restorer": "none"}}
+    data = container.pack(meta, [container.Chunk(t, p) for t, p in chunks.items()], (1, 8))
+    ref = decode_attributes(chunks, AttributeSection.from_dict(a))
+    assert_same(sr.read_scene(data)[0], ref)
+    assert ref.sh_rest[0, :, 0].tolist() == [0.625, 1.0, 1.375]  # entry 1's (5, 8, 11) x class 0's 0.125
+    assert ref.sh_rest[2, :, 0].tolist() == [-0.5, -0.125, 0.25]  # entry 0's, class 0's step too
+    assert not ref.sh_rest[1].any()  # degree 0: no SH rest
+    bad = dict(chunks, SHRS=msgpack.packb([encode_matrix(entries), encode_matrix(np.array([[2], [0]]))]))
+    with pytest.raises(CodecError, match="codebook index"):
+        decode_attributes(bad, AttributeSection.from_dict(a))
+    with pytest.raises(sr.SpecError):
+        sr.read_scene(container.pack(meta, [container.Chunk(t, p) for t, p in bad.items()], (1, 8)))
 
 
 @pytest.mark.slow

@@ -7,7 +7,8 @@ the same bytes, against the presets' fixed SH rules (bench/precision.md, "SH cho
 A scene is one of tools/bench_setups.py bench_scene's names or a tools/fit_scene.py output folder (the
 bird: /work/fits/bird_q4_100k). Per scene, preset and variant of the trials (RemovalParams.sh_options:
 ``off`` none; ``bands`` every band kept, no dead zone; ``faint`` that and faint Gaussians' SH rest kept
-too; ``both`` the two in turn; ``preset`` the preset's own), the default encode (no side information, as a
+too; ``both`` the two in turn; ``book``, ``book1024`` the SH rest by a codebook of up to 4,096 or 1,024 entries;
+``faint-book`` ``faint`` then ``book``; ``preset`` the preset's own), the default encode (no side information, as a
 viewer gets it): bytes, the SH rules kept, and float PSNR against the original's renders at held-out views
 (every eighth of the scene's cameras, or the fit's own held-out ones, which the encoder does not see).
 ``--lam``: at that rate instead of the preset's fidelity (equal bytes but for the trials' own search).
@@ -34,11 +35,18 @@ from gspc.scene import GaussianScene
 
 BANDS = SHRules(0.0, 0.0, CodecParams().sh_faint_alpha)  # every band, faint Gaussians still without
 FAINT = SHRules(0.0, 0.0, 0.0)
+# The SH rest by a codebook (attribute codec version 5) of as many entries as the rate asks, at most 4,096 or
+# 1,024 (gspc/encoder/codebook.py), the preset's bands and faint Gaussians deciding which Gaussians carry one.
+BOOK = SHRules(4.0, 0.0, CodecParams().sh_faint_alpha, 4096)
+BOOK1024 = replace(BOOK, codebook=1024)
 VARIANTS: dict[str, tuple[SHRules, ...] | None] = {
     "off": (),
     "bands": (BANDS,),
     "faint": (FAINT,),
     "both": (BANDS, FAINT),
+    "book": (BOOK,),
+    "book1024": (BOOK1024,),
+    "faint-book": (FAINT, BOOK),
     "preset": None,
 }
 

@@ -718,11 +718,13 @@ def synthetic_significance(n: int, degree: int, seed: int):
     return Significance(10.0 ** g.uniform(-7, -1, n), gradient, 10.0 ** g.uniform(-5, 1, (n, degree)), 20)
 
 
-def encode_classed(scene, exponents: tuple[int, int], seed: int) -> tuple[dict, dict[str, bytes]]:
+def encode_classed(
+    scene, exponents: tuple[int, int], seed: int, codebook: int = 0
+) -> tuple[dict, dict[str, bytes]]:
     """(meta["attributes"], attribute payloads) of attribute codec version 4 (spec 10.13): the low preset's
     codec at lambda 10 (pinned: the vectors do not follow the preset's rate) with precision classes of step
     multipliers 2^exponents[0] .. 2^exponents[1], each band of SH kept where its change of the views is at
-    least its coded step."""
+    least its coded step; with a ``codebook`` of that many entries, version 5 (spec 10.16)."""
     from dataclasses import replace
 
     from gspc.encoder.coding import encode_attributes
@@ -730,10 +732,10 @@ def encode_classed(scene, exponents: tuple[int, int], seed: int) -> tuple[dict, 
     from gspc.presets import QUALITY
 
     precision = PrecisionParams(exponents=exponents, bias=1.0, sh_keep=1.0)
-    params = replace(QUALITY["low"].attributes.with_lambda(10.0), precision=precision)
+    params = replace(QUALITY["low"].attributes.with_lambda(10.0), precision=precision, sh_codebook=codebook)
     sig = synthetic_significance(scene.num_gaussians, scene.sh_degree, seed)
     enc = encode_attributes(scene, params, significance=sig)
-    assert enc.section.version == 4
+    assert enc.section.version == (5 if codebook else 4)
     return enc.section.to_dict(), enc.chunks
 
 
@@ -1241,6 +1243,7 @@ def codec_vectors() -> list[Vector]:
         "gain",
     )
     precision_vectors(ok, bad_codec, a0, c0)
+    codebook_vectors(ok, bad_codec)
     tile_vectors(ok, bad_codec)
     return vs
 
@@ -1450,6 +1453,71 @@ def precision_vectors(ok, bad_codec, a0: dict, c0: dict) -> None:
         f"SCAL an array of {count + 1} bins for {count} classes (an empty ECM added)",
         "bins",
         SCAL=msgpack.packb([*bins, msgpack.packb([0, 3, b"", b""], use_bin_type=True)], use_bin_type=True),
+    )
+
+
+def codebook_vectors(ok, bad_codec) -> None:
+    """Attribute codec version 5 (spec 10.16, format 1.8): the SH rest by codebook decoded, and one refused
+    file for each of its (v) decisions in 10.11."""
+    from gspc.codec.entropy import decode_matrix, encode_matrix
+
+    a, c = encode_classed(tiny_scene(150, 2, 12, rest_fraction=0.8), (-1, 1), 12, codebook=24)
+    # gspc's encoder gives a Gaussian with an entry every band; every third of them here keeps band 1 only,
+    # as a file may (its entry's band 2 is not decoded).
+    prec = decode_matrix(c["PREC"], (a["n"], 2))
+    prec[np.flatnonzero(prec[:, 1] == 2)[::3], 1] = 1
+    c = dict(c, PREC=encode_matrix(prec))
+    degrees = prec[:, 1]
+    assert a["classes"] and set(degrees.tolist()) == {0, 1, 2}, "codec_codebook must mix degrees 0..2"
+    ok(
+        "codec_codebook",
+        f"150 Gaussians, SH degree 2: attribute codec version 5, the SH rest by a codebook of {a['codebook']} "
+        f"entries (SHRS [entries, indices]), {len(a['classes']) + 1} precision classes, SH degrees 0, 1 and 2",
+        scene_meta(a),
+        attribute_entries(c),
+        minor=8,
+    )
+
+    def refused(name: str, desc: str, *contains: str, meta=None, **payloads) -> None:
+        chunks = {k: v for k, v in {**c, **payloads}.items() if v is not None}
+        bad_codec(name, desc, meta or scene_meta(a), attribute_entries(chunks), *contains, minor=8)
+
+    table, index = msgpack.unpackb(c["SHRS"])
+    coded = int((degrees >= 1).sum())
+    wrong = decode_matrix(index, (coded, 1))
+    wrong[coded // 2, 0] = a["codebook"]
+    refused(
+        "codec_invalid_codebook_index",
+        f"an SHRS index of {a['codebook']} for a codebook of {a['codebook']} entries (0 .. E - 1)",
+        "codebook index",
+        SHRS=msgpack.packb([table, encode_matrix(wrong)], use_bin_type=True),
+    )
+    refused(
+        "codec_invalid_codebook_bins",
+        "SHRS at version 5 an array of three bins (an empty ECM added)",
+        "bins",
+        SHRS=msgpack.packb([table, index, msgpack.packb([0, 1, b"", b""])], use_bin_type=True),
+    )
+    refused(
+        "codec_invalid_codebook_count",
+        f"a codebook of {a['n'] + 1} entries for {a['n']} Gaussians (at most n)",
+        "codebook",
+        meta=scene_meta(dict(a, codebook=a["n"] + 1)),
+    )
+    refused(
+        "codec_invalid_codebook_missing",
+        "attribute codec version 5 without its codebook key",
+        "codebook",
+        meta=scene_meta({k: v for k, v in a.items() if k != "codebook"}),
+    )
+    a0, c0 = encode_classed(tiny_scene(40, 0, 13), (0, 0), 13)
+    bad_codec(
+        "codec_invalid_codebook_sh_degree_0",
+        "attribute codec version 5 (a codebook of 1 entry) at SH degree 0",
+        scene_meta(dict(a0, version=5, codebook=1)),
+        attribute_entries(c0),
+        "SH degree 0",
+        minor=8,
     )
 
 

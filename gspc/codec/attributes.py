@@ -9,7 +9,8 @@ Chunks (bytes, stored by the container under these types):
   the other three in w, x, y, z order quantised over [-1/sqrt2, 1/sqrt2] in ``M`` steps]; the
   largest is ``sqrt(1 - sum of squares)``. Rotation error bound: :func:`rotation_error_bound`.
 - ``SHDC`` ``q = round(dc / step)``; ``SHRS`` per-Gaussian flag (any non-zero SH rest symbol), then
-  only flagged Gaussians' SH rest, coefficient-major, steps growing with degree. No SHRS at degree 0.
+  only flagged Gaussians' SH rest, coefficient-major, steps growing with degree. No SHRS at degree 0. At
+  version 5 ``SHRS`` is a codebook instead: its entries at class 0's steps, then each Gaussian's entry.
 Each chunk is an :func:`gspc.codec.entropy.encode_matrix` payload (SHRS: a msgpack pair). Each attribute's
 quantiser (quantise, exact dequantise and cell together) is in :mod:`gspc.codec.quantisers`.
 The byte layouts are specified in spec/gspc-format.md, section 10. Which Gaussians are coded, at which
@@ -55,6 +56,16 @@ def rotation_error_bound(levels: int) -> float:
 def _np(t: torch.Tensor, rows: np.ndarray) -> np.ndarray:
     """``t[rows]`` as float64 numpy (rows picked first: a large scene's SH rest doubles in float64)."""
     return t.detach().cpu().numpy()[rows].astype(np.float64)
+
+
+@dataclass(frozen=True)
+class SHCodebook:
+    """The SH rest by codebook (version 5, spec 10.16), as the encoder chose it: ``entries`` the symbols of
+    each entry (K x 3k, columns as SHRS's, at class 0's ``sh_steps``) and ``index`` each input Gaussian's
+    entry (-1 where it has none)."""
+
+    entries: np.ndarray
+    index: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -123,14 +134,16 @@ def encode_section(
     pmap: PrecisionMap | None,
     sh_deadzone: float = 0.0,
     faint_alpha: float = 0.0,
+    codebook: SHCodebook | None = None,
 ) -> tuple[dict[str, bytes], AttributeSection]:
     """The attribute chunks (in file order) and header section of ``scene``'s rows ``kept``, in curve order,
     their ``voxels`` on ``grid``. With a precision map (version 4, spec 10.13) each Gaussian has its class
     among ``classes`` and its SH degree; without one (versions 1 to 3) every Gaussian is at ``classes[0]``
     and those whose coded alpha is under ``faint_alpha`` carry no SH rest. ``sh_deadzone``: the SH rest's
-    rounding offset towards zero. Both are the encoder's choices: the file holds their outcome."""
+    rounding offset towards zero. Both are the encoder's choices: the file holds their outcome. A
+    ``codebook`` (with a precision map: version 5) codes the SH rest of every Gaussian of degree >= 1."""
     if pmap is not None:
-        chunks, section = _encode_classed(scene, kept, grid, classes, pmap, sh_deadzone)
+        chunks, section = _encode_classed(scene, kept, grid, classes, pmap, sh_deadzone, codebook)
     else:
         chunks, section = _encode_uniform(scene, kept, grid, classes[0], sh_deadzone, faint_alpha)
     chunks = {POSN: pos.encode_positions(voxels, grid), **chunks}
@@ -175,13 +188,15 @@ def _encode_classed(
     class_list: tuple[ClassSteps, ...],
     pmap: PrecisionMap,
     sh_deadzone: float,
+    codebook: SHCodebook | None,
 ) -> tuple[dict[str, bytes], AttributeSection]:
     """Version 4: each class's rows coded as matrices of their own, the SH rest band by band up to each
-    Gaussian's degree."""
+    Gaussian's degree; version 5: the SH rest by ``codebook``."""
     degree = scene.sh_degree
     n = int(kept.size)
     degrees = pmap.degrees
-    section = AttributeSection.of_classes(n, int(degree), grid, tuple(class_list), True)
+    entries = 0 if codebook is None else len(codebook.entries)
+    section = AttributeSection.of_classes(n, int(degree), grid, tuple(class_list), True, entries)
     parts: dict[str, list[bytes]] = {t: [] for t in (*GROUP_TYPES, SHRS)}
     rest = scene.sh_rest.detach().cpu().numpy()
     for k, steps_k in enumerate(class_list):
@@ -190,13 +205,18 @@ def _encode_classed(
         quant = AttributeQuantisers.from_steps(steps_k, sh_deadzone)
         for g in GROUP_CHUNKS:
             parts[g.chunk].append(encode_matrix(_quantised(g, scene, rows, quant, steps_k)))
-        if degree > 0:  # every coefficient of the class's Gaussians with any SH rest, once; each band a slice
+        if degree > 0 and codebook is None:  # each coefficient of the class's SH rest once; a band a slice
             deg = degrees[order]
             coded = rows[deg >= 1]
             check_range("SH rest", rest, np.asarray(steps_k.sh_steps)[None, :, None], coded)
             q, deg = quant.sh_rest.quantise(rest, coded), deg[deg >= 1]
             for b in range(1, degree + 1):
                 parts[SHRS].append(encode_matrix(q[deg >= b, 3 * (b * b - 1) : 3 * ((b + 1) ** 2 - 1)]))
+    if codebook is not None:
+        index = codebook.index[kept[degrees >= 1]]
+        if (index < 0).any() or (index >= entries).any():
+            raise ValueError("a Gaussian with SH rest has no codebook entry")
+        parts[SHRS] = [encode_matrix(codebook.entries), encode_matrix(index[:, None])]
     chunks = {PREC: encode_precision(pmap, degree)}
     chunks.update({t: pack_bins(p) for t, p in parts.items() if t != SHRS or degree > 0})
     return chunks, section
@@ -284,7 +304,8 @@ def _decode_classed(
     out = {g.attribute: np.empty((n, g.columns) if g.columns > 1 else n, np.float32) for g in GROUP_CHUNKS}
     rest = np.zeros((n, num_sh_rest(degree), 3), np.float32)
     bins = {g.chunk: unpack_bins(chunks[g.chunk], g.chunk, len(classes), budget) for g in GROUP_CHUNKS}
-    rest_bins = unpack_bins(chunks[SHRS], SHRS, len(classes) * degree, budget) if degree > 0 else []
+    bands = 0 if section.codebook else degree  # the SH rest band by band, or by codebook (below)
+    rest_bins = unpack_bins(chunks[SHRS], SHRS, len(classes) * bands, budget) if bands > 0 else []
     for k, steps_k in enumerate(classes):
         rows = pmap.rows(k)
         quant = AttributeQuantisers.from_steps(steps_k)
@@ -292,15 +313,37 @@ def _decode_classed(
             out[g.attribute][rows] = _dequantised(
                 g, quant, decode_matrix(bins[g.chunk][k], (len(rows), g.columns))
             )
-        for b in range(1, degree + 1):
+        for b in range(1, bands + 1):
             band_rows = rows[pmap.degrees[rows] >= b]
             q = decode_matrix(rest_bins[k * degree + b - 1], (len(band_rows), 3 * (2 * b + 1)))
             band = np.asarray(steps_k.sh_steps[b * b - 1 : (b + 1) ** 2 - 1])[None, :, None]
             rest[band_rows, b * b - 1 : (b + 1) ** 2 - 1] = (
                 q.reshape(-1, 2 * b + 1, 3).astype(np.float64) * band
             )
+    if section.codebook:
+        _decode_codebook(chunks[SHRS], section, pmap, rest, budget)
     out["sh_rest"] = rest
     return out
+
+
+def _decode_codebook(
+    payload: bytes, section: AttributeSection, pmap: PrecisionMap, rest: np.ndarray, budget: DecodeBudget | None
+) -> None:
+    """Version 5 (spec 10.16) into ``rest``: each Gaussian of degree >= 1 takes its entry's coefficients up
+    to its degree, decoded at class 0's steps."""
+    k, entries = rest.shape[1], section.codebook
+    table_bin, index_bin = unpack_bins(payload, SHRS, 2, budget)
+    table = decode_matrix(table_bin, (entries, 3 * k))
+    coded = np.flatnonzero(pmap.degrees >= 1)
+    index = decode_matrix(index_bin, (len(coded), 1))[:, 0]
+    if ((index < 0) | (index >= entries)).any():
+        raise CodecError(f"chunk SHRS has a codebook index outside 0..{entries - 1}")
+    steps = np.asarray(section.sh_steps, np.float64)[None, :, None]
+    values = (table.reshape(entries, k, 3).astype(np.float64) * steps).astype(np.float32)
+    rest[coded] = values[index]
+    degrees = pmap.degrees[coded]
+    for b in range(1, section.sh_degree):  # bands above a Gaussian's degree are 0
+        rest[coded[degrees == b], (b + 1) ** 2 - 1 :] = 0.0
 
 
 def decoded_precision(chunks: dict[str, bytes], section: AttributeSection) -> PrecisionMap | None:

@@ -58,7 +58,9 @@ def quantisation_cells(
                 if len(rows) == 0:
                     continue
                 if name == "sh_rest":
-                    box = quant.sh_rest.cell(t[rows], every_row_coded=True)
+                    # By codebook (version 5) every SH rest is an entry coded at class 0's steps.
+                    sh = quants[0].sh_rest if section.codebook else quant.sh_rest
+                    box = sh.cell(t[rows], every_row_coded=True)
                 else:
                     box = _cell(quant, name, t[rows])
                 lo[rows], hi[rows] = box[0].to(t.dtype), box[1].to(t.dtype)

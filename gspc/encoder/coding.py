@@ -17,9 +17,17 @@ import numpy as np
 import torch
 
 from gspc.codec import positions as pos
-from gspc.codec.attributes import DecodedSection, OutOfRange, check_range, decode_section, encode_section
+from gspc.codec.attributes import (
+    DecodedSection,
+    OutOfRange,
+    SHCodebook,
+    check_range,
+    decode_section,
+    encode_section,
+)
 from gspc.codec.precision import PrecisionMap
 from gspc.codec.quantisers import OPACITY_FLOOR, SQRT_HALF
+from gspc.encoder.codebook import codebook_entries, fit_codebook
 from gspc.encoder.params import CodecParams
 from gspc.encoder.precision_plan import Plan, RateSteps, Significance, plan_precision
 from gspc.errors import CodecError, InputError, NothingCodedError, ValueRangeError
@@ -198,12 +206,15 @@ def _encode(
     except CodecError as err:  # a grid the format's bounds refuse (spec 10.1)
         raise InputError(f"the scene's positions cannot be coded: {err}") from None
     kept = keep_idx[order]
+    codebook = None
     if plan is None:
         classes, pmap = (class_steps(params, scene.sh_degree),), None
     else:
         classes, pmap = _classes(params, plan, kept, scene.sh_degree)
+        if params.sh_codebook and scene.sh_degree > 0 and (pmap.degrees > 0).any():
+            pmap, codebook = _codebook(scene, params, significance, kept, pmap, classes[0])
     chunks, section = encode_section(
-        scene, kept, voxels, grid, classes, pmap, params.sh_deadzone, faint_alpha(params)
+        scene, kept, voxels, grid, classes, pmap, params.sh_deadzone, faint_alpha(params), codebook
     )
     return EncodedAttributes(chunks=chunks, section=section, kept=kept, lam=params.lam)
 
@@ -221,6 +232,27 @@ def _classes(
     steps = tuple(class_steps(params, degree, e, params.precision.groups) for e in exps)
     degrees = plan.degree[kept] if degree > 0 else np.zeros(len(kept), np.int64)
     return steps, PrecisionMap(classes, degrees)
+
+
+def _codebook(
+    scene: GaussianScene,
+    params: CodecParams,
+    sig: Significance,
+    kept: np.ndarray,
+    pmap: PrecisionMap,
+    base: ClassSteps,
+) -> tuple[PrecisionMap, SHCodebook]:
+    """The SH rest by codebook (version 5): every Gaussian the plan gives any band takes all of its entry's
+    (an index costs the same whatever the degree), entries at class 0's steps, as many as the rate asks
+    (gspc/encoder/codebook.py) up to the parameters' most."""
+    coded = pmap.degrees > 0
+    degrees = np.where(coded, scene.sh_degree, 0).astype(pmap.degrees.dtype)
+    rest = scene.sh_rest.detach().cpu().numpy()
+    steps = np.asarray(base.sh_steps)
+    check_range("SH rest", rest, steps[None, :, None], kept[coded])
+    entries = codebook_entries(int(coded.sum()), params.lam, params.sh_codebook)
+    book = fit_codebook(rest, kept[coded], sig.weight, entries, steps)
+    return PrecisionMap(pmap.classes, degrees), book
 
 
 def _plan(scene: GaussianScene, params: CodecParams, sig: Significance, candidates: np.ndarray) -> Plan:

@@ -23,16 +23,21 @@ class SHRules:
     where it moves the views by ``keep`` of its coded steps (PrecisionParams.sh_keep; 0: every band), the SH
     rest rounds ``deadzone`` extra steps towards zero (CodecParams.sh_deadzone), and a Gaussian whose alpha
     is under ``faint_alpha`` x lambda carries none (CodecParams.sh_faint_alpha; 0: every Gaussian has
-    one)."""
+    one). ``codebook``: the SH rest by a codebook of at most this many entries (CodecParams.sh_codebook; 0:
+    none; how many the rate asks for: gspc/encoder/codebook.py), each Gaussian that keeps any band taking
+    all of its entry's."""
 
     keep: float
     deadzone: float
     faint_alpha: float
+    codebook: int = 0
 
     def words(self) -> str:
         bands = "every SH band kept" if self.keep == 0 else f"SH bands kept from {self.keep:g} steps"
-        zone = "no" if self.deadzone == 0 else f"a {self.deadzone:g}"
         faint = ", faint Gaussians' too" if self.faint_alpha == 0 else ""
+        if self.codebook:
+            return f"SH rest by a codebook of up to {self.codebook:,} entries{faint}"
+        zone = "no" if self.deadzone == 0 else f"a {self.deadzone:g}"
         return f"{bands}{faint}, {zone} dead zone"
 
 
@@ -62,6 +67,10 @@ class CodecParams:
     # R-D choice): a nearly transparent Gaussian's view-dependent colour is invisible, and the lego fit holds
     # many of them (bench/codec.md, "Moved from code comments").
     sh_faint_alpha: float = 0.02
+    # The SH rest by a codebook of at most this many entries, fewer at coarser rates (attribute codec version
+    # 5, gspc/encoder/codebook.py; per-Gaussian precision only; 0: coefficient by coefficient): an encoder
+    # choice per scene (gspc/encoder/removal.py).
+    sh_codebook: int = 0
     # Beyond lam = geometry_knee, scale and rotation steps grow as sqrt(lam), not as lam: a log-scale step in
     # proportion to lam inflates large Gaussians until the scene collapses at coarse rates, and the slower
     # growth costs the lego fit, which tolerates coarse geometry, little (bench/codec.md, "Moved from code
@@ -108,15 +117,17 @@ class CodecParams:
         """The rules these parameters drop view-dependent colour by (None: no per-Gaussian precision)."""
         if self.precision is None:
             return None
-        return SHRules(self.precision.sh_keep, self.sh_deadzone, self.sh_faint_alpha)
+        return SHRules(self.precision.sh_keep, self.sh_deadzone, self.sh_faint_alpha, self.sh_codebook)
 
     def with_sh_rules(self, rules: SHRules) -> CodecParams:
         """These parameters dropping view-dependent colour by ``rules`` (per-Gaussian precision only)."""
         if self.precision is None:
             raise InputError("SH rules need per-Gaussian precision")
         precision = replace(self.precision, sh_keep=rules.keep)
-        faint = rules.faint_alpha
-        return replace(self, precision=precision, sh_deadzone=rules.deadzone, sh_faint_alpha=faint)
+        faint, book = rules.faint_alpha, rules.codebook
+        return replace(
+            self, precision=precision, sh_deadzone=rules.deadzone, sh_faint_alpha=faint, sh_codebook=book
+        )
 
     def with_lambda(self, lam: float) -> CodecParams:
         if not lam > 0:

@@ -67,7 +67,7 @@ def search_lambda(
                 )
             except ValueRangeError:
                 # Too fine for the scene's largest values: a larger lambda, as if the size were too big.
-                if x >= hi or k == max_iter - 1:
+                if x >= hi or (k == max_iter - 1 and best is None and fallback is None):
                     raise
                 lo = max(lo, x)
                 x = 0.5 * (lo + hi)

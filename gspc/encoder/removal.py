@@ -45,6 +45,7 @@ from gspc.encoder.params import CodecParams, SHRules
 from gspc.encoder.precision_plan import Significance
 from gspc.encoder.rate import search_lambda
 from gspc.encoder.significance import evenly_spaced_indices
+from gspc.errors import ValueRangeError
 from gspc.metrics import mse
 from gspc.progress import Progress
 from gspc.reconstruct import render_images
@@ -219,17 +220,21 @@ def choose_removal(
     def attempt(p: CodecParams, offset: float = 0.0, sh: SHRules | None = None) -> bool:
         """Code ``p`` in ``first``'s bytes and keep it where it beats the best; whether it did."""
         nonlocal best, kept
-        enc = search_lambda(
-            scene,
-            first.num_bytes,
-            p,
-            visible=visible,
-            rel_tol=rp.rel_tol,
-            max_iter=rp.max_codings,
-            significance=significance,
-            deadline=deadline,
-            grid=grid,
-        )
+        try:
+            enc = search_lambda(
+                scene,
+                first.num_bytes,
+                p,
+                visible=visible,
+                rel_tol=rp.rel_tol,
+                max_iter=rp.max_codings,
+                significance=significance,
+                deadline=deadline,
+                grid=grid,
+            )
+        except ValueRangeError:  # nothing codes these rules in the bytes: a rate too fine for the scene
+            _tick(progress, len(trials) + 1, stages)
+            return False
         trials.append(Trial(p.precision.prune, enc.lam, enc.num_bytes, score(enc), offset, sh))
         _tick(progress, len(trials), stages)
         if not better(best, trials[-1], first.num_bytes, rp.min_gain_db):

@@ -26,10 +26,16 @@ FAR_VERSION = 3
 # Version 4: per-Gaussian precision classes and SH degrees (chunk PREC, spec 10.13) on any of the three grids,
 # which its position keys tell apart.
 PRECISION_VERSION = 4
-VERSIONS = (FORMAT_VERSION, CONTRACTED_VERSION, FAR_VERSION, PRECISION_VERSION)
+# Version 5: version 4 with the SH rest by codebook (spec 10.16): shared entries and one index per Gaussian
+# with view-dependent colour; written only where the encoder's trial keeps it (gspc/encoder/removal.py).
+CODEBOOK_VERSION = 5
+VERSIONS = (FORMAT_VERSION, CONTRACTED_VERSION, FAR_VERSION, PRECISION_VERSION, CODEBOOK_VERSION)
 # Precision classes per file at version 4 (class 0 and at most 15 more): each class's rows are their own
 # matrices in every chunk, so the count bounds the number of matrices a file may ask for.
 MAX_CLASSES = 16
+# Codebook entries per section at version 5 (and at most its count n): bounds the entries' matrix whatever
+# its bytes say.
+MAX_CODEBOOK = 1 << 16
 MAX_GAUSSIANS = 1 << 26
 # The count is also bounded by the attribute payloads' bytes (gspc/limits.py max_coded_gaussians), checked
 # where the payloads are (gspc/codec/attributes.py decode_attributes).
@@ -219,7 +225,7 @@ class PositionGrid:
         if not isinstance(grid, dict):
             raise _fail("position", grid, "a map")
         contracted, has_far = "radius" in grid or "centre" in grid, "far_count" in grid or "far_shift" in grid
-        if version == PRECISION_VERSION:  # any grid: its keys say which (spec 10.0)
+        if version in (PRECISION_VERSION, CODEBOOK_VERSION):  # any grid: its keys say which (spec 10.0)
             version = FAR_VERSION if has_far else CONTRACTED_VERSION if contracted else FORMAT_VERSION
         if (version != FORMAT_VERSION) != contracted:
             raise CodecError("attribute codec version and position grid disagree on contraction")
@@ -295,7 +301,8 @@ class ClassSteps:
 class AttributeSection:
     """What the attribute decoder needs (spec 10.0): the count, SH degree, position grid and every
     quantiser's levels or steps; at version 4 (``precision``) also the further precision classes
-    (``classes``: class 1 first; class 0 is the section's own quantisers)."""
+    (``classes``: class 1 first; class 0 is the section's own quantisers); at version 5 also the number of
+    SH rest ``codebook`` entries (0: none, below version 5)."""
 
     n: int
     sh_degree: int
@@ -307,6 +314,7 @@ class AttributeSection:
     sh_steps: tuple[float, ...]
     precision: bool = False  # version 4: a PREC chunk gives each Gaussian a class and an SH degree
     classes: tuple[ClassSteps, ...] = ()
+    codebook: int = 0  # version 5: the SH rest's codebook entries (spec 10.16)
 
     def __post_init__(self) -> None:
         if not 1 <= self.n <= MAX_GAUSSIANS:
@@ -326,6 +334,11 @@ class AttributeSection:
             raise _fail("classes", f"{len(self.classes)} maps", f"at most {MAX_CLASSES - 1} maps")
         if any(len(c.sh_steps) != k for c in self.classes):
             raise CodecError(f"attribute codec header has a precision class without {k} sh_steps")
+        if self.codebook and not (self.precision and self.sh_degree > 0):
+            raise CodecError("attribute codec header has an SH codebook below version 5 or at SH degree 0")
+        if not 0 <= self.codebook <= min(MAX_CODEBOOK, self.n):
+            most = min(MAX_CODEBOOK, self.n)
+            raise _fail("codebook", self.codebook, f"a count of entries in 1..{most} (at most 2^16 and n)")
         far = self.position.far
         if far is not None and not 1 <= far.count <= self.n - 1:
             raise CodecError(
@@ -334,17 +347,25 @@ class AttributeSection:
 
     @classmethod
     def of_classes(
-        cls, n: int, sh_degree: int, position: PositionGrid, classes: tuple[ClassSteps, ...], precision: bool
+        cls,
+        n: int,
+        sh_degree: int,
+        position: PositionGrid,
+        classes: tuple[ClassSteps, ...],
+        precision: bool,
+        codebook: int = 0,
     ) -> AttributeSection:
-        """The section of ``classes`` (class 0 first; one class below version 4)."""
+        """The section of ``classes`` (class 0 first; one class below version 4) and ``codebook`` entries."""
         b = classes[0]
         return cls(
             n, sh_degree, position, b.opacity_levels, b.scale_step, b.rotation_levels, b.dc_step, b.sh_steps,
-            precision, tuple(classes[1:]),
+            precision, tuple(classes[1:]), codebook,
         )  # fmt: skip
 
     @property
     def version(self) -> int:
+        if self.codebook:
+            return CODEBOOK_VERSION
         return PRECISION_VERSION if self.precision else self.position.version
 
     def base_class(self) -> ClassSteps:
@@ -369,6 +390,8 @@ class AttributeSection:
         }
         if self.precision:
             out["classes"] = [c.to_dict() for c in self.classes]
+        if self.codebook:
+            out["codebook"] = self.codebook
         return out
 
     @classmethod
@@ -387,7 +410,8 @@ class AttributeSection:
             raise _fail("sh_degree", degree, f"an SH degree in 0..{MAX_SH_DEGREE}")
         base = ClassSteps.from_dict(meta, degree)
         classes: tuple[ClassSteps, ...] = ()
-        if version == PRECISION_VERSION:
+        precision = version in (PRECISION_VERSION, CODEBOOK_VERSION)
+        if precision:
             maps = _get(meta, "classes", "classes")
             if not isinstance(maps, list | tuple):
                 raise _fail("classes", maps, "an array of maps")
@@ -397,6 +421,11 @@ class AttributeSection:
                 if not isinstance(m, dict):
                     raise _fail(f"classes[{i}]", m, "a map")
             classes = tuple(ClassSteps.from_dict(m, degree, f"classes[{i}].") for i, m in enumerate(maps))
+        codebook = 0
+        if version == CODEBOOK_VERSION:
+            codebook = _integer(meta, "codebook", "codebook")
+            if codebook < 1:
+                raise _fail("codebook", codebook, "a count of entries >= 1")
         return cls(
             n,
             degree,
@@ -406,8 +435,9 @@ class AttributeSection:
             base.rotation_levels,
             base.dc_step,
             base.sh_steps,
-            version == PRECISION_VERSION,
+            precision,
             classes,
+            codebook,
         )
 
 

@@ -15,7 +15,12 @@ from dataclasses import dataclass
 
 from gspc.errors import CodecError
 from gspc.format import container
-from gspc.format.attribute_section import attribute_chunks, check_attribute_chunks
+from gspc.format.attribute_section import (
+    CODEBOOK_VERSION,
+    AttributeSection,
+    attribute_chunks,
+    check_attribute_chunks,
+)
 from gspc.format.chunks import ATTRIBUTE_TYPES, SIDE, TIDX, TSID
 from gspc.format.header import FileHeader
 from gspc.format.side_chunk import SideViews, read_side_views, read_tile_side
@@ -32,6 +37,9 @@ from gspc.format.tiles import (
     tile_side_allowances,
 )
 from gspc.limits import RenderAllowance
+
+# The lowest format version that holds an attribute section of codec version 5 (spec section 3).
+CODEBOOK_FILE_VERSION = (1, 8)
 
 
 @dataclass(frozen=True)
@@ -224,9 +232,16 @@ def tiled_file_chunks(
     return chunks
 
 
+def _marked(version: tuple[int, int], sections: Sequence[AttributeSection | None]) -> tuple[int, int]:
+    """``version``, or 1.8 where a section codes its SH rest by codebook (spec section 3)."""
+    codebook = any(s is not None and s.version == CODEBOOK_VERSION for s in sections)
+    return max(version, CODEBOOK_FILE_VERSION) if codebook else version
+
+
 def pack_file(header: FileHeader, attributes: dict[str, bytes], side: bytes | None) -> bytes:
-    """The file of these parts (:func:`file_chunks`)."""
-    return container.pack(header.to_dict(), file_chunks(attributes, side))
+    """The file of these parts (:func:`file_chunks`), marked 1.8 with the SH rest by codebook, else 1.4."""
+    version = _marked(container.VERSION, [header.attributes])
+    return container.pack(header.to_dict(), file_chunks(attributes, side), version)
 
 
 def pack_tiled_file(
@@ -235,10 +250,11 @@ def pack_tiled_file(
     side: bytes | None,
     tile_sides: Sequence[bytes | None] = (),
 ) -> bytes:
-    """The tiled file of these parts (:func:`tiled_file_chunks`), marked format 1.7 where a tile's side
-    information draws other tiles, 1.6 where a tile carries side information of its own, else 1.5 (spec
-    section 3)."""
+    """The tiled file of these parts (:func:`tiled_file_chunks`), marked format 1.8 where a tile codes its
+    SH rest by codebook, 1.7 where a tile's side information draws other tiles, 1.6 where a tile carries side
+    information of its own, else 1.5 (spec section 3)."""
     version = TILE_SIDE_VERSION if any(s is not None for s in tile_sides) else TILED_VERSION
     if any(t.drawn for t, _ in tiles):
         version = TILE_DRAWN_VERSION
+    version = _marked(version, [t.section for t, _ in tiles])
     return container.pack(header.to_dict(), tiled_file_chunks(tiles, side, tile_sides), version)

@@ -194,6 +194,46 @@ function decodeRestBanded(payload, section, precision, tile, out) {
 }
 
 /**
+ * SHRS at version 5 (spec 10.16): E entries at class 0's steps, then one entry per Gaussian of degree >= 1
+ * in decoded order; a Gaussian of degree d takes its entry's bands 1..d.
+ */
+function decodeRestByCodebook(payload, section, precision, tile, out) {
+  const { n, numRest, codebook } = section;
+  const [entriesBin, indexBin] = readBinArray(payload, 2, 'SHRS');
+  const budget = new TableBudget(maxModelEntries(payload.length), "SHRS's matrices together");
+  const columns = 3 * numRest;
+  const entriesEcm = readEcm(entriesBin, codebook, columns, 'SHRS entries', budget, tile);
+  let coded = 0;
+  for (let i = 0; i < n; i++) if (precision.degreeOf[i] >= 1) coded++;
+  const indexEcm = readEcm(indexBin, coded, 1, 'SHRS indices', budget, tile);
+  const steps = section.classes[0].shSteps;
+  const entries = new Float32Array(codebook * columns);
+  decodeEcm(
+    entriesEcm,
+    (j, q) => {
+      const step = steps[Math.floor(j / 3)];
+      for (let e = 0; e < codebook; e++) entries[columns * e + j] = q[e] * step;
+    },
+    'SHRS entries',
+  );
+  decodeEcm(
+    indexEcm,
+    (_, q) => {
+      let r = 0;
+      for (let i = 0; i < n; i++) {
+        const d = precision.degreeOf[i];
+        if (d === 0) continue;
+        const e = q[r++];
+        if (!(e >= 0 && e < codebook)) throw new CodecError(`SHRS codebook index ${e} is outside 0..${codebook - 1}`);
+        const width = 3 * ((d + 1) * (d + 1) - 1); // bands 1..d
+        out.set(entries.subarray(columns * e, columns * e + width), columns * i);
+      }
+    },
+    'SHRS indices',
+  );
+}
+
+/**
  * Decode an attribute section: `section` from readAttributeSection, `payloads` the attribute chunks'
  * payloads by type, `tile` null or the TileBudget of a tile of a tiled file (spec 10.14). Returns {count,
  * shDegree, means (n x 3), quats (n x 4: w, x, y, z), logScales (n x 3), opacities (n, logits), shDc
@@ -214,7 +254,8 @@ export function decodeAttributes(section, payloads, tile = null) {
   const shDc = decodeScaled('SHDC', payloads.SHDC, section, classRows, tile, (c) => c.dcStep);
   const shRest = new Float32Array(n * numRest * 3);
   if (shDegree > 0) {
-    if (precision) decodeRestBanded(payloads.SHRS, section, precision, tile, shRest);
+    if (section.codebook) decodeRestByCodebook(payloads.SHRS, section, precision, tile, shRest);
+    else if (precision) decodeRestBanded(payloads.SHRS, section, precision, tile, shRest);
     else decodeRestFlagged(payloads.SHRS, section, tile, shRest);
   }
   return { count: n, shDegree, means, quats, logScales, opacities, shDc, shRest };

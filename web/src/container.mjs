@@ -26,7 +26,7 @@ export const END_MARKER = Uint8Array.of(0x47, 0x45, 0x4e, 0x44); // "GEND"
 export const PREAMBLE_BYTES = 20;
 export const TRAILER_BYTES = 8;
 export const MAJOR = 1;
-/** Chunk types of format 1.7 (spec section 6). */
+/** Chunk types of format 1.8 (spec section 6). */
 export const KNOWN_TYPES = new Set(['POSN', 'OPAC', 'SCAL', 'ROTN', 'SHDC', 'SHRS', 'PREC', 'TIDX', 'RESI', 'SIDE', 'TSID']);
 
 const FLAG_REQUIRED = 1;

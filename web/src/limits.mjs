@@ -48,6 +48,8 @@ export const MAX_CONTRACTED = 32;
 // Precision classes (10.0, 10.13): class 0 and at most 15 maps; each class is a matrix per chunk, so the
 // count bounds the matrices a file may ask for.
 export const MAX_CLASSES = 16;
+// Codebook entries of an attribute section at version 5 (spec 10.16), and at most its count n.
+export const MAX_CODEBOOK = 2 ** 16;
 
 // Model integers and decoded matrix entries (10.0, 10.11): -2^48 .. 2^48, so a prediction (a sum of three
 // of them) stays inside 64 bits and every value converts to binary64 exactly. Also the bound of the levels

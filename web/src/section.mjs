@@ -7,6 +7,7 @@ import {
   MAX_BITS_CONTRACTED,
   MAX_BITS_PLAIN,
   MAX_CLASSES,
+  MAX_CODEBOOK,
   MAX_CODEC_INT,
   MAX_CONTRACTED,
   MAX_COORDINATE,
@@ -20,6 +21,7 @@ export const PLAIN_VERSION = 1;
 export const CONTRACTED_VERSION = 2;
 export const FAR_VERSION = 3;
 export const PRECISION_VERSION = 4;
+export const CODEBOOK_VERSION = 5;
 
 const fail = (field, value, want) => new CodecError(`attribute codec header's ${field} is ${show(value)}, not ${want}`);
 
@@ -76,7 +78,7 @@ function readGrid(grid, version) {
   const contracted = grid.has('centre') || grid.has('radius');
   const hasFar = grid.has('far_count') || grid.has('far_shift');
   let v = version;
-  if (v === PRECISION_VERSION) v = hasFar ? FAR_VERSION : contracted ? CONTRACTED_VERSION : PLAIN_VERSION;
+  if (v >= PRECISION_VERSION) v = hasFar ? FAR_VERSION : contracted ? CONTRACTED_VERSION : PLAIN_VERSION;
   if ((v !== PLAIN_VERSION) !== contracted) {
     throw new CodecError('attribute codec version and position grid disagree on contraction');
   }
@@ -159,13 +161,14 @@ function readClass(map, k, prefix) {
 
 /**
  * meta["attributes"] (spec 10.0) as {version, n, shDegree, numRest (K), grid, classes (class 0 first),
- * precision (version 4)}. CodecError naming the first bad field.
+ * precision (versions 4 and 5), codebook (version 5: its entries E, else 0)}. CodecError naming the first
+ * bad field.
  */
 export function readAttributeSection(meta) {
   if (!(meta instanceof Map)) throw fail('section', meta, 'a map');
   const version = get(meta, 'version', 'version');
-  if (typeof version !== 'bigint' || version < 1n || version > 4n) {
-    throw new CodecError(`attribute codec version ${show(version)} is not supported (this decoder reads 1..4)`);
+  if (typeof version !== 'bigint' || version < 1n || version > 5n) {
+    throw new CodecError(`attribute codec version ${show(version)} is not supported (this decoder reads 1..5)`);
   }
   const v = Number(version);
   const n = int(meta, 'n', 'n', 1, MAX_GAUSSIANS);
@@ -173,7 +176,8 @@ export function readAttributeSection(meta) {
   const grid = readGrid(get(meta, 'position', 'position'), v);
   const numRest = (shDegree + 1) ** 2 - 1;
   const classes = [readClass(meta, numRest, '')];
-  if (v === PRECISION_VERSION) {
+  const precision = v >= PRECISION_VERSION;
+  if (precision) {
     const maps = get(meta, 'classes', 'classes');
     if (!Array.isArray(maps)) throw fail('classes', maps, 'an array of maps');
     if (maps.length > MAX_CLASSES - 1) throw fail('classes', `${maps.length} maps`, `at most ${MAX_CLASSES - 1} maps`);
@@ -186,5 +190,11 @@ export function readAttributeSection(meta) {
     throw new CodecError(`attribute codec header has an impossible far set (far_count ${grid.far.count} of ${n})`);
   }
   if (grid.far) grid.far.count = Number(grid.far.count);
-  return { version: v, n, shDegree, numRest, grid, classes, precision: v === PRECISION_VERSION };
+  // 10.16: the SH rest by a codebook of E entries, 1 .. min(2^16, n); never at SH degree 0.
+  let codebook = 0;
+  if (v === CODEBOOK_VERSION) {
+    if (shDegree === 0) throw new CodecError('attribute codec version 5 (an SH codebook) at SH degree 0');
+    codebook = int(meta, 'codebook', 'codebook', 1, Math.min(MAX_CODEBOOK, n));
+  }
+  return { version: v, n, shDegree, numRest, grid, classes, precision, codebook };
 }
