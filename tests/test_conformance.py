@@ -130,7 +130,7 @@ def test_codec_vectors_cover_each_chunk_type() -> None:
     ok = [v for v in ok if "attributes" in v["meta"]]  # one section each: not a tiled file (spec 10.14)
     assert {v["meta"]["attributes"]["sh_degree"] for v in ok} >= {0, 3}
     # Every attribute codec version decodes (spec 10.0), version 4 on each kind of position grid (10.13).
-    assert {v["meta"]["attributes"]["version"] for v in ok} == {1, 2, 3, 4}
+    assert {v["meta"]["attributes"]["version"] for v in ok} == {1, 2, 3, 4, 5}
     grids = {
         tuple(sorted(v["meta"]["attributes"]["position"]))
         for v in ok

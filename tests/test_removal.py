@@ -5,6 +5,7 @@ import math
 import time
 from dataclasses import replace
 
+import torch
 from scenes import random_scene
 
 import gspc.encoder.rate as rate
@@ -26,8 +27,8 @@ def test_a_trial_is_better_only_in_no_more_bytes_and_past_the_margin():
     assert not better(best, Trial(0.07, 7.0, 1001, 45.0), 1000, 0.1)  # the search missed the bytes
 
 
-def _small(opacity_logit: float = 1.0):
-    scene = random_scene(1500, sh_degree=1, seed=5, log_scale=-3.5, opacity_logit=opacity_logit)
+def _small(opacity_logit: float = 1.0, degree: int = 1):
+    scene = random_scene(1500, sh_degree=degree, seed=5, log_scale=-3.5, opacity_logit=opacity_logit)
     cams = synthesize_views(scene, 6, width=48, height=48)
     params = replace(quality_preset("low").attributes, lam=4.0)
     sig = encoder_significance(scene, cams)
@@ -142,8 +143,10 @@ def test_a_preset_that_removes_nothing_searches_only_the_grid(monkeypatch):
 def test_each_preset_names_its_grid_search_and_sh_trials():
     assert removal_params(EncodeOptions(quality="low")).position_offsets == (-1.0,)
     assert removal_params(EncodeOptions(quality="high")).position_offsets == (1.0,)
-    # Low tries every SH band of every Gaussian without a dead zone; high keeps its rules.
-    assert removal_params(EncodeOptions(quality="low")).sh_options == (SHRules(0.0, 0.0, 0.0),)
+    # Low tries every SH band of every Gaussian without a dead zone, then the SH rest by codebook; high keeps
+    # its rules.
+    low = removal_params(EncodeOptions(quality="low")).sh_options
+    assert low == (SHRules(0.0, 0.0, 0.0), SHRules(4.0, 0.0, 0.02, 4096))
     assert removal_params(EncodeOptions(quality="high")).sh_options == ()
     assert removal_params(EncodeOptions(quality="high", removal_search=False)) is None
 
@@ -168,6 +171,25 @@ def test_sh_rules_that_keep_more_are_kept_where_they_score_better_in_no_more_byt
     assert choice.encoded.num_bytes <= first.num_bytes
     assert again_same(scene, choice, sig)
     assert "faint Gaussians' too" in choice.summary()
+
+
+def _distinct_sh(enc) -> float:
+    """A scorer that rewards fewer distinct SH rests (as a codebook codes them)."""
+    rest = enc.decoded.sh_rest.reshape(enc.decoded.num_gaussians, -1)
+    return 60.0 - 1e-2 * len(torch.unique(rest, dim=0))
+
+
+def test_a_codebook_is_kept_where_it_scores_better_and_its_file_says_so(monkeypatch):
+    scene, cams, params, sig, first = _small(degree=2)
+    monkeypatch.setattr(removal, "scorer", lambda *a: _distinct_sh)
+    book = SHRules(params.precision.sh_keep, 0.0, params.sh_faint_alpha, 64)
+    rp = RemovalParams(steps=(), position_offsets=(), sh_options=(book,))
+    choice = choose_removal(scene, first, params, None, sig, cams, (0, 0, 0), rp)
+    assert choice.params.sh_rules == book and choice.kept.sh == book
+    assert choice.encoded.section.version == 5 and choice.encoded.section.codebook <= 64
+    assert choice.encoded.num_bytes <= first.num_bytes
+    assert again_same(scene, choice, sig)
+    assert "SH rest by a codebook of up to 64 entries" in choice.summary()
 
 
 def test_the_presets_sh_rules_stay_where_keeping_more_scores_worse(monkeypatch):

@@ -177,19 +177,25 @@ def test_spec_reader_decodes_precision_classes(degree, grid):
     assert_same(sr.read_scene(data)[0], enc.decoded)
 
 
-def test_spec_precision_example():
-    """Section 10.13's example: C = 2, SH degree 1, PREC rows (0, 1), (1, 0), (0, 0): OPAC bins of 2 and 1
-    rows, SHRS bins 1 x 9 and 0 x 9; both decoders read it alike, each class with its own steps."""
+def _example_section(version: int, **class_1) -> dict:
+    """The attribute section of the examples of spec 10.13 and 10.16: three Gaussians of SH degree 1, class
+    0's steps and class 1's (class 0's with ``class_1`` and SH steps of 1)."""
     steps = {"opacity_levels": 8, "scale_step": 0.5, "rotation_levels": 4, "dc_step": 0.25}
-    a = {
-        "version": 4,
+    return {
+        "version": version,
         "n": 3,
         "sh_degree": 1,
         "position": {"bits": 2, "lo": [0.0, 0.0, 0.0], "step": [1.0, 1.0, 1.0]},
         **steps,
         "sh_steps": [0.125] * 3,
-        "classes": [dict(steps, opacity_levels=2, scale_step=2.0, dc_step=1.0, sh_steps=[1.0] * 3)],
+        "classes": [dict(steps, **class_1, sh_steps=[1.0] * 3)],
     }
+
+
+def test_spec_precision_example():
+    """Section 10.13's example: C = 2, SH degree 1, PREC rows (0, 1), (1, 0), (0, 0): OPAC bins of 2 and 1
+    rows, SHRS bins 1 x 9 and 0 x 9; both decoders read it alike, each class with its own steps."""
+    a = _example_section(4, opacity_levels=2, scale_step=2.0, dc_step=1.0)
     rows = {0: [0, 2], 1: [1]}  # Gaussians of each class, in decoded order
 
     def bins(columns: int, values) -> bytes:
@@ -241,17 +247,7 @@ def test_spec_reader_decodes_the_sh_rest_by_codebook(degree, grid):
 def test_spec_codebook_example():
     """Section 10.16's example: SH degree 1, E = 2, PREC rows (0, 1), (0, 0), (1, 1): entries 2 x 9 at class
     0's steps whatever the Gaussian's class, indices 2 x 1 for Gaussians 0 and 2."""
-    steps = {"opacity_levels": 8, "scale_step": 0.5, "rotation_levels": 4, "dc_step": 0.25}
-    a = {
-        "version": 5,
-        "n": 3,
-        "sh_degree": 1,
-        "position": {"bits": 2, "lo": [0.0, 0.0, 0.0], "step": [1.0, 1.0, 1.0]},
-        **steps,
-        "sh_steps": [0.125] * 3,
-        "classes": [dict(steps, sh_steps=[1.0] * 3)],
-        "codebook": 2,
-    }
+    a = dict(_example_section(5), codebook=2)
     rows = {0: [0, 1], 1: [2]}
     rot = np.array([0, 2, 2, 2])
     entries = np.arange(18, dtype=np.int64).reshape(2, 9) - 4

@@ -124,6 +124,7 @@ class Variant:
     presets: tuple[tuple[str, float], ...]  # (preset, its lambda) for the shells' table
     chooses_removal: bool = False  # the encoder chooses the removal (gspc/encoder/removal.py)
     tunes: bool = False  # the encoder tunes the coded values at its cameras (gspc/encoder/tuning.py)
+    tune_twice_every: int = 0  # TuningParams.twice_every: every n-th camera tuned at twice its size
 
 
 VARIANTS: dict[str, Variant] = {
@@ -173,6 +174,13 @@ for _base, _name, _about, _change in (
         "v4-low-chosen with its coded values tuned at the encoder's cameras (gspc/encoder/tuning.py, the "
         "preset's iterations, as `gspc encode` does for files without side information)",
         {"tunes": True},
+    ),
+    (
+        "v4-low-tuned",
+        "v4-low-tuned-2x",
+        "v4-low-tuned with every other camera of the tuning rendered at twice its size "
+        "(TuningParams.twice_every = 2)",
+        {"tune_twice_every": 2},
     ),
 ):
     VARIANTS[_name] = replace(VARIANTS[_base], name=_name, about=_about, **_change)
@@ -281,7 +289,7 @@ def coding(b: Bench, variant: Variant, lam: float) -> tuple[EncodedAttributes, C
         choice = choose_removal(b.scene, enc, params, b.visible, b.measure, cams, bg, rp)
         enc, params = choice.encoded, choice.params
     if variant.tunes:
-        tuning = TuningParams(iterations=quality_preset("low").tune_iterations)
+        tuning = TuningParams(quality_preset("low").tune_iterations, twice_every=variant.tune_twice_every)
         enc = tune_coding(b.scene, enc, params, cams, bg, b.visible, b.measure, tuning).encoded
     return enc, params
 

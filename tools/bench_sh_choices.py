@@ -7,10 +7,11 @@ the same bytes, against the presets' fixed SH rules (bench/precision.md, "SH cho
 A scene is one of tools/bench_setups.py bench_scene's names or a tools/fit_scene.py output folder (the
 bird: /work/fits/bird_q4_100k). Per scene, preset and variant of the trials (RemovalParams.sh_options:
 ``off`` none; ``bands`` every band kept, no dead zone; ``faint`` that and faint Gaussians' SH rest kept
-too; ``both`` the two in turn; ``book``, ``book1024`` the SH rest by a codebook of up to 4,096 or 1,024 entries;
-``faint-book`` ``faint`` then ``book``; ``preset`` the preset's own), the default encode (no side information, as a
-viewer gets it): bytes, the SH rules kept, and float PSNR against the original's renders at held-out views
-(every eighth of the scene's cameras, or the fit's own held-out ones, which the encoder does not see).
+too; ``both`` the two in turn; ``book``, ``book1024`` the SH rest by a codebook of up to 4,096 or 1,024
+entries; ``faint-book`` ``faint`` then ``book``; ``preset`` the preset's own), the default encode (no side
+information, as a viewer gets it): bytes, the SH rules kept, and float PSNR against the original's renders
+at held-out views (every eighth of the scene's cameras, or the fit's own held-out ones, which the encoder
+does not see).
 ``--lam``: at that rate instead of the preset's fidelity (equal bytes but for the trials' own search).
 """
 

@@ -1347,6 +1347,18 @@ def image_vectors(
     )
 
 
+def refuser(bad_codec, attributes: dict, chunks: dict[str, bytes], minor: int):
+    """``refused(name, desc, *contains, meta=None, **payloads)``: a refused vector of these attribute chunks
+    with ``payloads`` in place of theirs (None: the chunk left out), or another ``meta``."""
+
+    def refused(name: str, desc: str, *contains: str, meta=None, **payloads) -> None:
+        changed = {k: v for k, v in {**chunks, **payloads}.items() if v is not None}
+        meta = meta or scene_meta(attributes)
+        bad_codec(name, desc, meta, attribute_entries(changed), *contains, minor=minor)
+
+    return refused
+
+
 def precision_vectors(ok, bad_codec, a0: dict, c0: dict) -> None:
     """Attribute codec version 4 (spec 10.13): decoded files on each kind of grid, and one refused file for
     each of its (v) decisions in 10.11."""
@@ -1382,9 +1394,7 @@ def precision_vectors(ok, bad_codec, a0: dict, c0: dict) -> None:
         minor=4,
     )
 
-    def refused(name: str, desc: str, *contains: str, meta=None, **payloads) -> None:
-        chunks = {k: v for k, v in {**c7, **payloads}.items() if v is not None}
-        bad_codec(name, desc, meta or scene_meta(a7), attribute_entries(chunks), *contains, minor=4)
+    refused = refuser(bad_codec, a7, c7, minor=4)
 
     def prec(column: int, row: int, value: int) -> bytes:
         """c7's PREC with one entry changed."""
@@ -1471,16 +1481,15 @@ def codebook_vectors(ok, bad_codec) -> None:
     assert a["classes"] and set(degrees.tolist()) == {0, 1, 2}, "codec_codebook must mix degrees 0..2"
     ok(
         "codec_codebook",
-        f"150 Gaussians, SH degree 2: attribute codec version 5, the SH rest by a codebook of {a['codebook']} "
-        f"entries (SHRS [entries, indices]), {len(a['classes']) + 1} precision classes, SH degrees 0, 1 and 2",
+        f"150 Gaussians, SH degree 2: attribute codec version 5, the SH rest by a codebook of "
+        f"{a['codebook']} entries (SHRS [entries, indices]), {len(a['classes']) + 1} precision classes, SH "
+        "degrees 0, 1 and 2",
         scene_meta(a),
         attribute_entries(c),
         minor=8,
     )
 
-    def refused(name: str, desc: str, *contains: str, meta=None, **payloads) -> None:
-        chunks = {k: v for k, v in {**c, **payloads}.items() if v is not None}
-        bad_codec(name, desc, meta or scene_meta(a), attribute_entries(chunks), *contains, minor=8)
+    refused = refuser(bad_codec, a, c, minor=8)
 
     table, index = msgpack.unpackb(c["SHRS"])
     coded = int((degrees >= 1).sum())

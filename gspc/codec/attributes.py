@@ -327,7 +327,11 @@ def _decode_classed(
 
 
 def _decode_codebook(
-    payload: bytes, section: AttributeSection, pmap: PrecisionMap, rest: np.ndarray, budget: DecodeBudget | None
+    payload: bytes,
+    section: AttributeSection,
+    pmap: PrecisionMap,
+    rest: np.ndarray,
+    budget: DecodeBudget | None,
 ) -> None:
     """Version 5 (spec 10.16) into ``rest``: each Gaussian of degree >= 1 takes its entry's coefficients up
     to its degree, decoded at class 0's steps."""

@@ -5,8 +5,8 @@ Weighted k-means over the SH rest of the Gaussians that carry one, each Gaussian
 in the encoder's views (its blending weight: an entry's error shows in proportion), fitted on a sample and
 then every Gaussian given its nearest entry as the decoder decodes it. Entries no Gaussian takes are
 dropped, and the rest ordered by how many take them, so the indices the codec context-codes are small
-where they are common. Deterministic: a fixed seed, so the same input gives the same file on every worker. Whether a codebook pays is the encoder's trial (gspc/encoder/removal.py), not this
-module's.
+where they are common. Deterministic: a fixed seed, so the same input gives the same file on every worker.
+Whether a codebook pays is the encoder's trial (gspc/encoder/removal.py), not this module's.
 """
 
 from __future__ import annotations
@@ -17,7 +17,6 @@ import numpy as np
 import torch
 
 from gspc.codec.attributes import SHCodebook
-
 
 # Entries per coded Gaussian at lambda 1, falling as 1 / lambda and kept within MIN_ENTRIES and the rules'
 # most: on the lego fit (SOG's palette or not) more entries pay at finer rates, and 1,024 of its 20k

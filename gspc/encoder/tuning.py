@@ -71,6 +71,10 @@ class TuningParams:
     # predictions: bench/tuning.md, "Gain and cost by scene"); a byte target
     # (--target-size) bounds it instead.
     growth: float = 0.02
+    # Every twice_every-th camera rendered at twice its width and height (0: none), so that the values are
+    # tuned for a viewer that draws the scene larger than the cameras were (bench/precision.md, "Tuning at
+    # twice the size").
+    twice_every: int = 0
 
 
 @dataclass(frozen=True)
@@ -133,6 +137,7 @@ def tune_coding(
     params = params.with_lambda(enc.lam)
     limit = byte_limit if byte_limit is not None else int(enc.num_bytes * (1.0 + tuning.growth))
     stride = max(1, len(views) // per)
+    views = _zoomed(views, stride, tuning.twice_every)
     bg = tuple(float(x) for x in background)
     refs = render_images(scene, views, bg)
     if occlusion is not None:  # the pixels the other tiles hide are the same in both: no error there
@@ -186,6 +191,12 @@ def tune_coding(
     kept = after < before
     chosen = best if kept else enc
     return Tuned(chosen, _report(done, len(first_share), before_db, after_db, enc, best, kept, t0))
+
+
+def _zoomed(views: list[Camera], stride: int, every: int) -> list[Camera]:
+    """``views`` with every ``every``-th of each share (the views ``stride`` apart, :func:`_share`) at twice
+    its size, so that every iteration renders both sizes; all as given where ``every`` is 0."""
+    return [v.scaled(2.0) if every and (i // stride) % every == 0 else v for i, v in enumerate(views)]
 
 
 def _share(count: int, stride: int, it: int) -> list[int]:
