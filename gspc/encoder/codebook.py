@@ -23,8 +23,6 @@ from gspc.codec.attributes import SHCodebook
 # Gaussians lost to the codec at lambda 4 where 4,096 gained (bench/precision.md, "The SH rest by codebook").
 ENTRIES_PER_GAUSSIAN = 1.0
 MIN_ENTRIES = 256
-
-
 # Rows x entries under which the distances are computed in binary64 (see _nearest).
 SMALL_PRODUCTS = 1 << 20
 
@@ -43,7 +41,6 @@ class CodebookParams:
     sample_per_entry: int = 16
     max_sample: int = 1 << 15
     seed_per_entry: int = 4  # rows per entry the seeds are drawn from, at most max_sample / 4
-
     block: int = 2048  # rows per distance block: their distances to every entry stay in cache
     seed: int = 0
 
