@@ -40,10 +40,10 @@ class Preset:
     tune_iterations: int = 4
     # The encoder's search then tries the position grid this many bits per axis finer (+) or coarser (-),
     # each in the same bytes, kept where views between its cameras show it closer (gspc/encoder/removal.py):
-    # at the low preset's rate the trained captures take a bit coarser and the statues half a bit finer, at
-    # the high preset's the statues a bit finer (bench/precision.md, "Position precision chosen per scene",
-    # "The high preset's positions chosen per scene too" and "Finer positions at the low preset").
-    position_offsets: tuple[float, ...] = (-1.0, 0.5)
+    # at the low preset's rate the trained captures take a bit coarser, at the high preset's the statues a
+    # bit finer (bench/precision.md, "Position precision chosen per scene" and "The high preset's positions
+    # chosen per scene too").
+    position_offsets: tuple[float, ...] = (-1.0,)
     # Then, where the scene has view-dependent colour, every SH band of every Gaussian (faint ones too)
     # without a dead zone, in the same bytes, kept where the same views show it closer: at the low preset's
     # rate, where keeping the faint Gaussians' too gained over every band alone (gspc/encoder/removal.py;

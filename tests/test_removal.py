@@ -122,20 +122,6 @@ def test_the_rates_grid_stays_where_coarser_positions_score_worse(monkeypatch):
     assert "positions -1 bit at lambda" in choice.summary()
 
 
-def test_each_direction_of_the_grid_stops_at_its_first_loss_and_a_kept_one_ends_the_other(monkeypatch):
-    scene, cams, params, sig, first = _small()
-    rp = RemovalParams(steps=(), position_offsets=(-1.0, -2.0, 0.5, 1.0))
-    # Finer scores better: the coarser direction ends at -1, the finer one goes on to its end.
-    monkeypatch.setattr(removal, "scorer", lambda *a: lambda enc: -_coarser_scores_better(enc))
-    choice = choose_removal(scene, first, params, None, sig, cams, (0, 0, 0), rp)
-    assert [t.position_offset for t in choice.trials] == [-1.0, 0.5, 1.0]
-    assert choice.params.position_offset == 1.0
-    # Coarser scores better: both coarser offsets kept in turn, the finer ones never tried.
-    monkeypatch.setattr(removal, "scorer", lambda *a: _coarser_scores_better)
-    choice = choose_removal(scene, first, params, None, sig, cams, (0, 0, 0), rp)
-    assert [t.position_offset for t in choice.trials] == [-1.0, -2.0]
-
-
 def test_a_preset_that_removes_nothing_searches_only_the_grid(monkeypatch):
     # The high preset's search: no removal step, the grid a bit finer in no more bytes, kept where the views
     # score it better (here: a scorer that rewards finer voxels).
@@ -155,7 +141,7 @@ def test_a_preset_that_removes_nothing_searches_only_the_grid(monkeypatch):
 
 
 def test_each_preset_names_its_grid_search_and_sh_trials():
-    assert removal_params(EncodeOptions(quality="low")).position_offsets == (-1.0, 0.5)
+    assert removal_params(EncodeOptions(quality="low")).position_offsets == (-1.0,)
     assert removal_params(EncodeOptions(quality="high")).position_offsets == (1.0,)
     # Low tries every SH band of every Gaussian without a dead zone, then the SH rest by codebook; high keeps
     # its rules.

@@ -16,12 +16,10 @@ under a statue's curve), nor at the cameras themselves (removal takes what they 
 it) (bench/precision.md, "Removal chosen per scene").
 
 Then, with the removal kept, the position grid a bit coarser or finer per axis (``position_offsets``, the
-preset's: gspc/presets.py), in the same bytes and scored the same way, each direction in order until its first
-offset that does not gain, and none the other way once one is kept: at the low preset's rate the trained
-captures code the same bytes closer a bit coarser (their Gaussians are large against its voxels), the statues
-a bit finer, as at the high preset's; the others keep the rate's grid (bench/precision.md, "Position precision
-chosen per scene", "Finer positions at the low preset"). A preset that removes nothing (the high one)
-searches only the grid.
+preset's: gspc/presets.py), in the same bytes and scored the same way: at the low preset's rate the trained
+captures code the same bytes closer a bit coarser (their Gaussians are large against its voxels), at the high
+preset's the statues a bit finer; the others keep the rate's grid (bench/precision.md, "Position precision
+chosen per scene"). A preset that removes nothing (the high one) searches only the grid.
 
 Last, where the scene has view-dependent colour, the SH rules (which bands each Gaussian keeps, the dead
 zone, the faint Gaussians that carry none: gspc/encoder/params.py SHRules) against ones that drop less
@@ -255,18 +253,14 @@ def choose_removal(
             break
         # Each step's lambda falls by about the same ratio (bench/precision.md, "Removal chosen per scene").
         guess = trials[-1].lam * trials[-1].lam / (trials[-2].lam if len(trials) > 1 else first.lam)
-    ended: set[bool] = set()  # the directions (finer: True) that lost, or that the other one's gain ends
     for offset in rp.position_offsets:
-        finer = offset > 0
-        if finer in ended or (deadline is not None and time.perf_counter() >= deadline):
-            continue
+        if deadline is not None and time.perf_counter() >= deadline:
+            break
         p = kept[1]
         # Coarser positions free bytes for the rest (a lower lambda), finer ones take them (a higher one).
         ratio = rp.first_lambda_ratio if offset < 0 else 1.0 / rp.first_lambda_ratio
-        if attempt(replace(p, lam=p.lam * ratio, position_offset=offset), offset):
-            ended.add(not finer)  # a grid kept one way: the other way is not tried
-        else:
-            ended.add(finer)  # each direction stops at its first offset that does not gain
+        if not attempt(replace(p, lam=p.lam * ratio, position_offset=offset), offset):
+            break
     for rules in sh_options:
         if deadline is not None and time.perf_counter() >= deadline:
             break
