@@ -112,3 +112,27 @@ def test_search_lambda_steps_over_lambdas_too_fine_for_the_scene():
         encode_attributes(scene, params.with_lambda(1e-3))
     enc = search_lambda(scene, 10**9, params)
     assert enc.lam > 1e-3 and abs(float(enc.decoded.sh_dc.abs().max()) - 100.0) < 1.0
+
+
+def test_search_lambda_keeps_its_best_coding_where_its_last_is_too_fine(monkeypatch):
+    """A search whose last coding is too fine for the scene returns the best it has (a codebook trial in the
+    preset's bytes on the glossy scene reached one) instead of failing the encode; with none, it raises."""
+    import gspc.encoder.rate as rate
+
+    scene = _scene(n=300, degree=1)
+    real = rate.encode_attributes
+    first = real(scene, QUALITY["low"].attributes.with_lambda(8.0))
+
+    def fine_out_of_range(scene, params, *a, **k):
+        if params.lam < 6:
+            raise ValueRangeError("too fine")
+        return real(scene, params, *a, **k)
+
+    monkeypatch.setattr(rate, "encode_attributes", fine_out_of_range)
+    enc = search_lambda(scene, 10 * first.num_bytes, QUALITY["low"].attributes, max_iter=3)
+    assert 6 <= enc.lam and enc.num_bytes <= 10 * first.num_bytes
+    monkeypatch.setattr(
+        rate, "encode_attributes", lambda *a, **k: fine_out_of_range(None, CodecParams(lam=1))
+    )
+    with pytest.raises(ValueRangeError):
+        search_lambda(scene, 10 * first.num_bytes, QUALITY["low"].attributes, max_iter=3)

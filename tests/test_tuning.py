@@ -111,3 +111,16 @@ def test_a_scene_past_the_work_bound_is_not_tuned(monkeypatch):
     monkeypatch.setattr(tuning, "TUNE_WORK", tuning.MIN_VIEWS * scene.num_gaussians - 1)
     out = tune_coding(scene, enc, params, cams, (0, 0, 0), None, sig, TuningParams(iterations=2))
     assert out.encoded is enc and out.report.iterations == 0 and "work bound" in out.report.summary()
+
+
+def test_twice_every_puts_both_sizes_in_every_share():
+    """TuningParams.twice_every = 2 (measured, off by default: bench/precision.md, "Tuning at twice the
+    size"): each iteration's share of the cameras holds views at their size and at twice it."""
+    from gspc.encoder.tuning import _share, _zoomed
+
+    cams = synthesize_views(random_scene(50, sh_degree=0, seed=1), 12, width=40, height=30)
+    assert _zoomed(cams, 4, 0) == cams
+    views = _zoomed(cams, 4, 2)
+    for it in range(4):
+        widths = {views[i].width for i in _share(len(views), 4, it)}
+        assert widths == {40, 80}

@@ -247,11 +247,9 @@ def _codebook(
     (gspc/encoder/codebook.py) up to the parameters' most."""
     coded = pmap.degrees > 0
     degrees = np.where(coded, scene.sh_degree, 0).astype(pmap.degrees.dtype)
-    rest = scene.sh_rest.detach().cpu().numpy()
-    steps = np.asarray(base.sh_steps)
-    check_range("SH rest", rest, steps[None, :, None], kept[coded])
+    rest = scene.sh_rest.detach().cpu().numpy()  # in range: _check_ranges checked every candidate's
     entries = codebook_entries(int(coded.sum()), params.lam, params.sh_codebook)
-    book = fit_codebook(rest, kept[coded], sig.weight, entries, steps)
+    book = fit_codebook(rest, kept[coded], sig.weight, entries, np.asarray(base.sh_steps))
     return PrecisionMap(pmap.classes, degrees), book
 
 
