@@ -2,7 +2,9 @@
 item 2).
 
     GSPC_THREADS=1 python tools/bench_regional.py --scene examples/lego --tile-size 8192 -o F
-    GSPC_THREADS=1 python tools/bench_regional.py --scene /work/scale/scale_100000 --closeups 32 -o F
+    GSPC_THREADS=1 python tools/bench_regional.py --scene /work/fits/bird_q4_100k --tile-size 32768 --every 8
+    GSPC_THREADS=1 python tools/bench_regional.py --scene /work/scale/scale_1000000 --closeups 8 \
+        --tile-size 262144 --lam 20 --variants global,frozen
 
 A question about the decoder alone, so every variant refines the same bytes: the scene is coded in tiles
 without side information (`gspc encode --no-side-info --tile-size`), the residuals of the whole scene's
@@ -12,12 +14,15 @@ restores them (gspc/reconstruct.py); then the decoded Gaussians are refined insi
 (the decoder's schedule, ``--iterations`` steps a run):
 
 - global: every tile at once against every view (what one block's decoder does);
-- per tile, neighbours frozen: each tile alone against the views that see it, every other tile drawn as
+- frozen: each tile alone against the views that see it, every other tile drawn as
   decoded and never refined (the tiles could run side by side on separate workers);
-- per tile, a second round: the same again with the other tiles drawn as the first round refined them.
+- second: the same again with the other tiles drawn as the first round refined them;
+- in-turn: ``--turns`` rounds of ``--iterations / --turns`` steps, the tiles one after another, each beside
+  the others as last refined.
 
-Each is scored at held-out views (every ``--every``-th camera, never a side view) against the original's
-renders (float PSNR of 8-bit images, gspc/metrics.py). Seconds are the refinements' own, on one thread.
+Each is scored at held-out views (every ``--every``-th camera; the side views are the other cameras, at most
+``--views`` of them evenly) against the original's renders (gspc/metrics.py mean_psnr). CPU seconds are the
+refinement's and its scoring's, on one thread.
 """
 
 from __future__ import annotations
