@@ -102,32 +102,24 @@ def tile_refined(
     return refined(tile, [cams[v] for v in seen], [targets[v] for v in seen], cells, others, iterations)
 
 
-def per_tile_round(
+def tile_rounds(
     scenes: list[GaussianScene],
     cells: list[dict[str, Box]],
     cams: list[Camera],
     targets: list[torch.Tensor],
     iterations: int,
+    in_turn: bool,
+    rounds: int = 1,
 ) -> list[GaussianScene]:
-    """Every tile refined beside the others as they are in ``scenes`` (the tiles could run side by side)."""
-    return [tile_refined(k, scenes, cells[k], cams, targets, iterations) for k in range(len(scenes))]
-
-
-def in_turn(
-    scenes: list[GaussianScene],
-    cells: list[dict[str, Box]],
-    cams: list[Camera],
-    targets: list[torch.Tensor],
-    iterations: int,
-    turns: int,
-) -> list[GaussianScene]:
-    """``turns`` rounds in which each tile in order is refined beside the others as last refined (one
-    after another: a tile sees its neighbours' moves)."""
-    current = list(scenes)
-    for _ in range(turns):
-        for k in range(len(current)):
-            current[k] = tile_refined(k, current, cells[k], cams, targets, iterations)
-    return current
+    """``rounds`` rounds in which every tile is refined once: beside the others as the round found them
+    (the tiles could run side by side), or ``in_turn``, one after another, each beside the others as last
+    refined."""
+    for _ in range(rounds):
+        current = list(scenes)
+        for k in range(len(scenes)):
+            current[k] = tile_refined(k, current if in_turn else scenes, cells[k], cams, targets, iterations)
+        scenes = current
+    return scenes
 
 
 def run_scene(args: argparse.Namespace, work: Path) -> list[str]:
@@ -190,18 +182,20 @@ def run_scene(args: argparse.Namespace, work: Path) -> list[str]:
     if "frozen" in variants:
         first = timed(
             "per tile, neighbours frozen as decoded",
-            lambda: per_tile_round(tiles, cells, side_cams, targets, args.iterations),
+            lambda: tile_rounds(tiles, cells, side_cams, targets, args.iterations, in_turn=False),
         )
         if "second" in variants:
             timed(
                 "per tile, a second round beside the first round's",
-                lambda: per_tile_round(first, cells, side_cams, targets, args.iterations),
+                lambda: tile_rounds(first, cells, side_cams, targets, args.iterations, in_turn=False),
             )
     if "in-turn" in variants:
         timed(
             f"per tile in turn: {args.turns} rounds of {args.iterations // args.turns} steps, each tile "
             "beside the others as last refined",
-            lambda: in_turn(tiles, cells, side_cams, targets, args.iterations // args.turns, args.turns),
+            lambda: tile_rounds(
+                tiles, cells, side_cams, targets, args.iterations // args.turns, True, args.turns
+            ),
         )
     sizes = ", ".join(f"{t.num_gaussians:,}" for t in tiles)
     lines = [
