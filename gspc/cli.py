@@ -218,6 +218,7 @@ def encode(
     time_budget: float | None = _option(EncodeOptions, "time_budget"),
     tile_size: int = _option(EncodeOptions, "tile_size"),
     tile_neighbours: bool = _option(EncodeOptions, "tile_neighbours"),
+    span_size: int = _option(EncodeOptions, "span_size"),
     workers: int | None = _option(EncodeOptions, "workers"),
     ray: str | None = _option(EncodeOptions, "ray"),
     ship_inputs: bool = _option(EncodeOptions, "ship_inputs"),
@@ -256,6 +257,7 @@ def encode(
         time_budget=time_budget,
         tile_size=tile_size,
         tile_neighbours=tile_neighbours,
+        span_size=span_size,
         workers=workers,
         ray=ray,
         ship_inputs=ship_inputs,
@@ -475,10 +477,25 @@ def _tiled_info(path: Path, reader) -> None:
     if sides:
         own = f"{len(sides)} of {len(tiles.tiles)} tiles, {sum(sides.values()):,} B"
         drawn = ", each drawn with the tiles it names" if any(t.drawn for t in tiles.tiles) else ""
+        spans = [t.span for t in tiles.tiles if t.span > 1]
+        if spans:  # spec 10.17
+            drawn += f"; {len(spans)} serve spans of {min(spans)}-{max(spans)} tiles, refined as one"
         out.print(f"side information of their own (refined tile by tile{drawn}): {own}")
     t = Table(show_header=True)
     box_col = "box (x, y, z from .. to)"
-    for col in ("tile", "Gaussians", "bytes", "B/Gaussian", box_col, "grid", "classes", "side B", "drawn"):
+    columns = (
+        "tile",
+        "Gaussians",
+        "bytes",
+        "B/Gaussian",
+        box_col,
+        "grid",
+        "classes",
+        "side B",
+        "drawn",
+        "span",
+    )
+    for col in columns:
         t.add_column(col, justify="left" if col.startswith("box") else "right")
     for k, tile in enumerate(tiles.tiles[:INFO_TILES]):
         b = tile.box
@@ -487,7 +504,7 @@ def _tiled_info(path: Path, reader) -> None:
         t.add_row(
             str(k), f"{tile.n:,}", f"{sizes[k]:,}", f"{sizes[k] / tile.n:.2f}", box, grid,
             str(len(tile.section.all_classes)), f"{sides[k]:,}" if k in sides else "-",
-            " ".join(map(str, tile.drawn)) or "-",
+            " ".join(map(str, tile.drawn)) or "-", f"{k}-{k + tile.span - 1}" if tile.span > 1 else "-",
         )  # fmt: skip
     out.print(t)
     if len(tiles.tiles) > INFO_TILES:

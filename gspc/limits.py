@@ -186,19 +186,20 @@ class RenderAllowance:
         )
 
     @classmethod
-    def of_tile(cls, number: int, tile_bytes: int, all_bytes: int) -> RenderAllowance:
-        """Tile ``number``'s share: ``tile_bytes`` its attribute and TSID payloads, ``all_bytes`` every
-        tile's."""
+    def of_tile(cls, number: int, tile_bytes: int, all_bytes: int, span: int = 1) -> RenderAllowance:
+        """Tile ``number``'s share: ``tile_bytes`` its attribute and TSID payloads (its span's, of ``span``
+        tiles: spec 10.17), ``all_bytes`` every tile's."""
 
         def share(floor: int, per_byte: int) -> int:
             return max(floor * tile_bytes // max(all_bytes, 1), per_byte * tile_bytes)
 
+        who = f"tile {number}'s span of {span}" if span > 1 else f"tile {number}"
         return cls(
             min(MAX_TOTAL_PIXELS, share(PIXEL_FLOOR, PIXELS_PER_FILE_BYTE)),
             min(MAX_VIEW_PAIRS, share(PAIR_FLOOR, PAIRS_PER_FILE_BYTE)),
             share(WORK_FLOOR, WORK_PER_FILE_BYTE),
-            f"tile {number} ({tile_bytes:,} of the tiles' {all_bytes:,} bytes)",
-            "its share of the file's, spec 10.15",
+            f"{who} ({tile_bytes:,} of the tiles' {all_bytes:,} bytes)",
+            "its share of the file's, spec 10.15" + (" and 10.17" if span > 1 else ""),
         )
 
 
@@ -289,6 +290,9 @@ MAX_TILES = 1 << 13
 # Tiles one tile's side information may draw with its own Gaussians (spec 10.15): a cube of neighbours
 # (26) with room to spare; the Gaussians they add to its renders are bounded by its work budget.
 MAX_DRAWN_TILES = 64
+# Tiles one tile's side information may serve together (a span, spec 10.17): as many as it may draw, so a
+# span's refinement holds at most what a tile drawing its neighbours may render.
+MAX_SPAN_TILES = 64
 # Gaussians the encoder puts in one tile by default (--tile-size): the chosen trade of bytes (each tile pays
 # its own entropy models) against memory and parallel work (bench/tiles.md).
 DEFAULT_TILE_SIZE = 1 << 18

@@ -118,6 +118,12 @@ def check_encode_options(o: Any) -> None:
     check_time_budget(o.time_budget)
     if o.tile_size != 0:
         check_int("--tile-size", o.tile_size, MIN_TILE_SIZE, MAX_TILE_SIZE)
+    if o.span_size != 0:
+        check_int("--span-size", o.span_size, MIN_TILE_SIZE, MAX_TILE_SIZE)
+        if o.target_size is not None:
+            raise InputError(
+                "--span-size does not combine with --target-size (each tile's side information does)"
+            )
     check_workers(o.workers)
     o.ray = check_ray(o.ray)
     # device: checked (DeviceError) by gspc/device.py check_device, also before any work (it needs torch)
@@ -261,6 +267,11 @@ class EncodeOptions:
         False,
         "a tile's side information shows the tiles next to it too, drawn and never refined (format 1.7; "
         "default: each tile's own Gaussians alone)",
+    )
+    span_size: int = knob(
+        0,
+        "side information shared by runs of neighbouring tiles of at most this many Gaussians in all, whose "
+        "views are stored once and refined together (format 1.9; 0: each tile its own)",
     )
     workers: int | None = knob(
         None,

@@ -44,7 +44,6 @@ from gspc.scene import GaussianScene
 from gspc.stages import Stages
 from gspc.tile_reconstruct import (
     TileOutcome,
-    TileReconstruction,
     TileReconstructJob,
     TileSideSettings,
     reconstruct_tile,
@@ -240,8 +239,8 @@ def decode_tiles(
             yield DecodedTile(0, tuple(float(x) for x in (*m.min(0), *m.max(0))), scene)
             return
         chosen = reader.tiles.meeting(region)
-        for k, tile in zip(chosen, _tile_scenes(reader, chosen, workers, None, None)):
-            yield DecodedTile(k, reader.tiles.tiles[k].box, tile.scene)
+        for k, scene in _tile_scenes(reader, chosen, workers, None, None):
+            yield DecodedTile(k, reader.tiles.tiles[k].box, scene)
         if region is None:
             reader.check_trailer()
 
@@ -252,30 +251,44 @@ def _tile_scenes(
     workers: int | Executor,
     progress: Progress | None,
     settings: TileSideSettings | None,
-) -> Iterator[TileReconstruction]:
-    """The ``chosen`` tiles decoded, in order, on ``workers`` (gspc/tile_reconstruct.py), each restored and
-    refined with its own side information where ``settings`` are given: each job carries its tile's
-    chunks, read here."""
+    log: list[TileOutcome] | None = None,
+) -> Iterator[tuple[int, GaussianScene]]:
+    """The ``chosen`` tiles decoded, numbered, in order, on ``workers`` (gspc/tile_reconstruct.py), each
+    restored and refined with its own side information where ``settings`` are given (a tile of a span with
+    the span's other tiles, which are decoded for it and not yielded unless chosen: spec 10.17): each job
+    carries its tiles' chunks, read here. What each job did goes into ``log``."""
     total = sum(reader.tile_bytes())
     coordinates = reader.header.scene.coordinates if reader.header.scene else None
     tiles = reader.tiles.tiles
+    lead = reader.tiles.span_of() if settings is not None else list(range(len(tiles)))
+    leads = list(dict.fromkeys(lead[k] for k in chosen))
+    wanted = set(chosen)
+
+    def decoding(j: int) -> TileDecodeJob:
+        return TileDecodeJob(j, reader.tile(j), tiles[j].section, tiles[j].box, total)
 
     def job(k: int) -> TileReconstructJob:
         side = reader.tile_side(k) if settings is not None else None
         drawn = tiles[k].drawn if side is not None else ()  # the tiles its views show (spec 10.15)
+        members = range(k + 1, k + tiles[k].span) if side is not None else ()
         return TileReconstructJob(
-            TileDecodeJob(k, reader.tile(k), tiles[k].section, tiles[k].box, total),
+            decoding(k),
             side,
             reader.tile_allowances[k],
             settings,
-            tuple(TileDecodeJob(j, reader.tile(j), tiles[j].section, tiles[j].box, total) for j in drawn),
+            tuple(decoding(j) for j in drawn),
+            tuple(decoding(j) for j in members),
         )
 
-    jobs = (job(k) for k in chosen)
+    jobs = (job(k) for k in leads)
     stage = "tiles" if settings is None else "tiles with their side information"
-    for tile in run_tasks(reconstruct_tile, jobs, workers, _tile_name, len(chosen), progress, stage):
-        tile.scene.coordinates = coordinates
-        yield tile
+    for done in run_tasks(reconstruct_tile, jobs, workers, _tile_name, len(leads), progress, stage):
+        if log is not None:
+            log.append(done.outcome)
+        for k, scene in done.tiles:
+            if k in wanted:
+                scene.coordinates = coordinates
+                yield k, scene
 
 
 def _tile_name(job: TileReconstructJob) -> str:
@@ -293,13 +306,6 @@ def _tile_settings(header: FileHeader, has_sides: bool, opts: DecodeOptions) -> 
     return TileSideSettings(background, restorer, side_info.refine_iterations, opts)
 
 
-def _tiles_refined(parts: Iterator[TileReconstruction], log: list[TileOutcome]) -> Iterator[GaussianScene]:
-    """The tiles' scenes, what each reconstruction did kept in ``log`` for the report."""
-    for part in parts:
-        log.append(part.outcome)
-        yield part.scene
-
-
 def _refine_line(log: list[TileOutcome]) -> str:
     """The report's refine line of a tiled decode."""
     refined = [t.iterations for t in log if t.iterations > 0]
@@ -308,9 +314,12 @@ def _refine_line(log: list[TileOutcome]) -> str:
         return f"none (tiles: {'; '.join(reasons)})"
     drawn = sum(t.drawn for t in log)
     beside = f", {drawn:,} Gaussians of the tiles next to them drawn beside them" if drawn else ""
+    spans = [t.tiles for t in log if t.iterations > 0 and t.tiles > 1]
+    shared = f" ({len(spans)} spans of {min(spans)}-{max(spans)} tiles refined as one)" if spans else ""
+    tiles = sum(t.tiles for t in log)
     return (
-        f"{len(refined)} of {len(log)} tiles refined with their own side information, "
-        f"{min(refined)}-{max(refined)} iterations{beside}"
+        f"{sum(t.tiles for t in log if t.iterations > 0)} of {tiles} tiles refined with their own side "
+        f"information{shared}, {min(refined)}-{max(refined)} iterations{beside}"
     )
 
 
@@ -334,7 +343,7 @@ def _decode_tiles_to(
         rep.info["tiles"] = f"{len(chosen)} of {len(tiles.tiles)}{region}, decoded on {ex.describe()}"
         settings = _tile_settings(reader.header, reader.has_tile_sides, opts)
         log: list[TileOutcome] = []
-        parts = _tiles_refined(_tile_scenes(reader, chosen, ex, stages.progress, settings), log)
+        parts = (s for _, s in _tile_scenes(reader, chosen, ex, stages.progress, settings, log))
         if write is write_ply:
 
             def body(f) -> None:
@@ -421,18 +430,27 @@ def _decode_tiled_bytes(file: GspcFile, opts: DecodeOptions, stages: Stages, rep
     has_sides = any(side is not None for side in file.tile_sides)
     settings = _tile_settings(file.header, has_sides, opts)
     jobs = file_tile_jobs(file.tiles.tiles, file.tile_chunks)
+    lead = file.tiles.span_of() if has_sides else list(range(len(jobs)))
     log: list[TileOutcome] = []
     parts = []
     with stages.stage("tiles"):
         for k, t in enumerate(file.tiles.tiles):
+            if lead[k] != k:  # refined with its span's first tile (spec 10.17)
+                continue
             side = file.tile_sides[k] if has_sides else None
             drawn = t.drawn if side is not None else ()  # the tiles its views show (spec 10.15)
+            members = range(k + 1, k + t.span) if side is not None else ()
             job = TileReconstructJob(
-                jobs[k], side, file.tile_allowances[k], settings, tuple(jobs[j] for j in drawn)
+                jobs[k],
+                side,
+                file.tile_allowances[k],
+                settings,
+                tuple(jobs[j] for j in drawn),
+                tuple(jobs[j] for j in members),
             )
             tile = reconstruct_tile(job)
             log.append(tile.outcome)
-            parts.append(tile.scene)
+            parts.extend(s for _, s in tile.tiles)
     scene = GaussianScene.concat(parts)
     scene.coordinates = file.header.scene.coordinates if file.header.scene else None
     rep.num_gaussians_in = rep.num_gaussians_out = scene.num_gaussians

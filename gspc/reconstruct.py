@@ -16,6 +16,7 @@ from gspc.cameras import Camera
 from gspc.codec import residuals
 from gspc.codec.cells import quantisation_cells
 from gspc.codec.precision import PrecisionMap
+from gspc.codec.quantisers import Box
 from gspc.errors import CodecError
 from gspc.format.attribute_section import AttributeSection
 from gspc.format.view_records import ViewRecord
@@ -240,13 +241,16 @@ def decoder_refinement(
     in_place: bool = False,
     precision: PrecisionMap | None = None,
     drawn: GaussianScene | None = None,
+    cells: dict[str, Box] | None = None,
 ) -> Refinement:
     """The decoder's refinement of G~ against ``targets`` (:func:`decoder_schedule`), inside the
     quantisation cells of the attribute ``section`` (None: free refinement; at version 4 with the file's
     ``precision``), ready to run. ``in_place``: G~ itself is refined (a caller that keeps no use for it saves
-    a copy). ``drawn``: a tile's neighbours, rendered with G~ and never refined (spec 10.15)."""
+    a copy). ``drawn``: a tile's neighbours, rendered with G~ and never refined (spec 10.15). ``cells``:
+    G~'s cells given whole, in place of ``section``'s (a span's tiles, each in its own: spec 10.17)."""
     bg = torch.tensor(background, dtype=decoded.means.dtype, device=decoded.means.device)
-    cells = quantisation_cells(decoded, section, precision) if section is not None else None
+    if cells is None and section is not None:
+        cells = quantisation_cells(decoded, section, precision)
     schedule = decoder_schedule(iterations, lr_scale, view_coverage(decoded, cameras))
     return Refinement(decoded, cameras, targets, schedule, bg, cells, seed, in_place=in_place, drawn=drawn)
 
@@ -266,10 +270,22 @@ def refine_in_cells(
     in_place: bool = False,
     precision: PrecisionMap | None = None,
     drawn: GaussianScene | None = None,
+    cells: dict[str, Box] | None = None,
 ) -> Refined:
     """:func:`decoder_refinement` run to its end, or to ``deadline`` when one is given."""
     run = decoder_refinement(
-        decoded, section, cameras, targets, iterations, background, seed, lr_scale, in_place, precision, drawn
+        decoded,
+        section,
+        cameras,
+        targets,
+        iterations,
+        background,
+        seed,
+        lr_scale,
+        in_place,
+        precision,
+        drawn,
+        cells,
     )
     limit = Deadline(deadline) if deadline is not None else None
     run.run(deadline=limit, progress=refine_progress(progress, stage, iterations))
@@ -289,11 +305,13 @@ def reconstruct(
     lr_scale: float = 1.0,
     precision: PrecisionMap | None = None,
     drawn: GaussianScene | None = None,
+    cells: dict[str, Box] | None = None,
 ) -> Refined:
-    """The decoder's reconstruction (spec 10.8), of a file or of one tile (10.15): G~ rendered at the stored
-    ``views``, the renders restored with their residuals, G~ refined against them in its cells
-    (``section``; None: cells off) in place, each step a stage of ``stages`` (its progress and deadline).
-    ``drawn``: the Gaussians of the tiles a tile's views show with its own, rendered, never refined."""
+    """The decoder's reconstruction (spec 10.8), of a file or of one tile (10.15) or span (10.17): G~
+    rendered at the stored ``views``, the renders restored with their residuals, G~ refined against them in
+    its cells (``section``'s, or ``cells`` given whole; neither: cells off) in place, each step a stage of
+    ``stages`` (its progress and deadline). ``drawn``: the Gaussians of the tiles a tile's views show with
+    its own, rendered, never refined."""
     stages = stages if stages is not None else Stages()
     cams = [v.camera.to_camera() for v in views]
     with stages.stage("render", announce=False):
@@ -316,4 +334,5 @@ def reconstruct(
             in_place=True,  # G~ is not needed after
             precision=precision,
             drawn=drawn,
+            cells=cells,
         )

@@ -1,4 +1,4 @@
-"""A gspc 1.7 reader written from spec/gspc-format.md alone, as an outside implementer would write one.
+"""A gspc 1.9 reader written from spec/gspc-format.md alone, as an outside implementer would write one.
 
 It imports numpy, msgpack, zstandard and imagecodecs only, never gspc: the range decoder, the probability
 tables, the matrix coder and every payload layout follow the spec's words (section numbers in comments), in
@@ -806,12 +806,21 @@ def tile_share(floor: int, per_byte: int, tile_bytes: int, all_bytes: int) -> in
     return max(floor * tile_bytes // max(all_bytes, 1), per_byte * tile_bytes)
 
 
-def tile_sizes(chunks: list[tuple[str, int, bytes]], count: int) -> list[int]:
-    """10.15: Q_k, the bytes of tile k's attribute payloads and of its TSID payload (the layout checked)."""
-    q = [0] * count
+def span_leads(tiles: list[dict]) -> list[int]:
+    """10.17: each tile's span's first tile (its own number outside any span), of spans read_tiles checked."""
+    lead = list(range(len(tiles)))
+    for k, t in enumerate(tiles):
+        lead[k + 1 : k + t.get("span", 1)] = [k] * (t.get("span", 1) - 1)
+    return lead
+
+
+def tile_sizes(chunks: list[tuple[str, int, bytes]], lead: list[int]) -> list[int]:
+    """10.15: Q_k, the bytes of tile k's attribute payloads and of its TSID payload (the layout checked);
+    10.17: a span's, its members' bytes in its first tile's Q_k (``lead``: span_leads), 0 for a member."""
+    q = [0] * len(lead)
     for t, i, p in chunks:
         if t in TILE_TYPES:
-            q[i] += len(p)
+            q[lead[i]] += len(p)
     return q
 
 
@@ -849,6 +858,9 @@ def read_tiles(
         drawn = t.get("drawn", [])
         ok = isinstance(drawn, list) and len(drawn) <= 64 and len(set(map(repr, drawn))) == len(drawn)
         need(ok and all(type(j) is int and 0 <= j < len(tiles) and j != k for j in drawn), "tile's drawn")
+    for k, t in enumerate(tiles):  # 1.9: the tiles k .. k + span - 1 that tile k's TSID serves (10.17)
+        span = t.get("span", 1)
+        need(type(span) is int and 1 <= span <= min(64, len(tiles) - k), "tile's span")
     degrees = {t["attributes"].get("sh_degree") for t in tiles}
     need(len(degrees) == 1, "tiles of different SH degrees")
     # The index first; each attribute chunk (and each TSID, 10.15) names a tile; a tile's chunks after the
@@ -869,12 +881,21 @@ def read_tiles(
                 sides[i] = p
             else:
                 per_tile[i][t] = p
+    # 10.17: a span above 1 only on a tile with a TSID; its members with no TSID, drawn tiles or span of their
+    # own; none of its tiles drawn with it.
+    for k, t in enumerate(tiles):
+        members = range(k + 1, k + t.get("span", 1))
+        need(not members or k in sides, f"tile {k}'s span without a TSID chunk")
+        for j in members:
+            alone = j not in sides and not tiles[j].get("drawn", []) and tiles[j].get("span", 1) == 1
+            need(alone, f"tile {j} of tile {k}'s span with a TSID, drawn tiles or a span of its own")
+        need(not set(members) & set(t.get("drawn", [])), f"tile {k}'s drawn names a tile of its span")
     total = sum(len(p) for c in per_tile for p in c.values())
     count = sum(t["attributes"].get("n", 0) for t in tiles if is_int(t["attributes"].get("n", 0)))
     need(count <= max(GAUSSIAN_FLOOR, 8 * total // MIN_CODED_BITS), "Gaussians in all past the tiles' bytes")
     # 10.15: each TSID in the SIDE layout (10.9), its views' pixels within the tile's share of the file's
-    # floor, Q_k / Q, when the chunk is read.
-    q = tile_sizes(chunks, len(tiles))
+    # floor, Q_k / Q (10.17: its span's), when the chunk is read.
+    q = tile_sizes(chunks, span_leads(tiles))
     tile_views: list[list[dict] | None] = []
     for k in range(len(tiles)):
         if k not in sides:
@@ -1019,9 +1040,10 @@ def view_work(
 def decoder_work(data: bytes, restore: bool = True) -> int | list[int | None]:
     """10.8: check a file's work as a decoder that renders (and, with ``restore``, restores) does, and return
     the refinement iterations its default runs. A tiled file (10.15): each tile's own views checked against
-    the tile's share of the file's budgets, counted over the tile's Gaussians alone, and the iterations of
-    each tile's default refinement returned, tile by tile (None: the tile has no TSID); the whole scene's
-    views, where it has any, are checked as 10.8 says."""
+    the tile's share of the file's budgets, counted over the tile's Gaussians alone (10.17: a span's views
+    over the span's, with its share), and the iterations of each tile's default refinement returned, tile
+    by tile (None: the tile has no TSID, a span's member too); the whole scene's views, where it has any,
+    are checked as 10.8 says."""
     attributes, views = read_scene(data, residuals=restore)
     meta, chunks = read_container(data)[1:]
     iterations = meta["side_info"].get("refine_iterations", 300)
@@ -1034,14 +1056,16 @@ def decoder_work(data: bytes, restore: bool = True) -> int | list[int | None]:
     index = [p for t, _, p in chunks if t == "TIDX"]
     if not index:
         return runs
-    counts = [t["attributes"]["n"] for t in msgpack.unpackb(index[0], raw=False)]
-    q = tile_sizes(chunks, len(counts))
+    tiles = msgpack.unpackb(index[0], raw=False)
+    counts = [t["attributes"]["n"] for t in tiles]
+    q = tile_sizes(chunks, span_leads(tiles))
     out: list[int | None] = []
-    for k, (start, n_k) in enumerate(zip(np.cumsum([0, *counts]).tolist(), counts)):
+    for k, start in enumerate(np.cumsum([0, *counts[:-1]]).tolist()):
         mine = [v for v in views if v.get("tile") == k]
         if not mine:  # no TSID (a TSID holds at least one view, 10.9)
             out.append(None)
             continue
+        n_k = sum(counts[k : k + tiles[k].get("span", 1)])  # 10.17: the span's Gaussians, tile k's first
         tile = {name: a[start : start + n_k] for name, a in attributes.items()}
         pairs = tile_share(PAIR_FLOOR, PAIRS_PER_BYTE, q[k], sum(q))
         first, heaviest = view_work(tile, mine, restore, pairs, f"tile {k}'s ")

@@ -357,6 +357,98 @@ def test_spec_reader_decodes_each_tiles_own_side_information():
     assert sr.decoder_work(data) == runs == [300, None, 300]
 
 
+def _respanned(data: bytes, maps: list[dict], sides: dict[int, bytes]) -> bytes:
+    """``data`` (a tiled file) with the tile index ``maps`` and the TSID payloads ``sides`` by tile, each TSID
+    after its tile's attribute chunks."""
+    c = container.unpack(data)
+    out = [container.Chunk("TIDX", msgpack.packb(maps, use_bin_type=True), index=0)]
+    for k in range(len(maps)):
+        out += [ch for ch in c.chunks if ch.type not in ("TIDX", "TSID") and ch.index == k]
+        if k in sides:
+            out.append(container.Chunk("TSID", sides[k], required=False, index=k))
+    return container.pack(c.header, out, (1, 9))
+
+
+def test_spans_are_read_and_refused_alike_in_both_decoders():
+    """Spec 10.17, on codec_tile_sides' three tiles: a span decodes to the same bits as its tiles without
+    one, in both decoders; every rule of a span broken is refused by both; and a span's pixel share sums
+    its tiles' bytes, so views within it are read that its first tile's own share refuses."""
+    from gspc.format.file import read_file
+    from gspc.format.side_chunk import pack_side
+    from gspc.format.view_records import ViewRecord
+    from gspc.limits import PIXEL_FLOOR, PIXELS_PER_FILE_BYTE
+    from gspc.pipeline import DecodeOptions, decode_bytes
+
+    data = (ROOT / "spec" / "vectors" / "codec_tile_sides.gspc").read_bytes()
+    c = container.unpack(data)
+    maps = msgpack.unpackb(c.find("TIDX").payload)
+    side0, side2 = c.find("TSID", 0).payload, c.find("TSID", 2).payload
+    both = {0: side0, 2: side2}
+
+    def with_maps(*changes: dict, sides: dict[int, bytes] = both) -> bytes:
+        return _respanned(data, [{**m, **ch} for m, ch in zip(maps, changes)], sides)
+
+    plain = sr.read_scene(data)[0]
+    for good, spans, sides, runs in [
+        (with_maps({"span": 1}, {"span": 1}, {"span": 1}), [1, 1, 1], both, [300, None, 300]),
+        (with_maps({"span": 2}, {}, {}), [2, 1, 1], both, [300, None, 300]),
+        (with_maps({"span": 3}, {}, {}, sides={0: side0}), [3, 1, 1], {0: side0}, [300, None, None]),
+    ]:
+        attrs, views = sr.read_scene(good)
+        assert all(attrs[k].tobytes() == plain[k].tobytes() for k in plain)
+        assert_same(attrs, decode_bytes(good, DecodeOptions(refine=False))[0])
+        assert [v["tile"] for v in views] == [k for k in sorted(sides) for _ in range(2 if k == 0 else 1)]
+        f = read_file(good)
+        assert [t.span for t in f.tiles.tiles] == spans
+        assert [s is not None for s in f.tile_sides] == [k in sides for k in range(3)]
+        assert sr.decoder_work(good) == runs
+    only0 = {0: side0}
+    bad = {
+        "span 0": with_maps({"span": 0}, {}, {}),
+        "span true": with_maps({"span": True}, {}, {}),
+        "span 2.0": with_maps({"span": 2.0}, {}, {}),
+        "span past the last tile": with_maps({}, {"span": 3}, {}, sides=only0),
+        "span 65": with_maps({"span": 65}, {}, {}),
+        "span without a TSID": with_maps({}, {"span": 2}, {}, sides=only0),
+        "a member with a TSID": with_maps({"span": 3}, {}, {}),
+        "a member with drawn tiles": with_maps({"span": 2}, {"drawn": [2]}, {}),
+        "a member with a span": with_maps({"span": 3}, {"span": 2}, {}, sides=only0),
+        "a span's tile drawn by it": with_maps({"span": 2, "drawn": [1]}, {}, {}),
+    }
+    for what, file in bad.items():
+        with pytest.raises(CodecError, match="span"):
+            read_file(file)
+            pytest.fail(f"gspc read {what}")
+        with pytest.raises(sr.SpecError):
+            sr.read_scene(file)
+            pytest.fail(f"the spec reader read {what}")
+
+    # One view of w x h on tile 0 past its own pixel share but within its span's (tiles 0 and 1's bytes).
+    def one_view(w: int, h: int) -> bytes:
+        return pack_side([ViewRecord.from_dict({"camera": mv.camera(1, w, h)})], {})
+
+    q = [
+        sum(len(ch.payload) for ch in c.chunks if ch.type not in ("TIDX", "TSID") and ch.index == k)
+        for k in range(3)
+    ]
+    q[0] += len(one_view(1, 1))
+    q[2] += len(side2)
+    share = [
+        min(1 << 28, max(PIXEL_FLOOR * b // sum(q), PIXELS_PER_FILE_BYTE * b)) for b in (q[0], q[0] + q[1])
+    ]
+    w = 4096
+    h = share[0] // w + 1
+    assert share[0] < w * h <= share[1]
+    sides = {0: one_view(w, h), 2: side2}
+    spanned, alone = with_maps({"span": 2}, {}, {}, sides=sides), with_maps({}, {}, {}, sides=sides)
+    assert [(v.camera.width, v.camera.height) for v in read_file(spanned).tile_sides[0].views] == [(w, h)]
+    assert sr.read_scene(spanned)[1][0]["height"] == h
+    with pytest.raises(CodecError, match="pixels"):
+        read_file(alone)
+    with pytest.raises(sr.SpecError, match="pixel share"):
+        sr.read_scene(alone)
+
+
 # ------------------------------------------------------------------ section 10.11 in the reference decoder
 
 

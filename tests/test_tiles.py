@@ -399,3 +399,68 @@ def test_the_tiles_a_tile_draws_count_in_its_work(sided):
     tile_views_work(scene, f.tile_sides[k], (), tight)  # alone, within it
     with pytest.raises(CodecError, match=f"tile {k}"):
         tile_views_work(scene, f.tile_sides[k], drawn, tight)
+
+
+@pytest.fixture(scope="module")
+def spanned(tmp_path_factory):
+    d = tmp_path_factory.mktemp("spanned")
+    src, out = d / "in.ply", d / "span.gspc"
+    write_ply(scene(), src)
+    rep = encode(src, out, opts=EncodeOptions(**SIDED, workers=1, span_size=4 * MIN_TILE_SIZE))
+    return src, out, rep
+
+
+def test_a_span_of_tiles_shares_its_side_information_and_refines_as_one(spanned, tmp_path):
+    src, out, rep = spanned
+    f = read_file(out.read_bytes())
+    tiles = f.tiles.tiles
+    # One span holds every tile of this small scene: its first tile's TSID serves them all (spec 10.17).
+    assert f.version == (1, 9) and len(tiles) >= 2 and tiles[0].span == len(tiles), rep.info
+    assert f.tile_sides[0] is not None and all(side is None for side in f.tile_sides[1:])
+    assert rep.info["side info"].startswith("shared by spans of tiles: sent for 1 of 1 spans"), rep.info
+    assert f"with their spans' {len(tiles)} tiles, as one" in rep.info["decoder refines"], rep.info
+    res = run("info", out)
+    text = " ".join(res.output.split())  # rich wraps lines at the test's width
+    assert res.exit_code == 0 and f"1 serve spans of {len(tiles)}-{len(tiles)} tiles" in text, res.output
+    assert EncodeOptions(span_size=0).validate() is None
+    with pytest.raises(InputError, match="--span-size"):
+        EncodeOptions(span_size=4096, target_size=10_000).validate()
+    opts = DecodeOptions(iterations=3, workers=1)
+    whole, drep = decode_bytes(out.read_bytes(), opts)
+    assert drep.info["refine"].startswith(f"{len(tiles)} of {len(tiles)} tiles refined"), drep.info
+    assert f"1 spans of {len(tiles)}-{len(tiles)} tiles refined as one" in drep.info["refine"], drep.info
+    plain, _ = decode_bytes(out.read_bytes(), replace(opts, refine=False))
+    start = [0, *np.cumsum([t.n for t in tiles])]
+    last = slice(int(start[-2]), int(start[-1]))
+    assert not torch.equal(whole.sh_dc[last], plain.sh_dc[last])  # a member's values moved too
+    # Every value stays in its own tile's cell: refining in cells keeps the decoded positions' voxels.
+    two = tmp_path / "two.gspc"
+    encode(src, two, opts=EncodeOptions(**SIDED, workers=2, span_size=4 * MIN_TILE_SIZE))
+    assert two.read_bytes() == out.read_bytes()
+    a, b = tmp_path / "a.ply", tmp_path / "b.ply"
+    decode(out, a, opts)
+    decode(out, b, replace(opts, workers=2))
+    assert a.read_bytes() == b.read_bytes()
+    # A region meeting one member: the whole span is refined for it, and that tile comes out as in the whole.
+    box = tiles[-1].box
+    inner = tuple((box[i] + box[i + 3]) / 2 for i in range(3))
+    part = tmp_path / "part.ply"
+    decode(out, part, replace(opts, region=(*inner, *inner)))
+    ours, rows = read_scene(part), f.tiles.meeting((*inner, *inner))
+    for name in ("means", "sh_dc", "opacities", "log_scales"):
+        expect = torch.cat([getattr(whole, name)[start[k] : start[k + 1]] for k in rows])
+        assert torch.equal(getattr(ours, name), expect), name
+
+
+def test_hostile_spans_are_refused(spanned):
+    _, out, _ = spanned
+    f = read_file(out.read_bytes())
+    tiles = list(f.tiles.tiles)
+    cases = [  # (the index, what the error names): spec 10.17's rules
+        ([replace(tiles[0], span=len(tiles) + 1), *tiles[1:]], "span is not an integer"),
+        ([replace(tiles[0], span=1), replace(tiles[1], span=2), *tiles[2:]], "no TSID"),
+        ([replace(tiles[0], drawn=(1,)), *tiles[1:]], "drawn tiles name a tile of its own span"),
+    ]
+    for index, needle in cases:
+        with pytest.raises(CodecError, match=needle):
+            read_file(_rewritten(out, index))

@@ -241,6 +241,9 @@ def held_out_rows(
         # What refinement per tile does where it runs: the checks' verdicts set aside.
         ("tiles, each its own side information unchecked, neighbours drawn", [*tiled, *unchecked, *drawn]),
         ("tiles, each its own side information unchecked, alone", [*tiled, *unchecked, *alone]),
+        # Side information shared by spans of four tiles (spec 10.17), at the rate: a span takes no
+        # --target-size.
+        ("tiles, spans' shared side information, at the rate", [*tiled, "--span-size", str(4 * tile_size)]),
     ]
     rows: list[dict] = []
     lead = variants[0][0]
@@ -250,7 +253,8 @@ def held_out_rows(
             continue
         slug = variant.replace(",", "").replace("'", "").replace(" ", "_")
         out = work / f"{name}-{lam:g}-{tile_size}-{slug}.gspc"
-        if variant != lead and (first or rows):  # in the lead's bytes (the log's), else this run's first's
+        at_bytes = variant != lead and not variant.endswith("at the rate")
+        if at_bytes and (first or rows):  # in the lead's bytes (the log's), else this run's first's
             args = [*args, "--target-size", str((first + rows)[0]["bytes"])]
         log = work / f"{out.stem}.log"
         log.unlink(missing_ok=True)

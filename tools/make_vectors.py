@@ -251,11 +251,11 @@ def valid_vectors() -> list[Vector]:
     vs.append(
         valid(
             "valid_newer_minor",
-            "version 1.9: unknown top-level and entry keys, a reserved flag bit, an unknown optional chunk",
+            "version 1.10: unknown top-level and entry keys, a reserved flag bit, an unknown optional chunk",
             {"codec": {"id": "future"}},
             [(entry("POSN", posn, flags=0b11, note="entry keys a 1.0 reader ignores"), posn)],
             [(entry("NEWT", newt, flags=0), newt)],
-            minor=9,
+            minor=10,
             future={"anything": [1, 2, 3]},
         )
     )
@@ -1615,7 +1615,9 @@ def tile_side_chunk() -> bytes:
 def tile_side_vectors(ok, bad_codec, sections: list, tiles: list, tiled) -> None:
     """Side information per tile (format 1.6, spec 10.15): tile_vectors' three tiles with a TSID on tiles 0
     and 2, decoded with their views, and one refused file for each rule of 10.15; the same with the tiles
-    drawn with a tile's views (1.7), and one refused file for each rule of a tile's ``drawn`` list."""
+    drawn with a tile's views (1.7), and one refused file for each rule of a tile's ``drawn`` list; the same
+    with tile 0's side information serving tiles 0 and 1 (a span, 1.9), and one refused file for each rule of
+    10.17."""
     from gspc.format.side_chunk import pack_side
     from gspc.format.view_records import ViewRecord
     from gspc.limits import PIXEL_FLOOR, PIXELS_PER_FILE_BYTE
@@ -1695,6 +1697,37 @@ def tile_side_vectors(ok, bad_codec, sections: list, tiles: list, tiled) -> None
     ]:
         m, chs = tiled([dict(tiles[0], drawn=drawn), *tiles[1:]])
         bad_codec(name, desc, m, placed(chs, tsid(side0, 0), before=1), "drawn", minor=7)
+
+    def sided(chunks: list) -> list:
+        """``chunks`` with codec_tile_sides' TSIDs: side0 on tile 0, side2 on tile 2."""
+        return placed(placed(chunks, tsid(side0, 0), before=1), tsid(side2, 2), before=2)
+
+    # Format 1.9: tile 0's side information serving tiles 0 and 1 (10.14 `span`, 10.17).
+    spanned = [dict(tiles[0], span=2), *tiles[1:]]
+    span_meta, span_base = tiled(spanned)
+    ok(
+        "codec_tile_span",
+        "format 1.9: codec_tile_sides with tile 0's TSID serving tiles 0 and 1 (tile 0's span 2; tile 1 has "
+        "no TSID); decoded as codec_tile_sides",
+        span_meta,
+        sided(span_base),
+        minor=9,
+    )
+
+    cases = [
+        ("codec_invalid_span_past_end", "tile 2 of 3 (with a TSID) has span 2, past the last tile",
+         [*tiles[:2], dict(tiles[2], span=2)], sided, ("span",)),
+        ("codec_invalid_span_no_tsid", "tile 1 (without a TSID) has span 2; only tile 0 has a TSID",
+         [tiles[0], dict(tiles[1], span=2), tiles[2]], lambda chs: placed(chs, tsid(side0, 0), before=1),
+         ("span", "TSID")),
+        ("codec_invalid_span_member_tsid", "tile 0's span 2 and a TSID on tile 1, its member, as on 0 and 2",
+         spanned, lambda chs: placed(sided(chs), tsid(side2, 1), before=2), ("span",)),
+        ("codec_invalid_span_drawn_member", "tile 0's span 2 with drawn [1], a tile of its own span",
+         [dict(tiles[0], span=2, drawn=[1]), *tiles[1:]], sided, ("span", "drawn")),
+    ]  # fmt: skip
+    for name, desc, index, with_sides, needles in cases:
+        m, chs = tiled(index)
+        bad_codec(name, desc, m, with_sides(chs), *needles, minor=9)
 
 
 def all_vectors() -> list[Vector]:

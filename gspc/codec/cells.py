@@ -13,6 +13,7 @@ boxes hold the unit quaternion with the sign that makes its largest component po
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 import torch
@@ -68,6 +69,15 @@ def quantisation_cells(
                 _open_dropped_bands(lo, hi, precision.degrees, a, b)
         cells[name] = (lo, hi)
     return cells
+
+
+def span_cells(
+    parts: Sequence[tuple[GaussianScene, AttributeSection, PrecisionMap | None]],
+) -> dict[str, Box]:
+    """The cells of a span's tiles refined as one scene (spec 10.17): each tile's Gaussians in its own
+    section's cells, the tiles one after another."""
+    each = [quantisation_cells(scene, section, precision) for scene, section, precision in parts]
+    return {k: (torch.cat([c[k][0] for c in each]), torch.cat([c[k][1] for c in each])) for k in each[0]}
 
 
 def _cell(quant: AttributeQuantisers, name: str, x: torch.Tensor) -> Box:

@@ -44,13 +44,14 @@ from gspc.encoder.rate import coded_with
 from gspc.encoder.removal import RemovalChoice, RemovalParams
 from gspc.encoder.side import SideCandidate
 from gspc.encoder.side_decision import CHUNK_ENTRY_BYTES, SideChoice, side_information
+from gspc.encoder.spans import code_spans, spans_line
 from gspc.encoder.tiles import SceneRows, TileCoding, TileSettings, code_tiles
 from gspc.encoder.tuning import TuningReport, tune_coding
 from gspc.errors import CodecError, InputError
 from gspc.format.file import pack_file, pack_tiled_file, read_file
 from gspc.format.header import FileHeader, SceneSummary, SideInfoHeader
 from gspc.format.view_records import check_view_pixels
-from gspc.limits import ENCODE_WORKER_BYTES, RenderAllowance
+from gspc.limits import ENCODE_WORKER_BYTES
 from gspc.options import EncodeOptions
 from gspc.presets import quality_preset
 from gspc.reconstruct import check_decode_work, decode_work, refine_iterations
@@ -200,9 +201,11 @@ class EncoderDecisions:
                 f"{max(rivals):+.2f} dB"
             )
         sent = sum(_sends(t) for t in tiles)
+        spans = [t.tile.span for t in tiles if _sends(t) and t.tile.span > 1]
+        shared = f" ({len(spans)} of them with their spans' {sum(spans)} tiles, as one)" if spans else ""
         out["decoder refines"] = (
-            f"each of {sent} tiles against its own views, up to {self.refine_iterations} iterations by "
-            "default"
+            f"each of {sent} tiles against its own views{shared}, up to {self.refine_iterations} iterations "
+            "by default"
             if sent
             else "nothing (no side information)"
         )
@@ -295,9 +298,14 @@ def _decide_tiled_on(
     for _ in range(TARGET_RETRIES + 1):
         budget = None if target is None else target - _tiled_framing(source.num_gaussians, opts.tile_size)
         with stages.stage("tiles", announce=False):
-            plan, codings, at_rate = code_tiles(
-                source, settings, opts.tile_size, ex, budget, stages.progress, at_rate
-            )
+            if opts.span_size and side is not None:  # side information shared by spans (spec 10.17)
+                plan, codings, at_rate, _ = code_spans(
+                    source, settings, opts.tile_size, opts.span_size, ex, stages.progress
+                )
+            else:
+                plan, codings, at_rate = code_tiles(
+                    source, settings, opts.tile_size, ex, budget, stages.progress, at_rate
+                )
         given = sum(c.given for c in codings)
         candidates = sum(c.candidates for c in codings)
         coded = sum(c.tile.n for c in codings)
@@ -308,7 +316,7 @@ def _decide_tiled_on(
             counts=GaussianCounts(given, given - candidates, candidates - coded, coded),
             lam_asked=params.lam,
             lambda_reasons=(),
-            side_info=_tiles_side_line(codings, opts),
+            side_info=spans_line(codings) if opts.span_size and side else _tiles_side_line(codings, opts),
             target_size=opts.target_size,
             tiles=tuple(codings),
             ran_on=ex.describe(),
@@ -608,20 +616,20 @@ def _tiled_file_bytes(decisions: EncoderDecisions, opts: EncodeOptions) -> bytes
     )
     sides = decisions.tile_sides
     data = pack_tiled_file(header, [(t.tile, t.chunks) for t in tiles], None, sides)
-    sizes = [sum(len(p) for p in t.chunks.values()) + len(s or b"") for t, s in zip(tiles, sides)]
-    written = read_file(data) if any(t.tile.drawn for t in tiles) else None
+    written = read_file(data) if any(sides) else None
     jobs = None if written is None else file_tile_jobs(written.tiles.tiles, written.tile_chunks)
-    for k, t in enumerate(tiles):  # each tile's views within its share of the file's budget (spec 10.15)
+    for k, t in enumerate(tiles):  # each tile's views within its (span's) share of the budget (10.15, 10.17)
         if _sends(t):
-            share = RenderAllowance.of_tile(k, sizes[k], sum(sizes))
+            share = written.tile_allowances[k]
             try:
                 if sum(t.side.work.pixels) > share.pixels:
                     raise CodecError(f"its views ask for more than its {share.pixels:,} pixels")
                 check_decode_work(t.side.work, share)
-                if written is not None and t.tile.drawn:  # as a decoder counts it: the neighbours decoded
+                if t.tile.drawn:  # as a decoder counts it: the neighbours decoded
                     drawn = tuple(jobs[j] for j in t.tile.drawn)
-                    allowance = written.tile_allowances[k]
-                    tile_views_work(decode_tile(jobs[k]), written.tile_sides[k], drawn, allowance)
+                    span = [decode_tile(jobs[j]) for j in range(k, k + t.tile.span)]
+                    scene = GaussianScene.concat(span)
+                    tile_views_work(scene, written.tile_sides[k], drawn, share)
             except CodecError as e:
                 raise InputError(f"tile {k}: {e}; lower --max-side or --views-fraction") from None
     return data

@@ -32,7 +32,7 @@ raised by the mean, over the cameras that see it, of 10 log10 of the tiles each 
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -460,32 +460,11 @@ def code_tiles(
         if len(plan.rows) > 1:
             occluders = opaque_scene(source, plan, settings.cameras, workers, progress)
         at_rate = TilesAtRate(plan, shares, tuple(drawn), occluders, ())
-    plan, shares, drawn, occluders = at_rate.plan, at_rate.shares, at_rate.drawn, at_rate.occluders
-
-    def jobs(targets: list[int] | None):
-        for k, rows in enumerate(plan.rows):
-            src, own = source.tile(rows)
-            yield TileJob(
-                k,
-                src,
-                own,
-                settings.cameras,
-                settings.params,
-                plan.shared,
-                settings.background,
-                settings.removal,
-                settings.tuning,
-                None if targets is None else targets[k],
-                _raised(settings.fidelity, shares[k]) if targets is None else None,
-                float(shares[k]),
-                settings.side,
-                None if occluders is None else occluders.others(k),
-                drawn[k],
-                tuple(source.tile(plan.rows[j]) for j in drawn[k]),
-            )
+    plan = at_rate.plan
 
     def run(targets: list[int] | None, stage: str) -> list[TileCoding]:
-        return list(run_tasks(code_tile, jobs(targets), workers, _job_name, len(plan.rows), progress, stage))
+        jobs = tile_jobs(source, settings, at_rate, targets)
+        return list(run_tasks(code_tile, jobs, workers, _job_name, len(plan.rows), progress, stage))
 
     if not at_rate.codings:
         at_rate = replace(at_rate, codings=tuple(run(None, "tiles")))
@@ -493,6 +472,33 @@ def code_tiles(
     if byte_target is not None:
         codings = run(retarget(codings, byte_target), "tiles in the target")
     return plan, codings, at_rate
+
+
+def tile_jobs(
+    source, settings: TileSettings, at_rate: TilesAtRate, targets: list[int] | None = None
+) -> Iterator[TileJob]:
+    """Each tile's coding job, in order: at the rate (or its fidelity), or in ``targets`` bytes."""
+    plan, shares, drawn, occluders = at_rate.plan, at_rate.shares, at_rate.drawn, at_rate.occluders
+    for k, rows in enumerate(plan.rows):
+        src, own = source.tile(rows)
+        yield TileJob(
+            k,
+            src,
+            own,
+            settings.cameras,
+            settings.params,
+            plan.shared,
+            settings.background,
+            settings.removal,
+            settings.tuning,
+            None if targets is None else targets[k],
+            _raised(settings.fidelity, shares[k]) if targets is None else None,
+            float(shares[k]),
+            settings.side,
+            None if occluders is None else occluders.others(k),
+            drawn[k],
+            tuple(source.tile(plan.rows[j]) for j in drawn[k]),
+        )
 
 
 @dataclass(frozen=True)

@@ -27,6 +27,7 @@ from gspc.format.side_chunk import SideViews, read_side_views, read_tile_side
 from gspc.format.tiles import (
     TILE_DRAWN_VERSION,
     TILE_SIDE_VERSION,
+    TILE_SPAN_VERSION,
     TILED_VERSION,
     Tile,
     TileIndex,
@@ -97,7 +98,7 @@ def read_file(data: bytes) -> GspcFile:
         return GspcFile(c.version, header, attributes, side, chunks, c.file_size, c.header_length)
     tiles = _tile_index(c.chunks)
     per_tile = tuple(tile_chunks(c.chunks, tiles))
-    allowances = tuple(tile_side_allowances(c.chunks, len(tiles.tiles)))
+    allowances = tuple(tile_side_allowances(c.chunks, tiles))
     payloads = {ch.index: ch.payload for ch in c.chunks if ch.type == TSID}
     sides = tuple(_tile_side(payloads.get(k), k, allowances[k]) for k in range(len(tiles.tiles)))
     return GspcFile(
@@ -147,7 +148,7 @@ class FileReader:
                 index_chunk = container.read_chunk(self._f, self.head, k)
                 self.tiles = _tile_index([*entries[:k], index_chunk, *entries[k + 1 :]])
                 tile_chunks(entries, self.tiles)  # the table's layout, before any tile is read
-                self.tile_allowances = tile_side_allowances(entries, len(self.tiles.tiles))
+                self.tile_allowances = tile_side_allowances(entries, self.tiles)
                 side_entries = [i for i, e in enumerate(entries) if e.type in (SIDE, "RESI")]
                 side_chunks = [container.read_chunk(self._f, self.head, i) for i in side_entries]
                 self.side = read_side_views(
@@ -250,11 +251,14 @@ def pack_tiled_file(
     side: bytes | None,
     tile_sides: Sequence[bytes | None] = (),
 ) -> bytes:
-    """The tiled file of these parts (:func:`tiled_file_chunks`), marked format 1.8 where a tile codes its
-    SH rest by codebook, 1.7 where a tile's side information draws other tiles, 1.6 where a tile carries side
-    information of its own, else 1.5 (spec section 3)."""
+    """The tiled file of these parts (:func:`tiled_file_chunks`), marked format 1.9 where a tile's side
+    information serves a span of tiles, 1.8 where a tile codes its SH rest by codebook, 1.7 where a tile's
+    side information draws other tiles, 1.6 where a tile carries side information of its own, else 1.5 (spec
+    section 3)."""
     version = TILE_SIDE_VERSION if any(s is not None for s in tile_sides) else TILED_VERSION
     if any(t.drawn for t, _ in tiles):
         version = TILE_DRAWN_VERSION
     version = _marked(version, [t.section for t, _ in tiles])
+    if any(t.span > 1 for t, _ in tiles):
+        version = max(version, TILE_SPAN_VERSION)
     return container.pack(header.to_dict(), tiled_file_chunks(tiles, side, tile_sides), version)

@@ -36,14 +36,14 @@ function tilePayloads(chunks, numTiles) {
  * refinement; a tiled file's tiles one after another (spec 10.14).
  *
  * Returns {header, views, tileViews, count, shDegree, means, quats, logScales, opacities, shDc, shRest}:
- * `header` holds the container's version, its meta as plain JavaScript (integers beyond 2^53 as BigInt,
- * bins as Uint8Array), the checked codec records and, for a tiled file, `tiles` (each tile's number, box and
- * section); `views` the side-information views of the whole scene (camera, residual record with its
- * still-coded image bytes, or null); `tileViews` a tiled file's side views per tile (spec 10.15: tile k's
- * TSID views, in the form of `views`; [] for a tile without one), null for an untiled file; the arrays are
- * Float32Array in curve order: means N x 3, quats N x 4 (w, x, y, z), logScales N x 3, opacities N
- * (logits), shDc N x 3, shRest N x K x 3 (K = (shDegree + 1)^2 - 1). Throws FormatError (a subclass naming
- * the container's problem) or CodecError.
+ * `header` holds the container's version, its meta as plain JavaScript (integers beyond 2^53 as BigInt, bins
+ * as Uint8Array), the checked codec records and, for a tiled file, `tiles` (each tile's number, box, section,
+ * drawn and span: readTileIndex); `views` the side-information views of the whole scene (camera, residual
+ * record with its still-coded image bytes, or null); `tileViews` a tiled file's side views per tile (spec
+ * 10.15: tile k's TSID views, in the form of `views`; [] for a tile without one), null for an untiled file;
+ * the arrays are Float32Array in curve order: means N x 3, quats N x 4 (w, x, y, z), logScales N x 3,
+ * opacities N (logits), shDc N x 3, shRest N x K x 3 (K = (shDegree + 1)^2 - 1). Throws FormatError (a
+ * subclass naming the container's problem) or CodecError.
  */
 export function decodeGspc(bytes) {
   if (bytes instanceof ArrayBuffer) bytes = new Uint8Array(bytes);

@@ -100,6 +100,9 @@ export const MAX_TILES = 8192;
 // Tiles one tile's side-information views may draw beside its own (a tile map's `drawn`, format 1.7, spec
 // 10.14): at most 64, each another tile of the file, none twice.
 export const MAX_DRAWN_TILES = 64;
+// Tiles one tile's side information may serve together (a tile map's `span`, format 1.9, spec 10.17): the
+// tiles k .. k + span - 1, 1 <= span <= min(64, T - k).
+export const MAX_SPAN_TILES = 64;
 // What decoding tile k may spend, P_k its attribute payload bytes and P all tiles': table entries
 // max(floor(2^25 P_k / P), 16 P_k) and decompressed model-list bytes max(floor(2^23 P_k / P), 32 P_k). The
 // floors of one file are shared by its tiles in proportion to their bytes: without the share, a file of
@@ -140,7 +143,8 @@ export function viewPixelBudget(fileSize) {
 // Side information per tile (format 1.6, spec 10.15): the pixel limit of 10.8 holds per tile, the floor
 // shared among the tiles in proportion to their bytes Q_k (tile k's attribute and TSID payloads) of Q (all
 // tiles'), as 10.14 shares the model floors: min(2^28, max(floor(2^22 Q_k / Q), 1024 Q_k)). Without the
-// share, a file of many tiny tiles would bring one 2^22-pixel floor per tile.
+// share, a file of many tiny tiles would bring one 2^22-pixel floor per tile. A span (format 1.9, 10.17) has
+// one share: Q_k holds the attribute bytes of all its tiles and its first tile's TSID.
 /** The most pixels the views of a tile of `tileBytes` (Q_k) of `allBytes` (Q) may ask for together (10.15). */
 export function tileViewPixelBudget(tileBytes, allBytes) {
   return Math.min(MAX_TOTAL_PIXELS, Math.max(share(PIXEL_FLOOR, tileBytes, allBytes), PIXELS_PER_FILE_BYTE * tileBytes));

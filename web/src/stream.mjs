@@ -31,8 +31,9 @@ function boundsOf(means) {
 /**
  * A .gspc file opened from a byte source (sources.mjs): its head read and checked. Fields: size, version
  * ([major, minor]), meta (plain JavaScript), header (readFileHeader's records), tiled, tiles ([{number, box,
- * count, bytes}]: one per tile; an untiled file's one tile has a null box until decoded), count (Gaussians
- * in all), shDegree. `decode({region})` yields the tiles.
+ * count, bytes, drawn, span}]: one per tile, `drawn` and `span` its index entry's, spec 10.14 and 10.17; an
+ * untiled file's one tile has a null box until decoded), count (Gaussians in all), shDegree.
+ * `decode({region})` yields the tiles.
  */
 class GspcReader {
   constructor(source, preamble, layout) {
@@ -60,8 +61,8 @@ class GspcReader {
   }
 
   get tiles() {
-    if (!this.index) return [{ number: 0, box: null, count: this.header.attributes.n, bytes: this.size, drawn: [] }];
-    return this.index.tiles.map((t, k) => ({ number: k, box: t.box, count: t.section.n, bytes: this.tileLayout.tiles[k].bytes, drawn: t.drawn }));
+    if (!this.index) return [{ number: 0, box: null, count: this.header.attributes.n, bytes: this.size, drawn: [], span: 1 }];
+    return this.index.tiles.map((t, k) => ({ number: k, box: t.box, count: t.section.n, bytes: this.tileLayout.tiles[k].bytes, drawn: t.drawn, span: t.span }));
   }
 
   get count() {
@@ -93,24 +94,24 @@ class GspcReader {
       return;
     }
     for (const tile of chosen) {
-      const span = this.tileLayout.tiles[tile.number];
-      const bytes = await this.read(span.start, span.end - span.start);
-      yield this.decodeOne(tile, bytes, span.start);
+      const part = this.tileLayout.tiles[tile.number];
+      const bytes = await this.read(part.start, part.end - part.start);
+      yield this.decodeOne(tile, bytes, part.start);
     }
   }
 
   /**
-   * Tile `tile` from `bytes` (the file's bytes from offset `base` on, its span among them): each of its
+   * Tile `tile` from `bytes` (the file's bytes from offset `base` on, its chunks among them): each of its
    * chunks' CRC and padding, its side information (TSID: the SIDE layout and its pixel share), then its
    * attributes.
    */
   decodeOne(tile, bytes, base) {
-    const span = this.tileLayout.tiles[tile.number];
+    const part = this.tileLayout.tiles[tile.number];
     const payloads = {};
-    for (const [type, entry] of Object.entries(span.entries)) payloads[type] = checkChunk(bytes, entry, base);
-    const side = span.side ? checkChunk(bytes, span.side, base) : null;
-    const views = tileSideViews(tile.number, side, span, this.tileLayout);
-    const scene = decodeTile(tile, payloads, span.bytes, this.tileLayout.bytes);
+    for (const [type, entry] of Object.entries(part.entries)) payloads[type] = checkChunk(bytes, entry, base);
+    const side = part.side ? checkChunk(bytes, part.side, base) : null;
+    const views = tileSideViews(tile.number, side, part, this.tileLayout);
+    const scene = decodeTile(tile, payloads, part.bytes, this.tileLayout.bytes);
     return { number: tile.number, box: tile.box, count: scene.count, shDegree: scene.shDegree, views, ...arrays(scene) };
   }
 
@@ -130,12 +131,12 @@ class GspcReader {
     };
     checkThrough(this.head, 0, at);
     for (const tile of this.index.tiles) {
-      const span = this.tileLayout.tiles[tile.number];
-      const bytes = await this.read(at, span.end - at);
+      const part = this.tileLayout.tiles[tile.number];
+      const bytes = await this.read(at, part.end - at);
       crc = crc32(bytes, crc);
-      checkThrough(bytes, at, span.end);
+      checkThrough(bytes, at, part.end);
       const decoded = this.decodeOne(tile, bytes, at);
-      at = span.end;
+      at = part.end;
       yield decoded;
     }
     const rest = await this.read(at, this.size - at);
@@ -155,8 +156,8 @@ function arrays(scene) {
 /**
  * Open a .gspc file from `source` ({size, read(offset, length)}, sources.mjs): checks 1 to 8 of spec
  * section 8 and the header padding, the header's records, and for a tiled file its tile index and every
- * rule of 10.14 and 10.15 that the chunk table decides (chunk order, TSID placement, counts and each tile's
- * bounds), reading only the file's head and its TIDX chunk; an untiled file with a TSID chunk is refused. Throws FormatError or CodecError as decodeGspc does.
+ * rule of 10.14, 10.15 and 10.17 that the chunk table decides (chunk order, TSID placement, spans, counts
+ * and each tile's bounds), reading only the file's head and its TIDX chunk; an untiled file with a TSID chunk is refused. Throws FormatError or CodecError as decodeGspc does.
  */
 export async function openGspc(source) {
   const size = source.size;

@@ -1,6 +1,7 @@
 // Spatial tiles (format 1.5, spec 10.14): the TIDX chunk's tile index, the rules that tie each tile to its
 // chunks in the chunk table (its attribute chunks and, from format 1.6, its optional TSID chunk of side
-// information, 10.15), and the decoding of one tile with its share of the file's decode bounds.
+// information, 10.15, which from format 1.9 may serve a span of tiles, 10.17), and the decoding of one tile
+// with its share of the file's decode bounds.
 //
 // Everything here works from the chunk table's entries (type, index, length) and the tile index alone, so a
 // reader that has only the header and the TIDX chunk can check a file's layout and bound every tile's work
@@ -8,7 +9,7 @@
 
 import { ATTRIBUTE_TYPES, checkAttributeChunks, decodeAttributes } from './attributes.mjs';
 import { CodecError, show } from './errors.mjs';
-import { MAX_DRAWN_TILES, MAX_TILES, MIN_TILES, maxCodedGaussians, tileModelBytes, tileTableEntries } from './limits.mjs';
+import { MAX_DRAWN_TILES, MAX_SPAN_TILES, MAX_TILES, MIN_TILES, maxCodedGaussians, tileModelBytes, tileTableEntries } from './limits.mjs';
 import { TileBudget } from './models.mjs';
 import { MsgReader, MsgpackError, kindOf } from './msgpack.mjs';
 import { readAttributeSection } from './section.mjs';
@@ -42,11 +43,22 @@ function readDrawn(value, k, count) {
   return value.map(Number);
 }
 
+function readSpan(value, k, count) {
+  if (value === undefined) return 1;
+  const most = Math.min(MAX_SPAN_TILES, count - k);
+  // msgpack integers read as BigInt (msgpack.mjs): a float or a boolean is not a span.
+  if (typeof value !== 'bigint' || value < 1n || value > BigInt(most)) {
+    throw new CodecError(`tile ${k}'s span is ${show(value)}, not an integer 1..${most} (spec 10.17)`);
+  }
+  return Number(value);
+}
+
 /**
  * The tile index of a TIDX payload (spec 10.14): {tiles: [{number, box (6 numbers: low x, y, z, high x, y,
  * z), section (readAttributeSection), drawn (the tiles its side-information views show beside it, format
- * 1.7)}], count (all tiles' Gaussians), shDegree}. The msgpack rules of spec
- * section 4 hold; CodecError names the first bad field.
+ * 1.7), span (the tiles number .. number + span - 1 its side information serves, format 1.9; 1: itself
+ * alone)}], count (all tiles' Gaussians), shDegree}. The msgpack rules of spec section 4 hold; CodecError
+ * names the first bad field. The spans' rules that need the chunk table are tileLayout's.
  */
 export function readTileIndex(payload) {
   const r = new MsgReader(payload);
@@ -75,7 +87,8 @@ export function readTileIndex(payload) {
       throw err;
     }
     const drawn = readDrawn(entry.get('drawn'), k, value.length);
-    return { number: k, box, section, drawn };
+    const span = readSpan(entry.get('span'), k, value.length);
+    return { number: k, box, section, drawn, span };
   });
   const degrees = [...new Set(tiles.map((t) => t.section.shDegree))];
   if (degrees.length !== 1) {
@@ -108,14 +121,33 @@ export function checkUntiledSide(entries) {
 }
 
 /**
+ * The rules of spans (format 1.9, spec 10.17) that need the chunk table, `laid` tileLayout's tiles: a span
+ * above 1 only on a tile with a TSID; its members (tiles k + 1 .. k + span - 1) with no TSID, no drawn
+ * tiles and no span of their own; none of its tiles in its first tile's drawn list.
+ */
+function checkSpans(index, laid) {
+  index.tiles.forEach((t, k) => {
+    if (t.span === 1) return;
+    if (!laid[k].side) throw new CodecError(`tile ${k} has a span of ${t.span} tiles but no ${TSID} chunk (spec 10.17)`);
+    for (let j = k + 1; j < k + t.span; j++) {
+      const m = index.tiles[j];
+      const own = laid[j].side ? `a ${TSID} chunk` : m.drawn.length ? 'drawn tiles' : m.span > 1 ? `a span of ${m.span}` : null;
+      if (own) throw new CodecError(`tile ${j}, in tile ${k}'s span, has ${own} of its own (spec 10.17)`);
+      if (t.drawn.includes(j)) throw new CodecError(`tile ${k}'s drawn tiles name tile ${j}, of its own span (spec 10.17)`);
+    }
+  });
+}
+
+/**
  * Each tile's chunks from the chunk table (spec 10.14, 10.15), checked before any tile is read: the TIDX
  * entry before every attribute and TSID chunk, each of them naming a tile and coming after the previous
- * tiles' chunks (a TSID is one of its tile's chunks), each tile's attribute chunks those its section needs
- * (10.10), and the Gaussians within what the bytes may declare, per tile and in all. `entries` are the
- * table's entries (type, index, length, offset) in file order. Returns {tiles: [{entries: {type: entry},
- * side (the TSID entry or null), bytes, sideBytes, start, end}], bytes, sideBytes}: `start .. end` the file
- * bytes of a tile's chunks with their padding, `bytes` its attribute payload bytes (P_k) and in all (P),
- * `sideBytes` its attribute and TSID payload bytes (Q_k, 10.15) and in all (Q).
+ * tiles' chunks (a TSID is one of its tile's chunks), the spans' rules (10.17), each tile's attribute chunks
+ * those its section needs (10.10), and the Gaussians within what the bytes may declare, per tile and in
+ * all. `entries` are the table's entries (type, index, length, offset) in file order. Returns {tiles:
+ * [{entries: {type: entry}, side (the TSID entry or null), bytes, sideBytes, start, end}], bytes,
+ * sideBytes}: `start .. end` the file bytes of a tile's chunks with their padding, `bytes` its attribute
+ * payload bytes (P_k) and in all (P), `sideBytes` its attribute and TSID payload bytes (Q_k, 10.15; the
+ * first tile of a span those of all the span's tiles, a member 0: 10.17) and in all (Q).
  */
 export function tileLayout(entries, index) {
   const tiles = index.tiles.map(() => ({ entries: {}, side: null, bytes: 0, sideBytes: 0, start: Infinity, end: 0 }));
@@ -143,6 +175,14 @@ export function tileLayout(entries, index) {
     tile.start = Math.min(tile.start, e.offset);
     tile.end = Math.max(tile.end, Math.ceil((e.offset + e.length) / 8) * 8);
   }
+  checkSpans(index, tiles);
+  // A span's side information has one share of the floors, by the bytes of all its tiles (10.17).
+  index.tiles.forEach((t, k) => {
+    for (let j = k + 1; j < k + t.span; j++) {
+      tiles[k].sideBytes += tiles[j].sideBytes;
+      tiles[j].sideBytes = 0;
+    }
+  });
   index.tiles.forEach((t, k) => {
     try {
       checkAttributeChunks(t.section, tiles[k].entries);
@@ -161,13 +201,14 @@ export function tileLayout(entries, index) {
 }
 
 /**
- * Tile `number`'s side views (spec 10.15) from its TSID payload (null: the tile has none, []), with `span`
+ * Tile `number`'s side views (spec 10.15) from its TSID payload (null: the tile has none, []), with `part`
  * its entry of tileLayout's tiles and `layout` tileLayout's result: the SIDE layout's rules and the
- * tile's pixel share, checked when the tile is read. Returns [{camera, residual}] as readSideViews does.
+ * tile's pixel share (its span's, 10.17), checked when the tile is read. Returns [{camera, residual}] as
+ * readSideViews does.
  */
-export function tileSideViews(number, payload, span, layout) {
+export function tileSideViews(number, payload, part, layout) {
   if (payload === null) return [];
-  return readTileSideViews(number, payload, span.sideBytes, layout.sideBytes);
+  return readTileSideViews(number, payload, part.sideBytes, layout.sideBytes);
 }
 
 /** Whether `box` meets the closed box `region` (each: low x, y, z, high x, y, z). */
