@@ -120,10 +120,6 @@ def check_encode_options(o: Any) -> None:
         check_int("--tile-size", o.tile_size, MIN_TILE_SIZE, MAX_TILE_SIZE)
     if o.span_size != 0:
         check_int("--span-size", o.span_size, MIN_TILE_SIZE, MAX_TILE_SIZE)
-        if o.target_size is not None:
-            raise InputError(
-                "--span-size does not combine with --target-size (each tile's side information does)"
-            )
     check_workers(o.workers)
     o.ray = check_ray(o.ray)
     # device: checked (DeviceError) by gspc/device.py check_device, also before any work (it needs torch)

@@ -422,9 +422,15 @@ def test_a_span_of_tiles_shares_its_side_information_and_refines_as_one(spanned,
     res = run("info", out)
     text = " ".join(res.output.split())  # rich wraps lines at the test's width
     assert res.exit_code == 0 and f"1 serve spans of {len(tiles)}-{len(tiles)} tiles" in text, res.output
-    assert EncodeOptions(span_size=0).validate() is None
     with pytest.raises(InputError, match="--span-size"):
-        EncodeOptions(span_size=4096, target_size=10_000).validate()
+        EncodeOptions(span_size=10).validate()
+    # In a byte target: the span's tiles and its side information share it (the tiles coded again in what
+    # the residuals leave).
+    target = int(0.9 * out.stat().st_size)
+    small = tmp_path / "small.gspc"
+    opts = EncodeOptions(**SIDED, workers=1, span_size=4 * MIN_TILE_SIZE, target_size=target)
+    encode(src, small, opts=opts)
+    assert small.stat().st_size <= target and read_file(small.read_bytes()).tiles.tiles[0].span == len(tiles)
     opts = DecodeOptions(iterations=3, workers=1)
     whole, drep = decode_bytes(out.read_bytes(), opts)
     assert drep.info["refine"].startswith(f"{len(tiles)} of {len(tiles)} tiles refined"), drep.info

@@ -241,8 +241,8 @@ def held_out_rows(
         # What refinement per tile does where it runs: the checks' verdicts set aside.
         ("tiles, each its own side information unchecked, neighbours drawn", [*tiled, *unchecked, *drawn]),
         ("tiles, each its own side information unchecked, alone", [*tiled, *unchecked, *alone]),
-        # Side information shared by spans of four tiles (spec 10.17), at the rate: a span takes no
-        # --target-size.
+        # Side information shared by spans of four tiles (spec 10.17), in the lead's bytes and at the rate.
+        ("tiles, spans' side information in one block's bytes", [*tiled, "--span-size", str(4 * tile_size)]),
         ("tiles, spans' shared side information, at the rate", [*tiled, "--span-size", str(4 * tile_size)]),
     ]
     rows: list[dict] = []

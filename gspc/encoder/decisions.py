@@ -300,7 +300,7 @@ def _decide_tiled_on(
         with stages.stage("tiles", announce=False):
             if opts.span_size and side is not None:  # side information shared by spans (spec 10.17)
                 plan, codings, at_rate, _ = code_spans(
-                    source, settings, opts.tile_size, opts.span_size, ex, stages.progress
+                    source, settings, opts.tile_size, opts.span_size, ex, stages.progress, budget, at_rate
                 )
             else:
                 plan, codings, at_rate = code_tiles(

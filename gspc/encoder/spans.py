@@ -43,6 +43,7 @@ from gspc.encoder.tiles import (
     code_tile,
     code_tiles,
     plan_neighbours,
+    retarget,
     tile_jobs,
 )
 from gspc.limits import MAX_DRAWN_TILES, MAX_SPAN_TILES
@@ -83,6 +84,7 @@ class SpanJob:
     opts: EncodeOptions
     drawn: tuple[int, ...] = ()
     drawn_tiles: tuple[tuple[object, object], ...] = ()  # each drawn tile's source and rows, as TileJob's
+    targets: tuple[int, ...] | None = None  # each tile's share of a byte target (None: at the rate)
 
 
 @dataclass(frozen=True)
@@ -116,6 +118,16 @@ def code_span(job: SpanJob) -> SpanCoding:
     reference_views = render_images(shown, view_cams, bg, backend="torch")
     coded_views = render_images(with_drawn(coded, drawn), view_cams, bg, backend="torch")
     side = side_candidates(opts, view_cams, view_residuals(reference_views, coded_views), runs.check)[0]
+    if side.payload is not None and job.targets is not None:
+        # In a byte target: the tiles coded again in what the side information leaves, its residuals made
+        # again for that coding (as gspc/encoder/side_decision.py does for one scene).
+        room = _shares(job.targets, len(side.payload) + CHUNK_ENTRY_BYTES)
+        again = (code_tile(replace(t, byte_target=r, tuning=None)) for t, r in zip(job.tiles, room))
+        job = replace(job, codings=tuple(again))
+        parts = [_decoded(c) for c in job.codings]
+        coded = GaussianScene.concat([p.scene for p in parts])
+        coded_views = render_images(with_drawn(coded, drawn), view_cams, bg, backend="torch")
+        side = side_candidates(opts, view_cams, view_residuals(reference_views, coded_views), runs.check)[0]
     if side.payload is None:
         return _declined(job, "none (no view's residual was worth sending)", runs.refine, t0)
     # No more iterations than a decode of a file of at least these payloads runs (spec 10.8).
@@ -188,21 +200,23 @@ def _tuned(job: SpanJob) -> tuple[TileCoding, ...]:
 
 
 def _rivals(job: SpanJob, extra: int) -> tuple[TileCoding, ...]:
-    """Each tile coded again in its bytes and its share of ``extra`` (by its bytes), tuned, for no
-    refinement: the same bytes as the span with its side information, on attributes alone."""
-    total = sum(c.num_bytes for c in job.codings)
+    """Each tile coded again in its bytes and its share of ``extra`` (by its bytes; in a byte target, its
+    share of it), tuned, for no refinement: the same bytes as the span with its side information, on
+    attributes alone."""
+    budgets = job.targets
+    if budgets is None:
+        total = sum(c.num_bytes for c in job.codings)
+        budgets = tuple(c.num_bytes + extra * c.num_bytes // max(total, 1) for c in job.codings)
     return tuple(
-        code_tile(
-            replace(
-                t,
-                params=t.params.unrefined(),
-                byte_target=c.num_bytes + extra * c.num_bytes // max(total, 1),
-                fidelity=None,
-                side=None,
-            )
-        )
-        for t, c in zip(job.tiles, job.codings)
+        code_tile(replace(t, params=t.params.unrefined(), byte_target=b, fidelity=None))
+        for t, b in zip(job.tiles, budgets)
     )
+
+
+def _shares(targets: Sequence[int], extra: int) -> list[int]:
+    """Each tile's target less its share of ``extra`` bytes (by its target)."""
+    total = sum(targets)
+    return [max(1, t - extra * t // max(total, 1)) for t in targets]
 
 
 def _decoded(coding: TileCoding) -> DecodedSection:
@@ -240,24 +254,29 @@ def code_spans(
     span_size: int,
     workers,
     progress: Progress | None = None,
+    byte_target: int | None = None,
+    at_rate: TilesAtRate | None = None,
 ) -> tuple[TilePlan, list[TileCoding], TilesAtRate, list[SpanCoding]]:
-    """The tiles of ``source`` coded at the rate for the decoder's refinement, joined into spans of at most
-    ``span_size`` Gaussians, and each span's side information weighed (the module's docstring), on
-    ``workers``: the tiles as the file holds them, in order, each span's first carrying its side
-    information (TileCoding.side; the others None)."""
+    """The tiles of ``source`` coded at the rate for the decoder's refinement (or each in its share of
+    ``byte_target`` attribute and side-information bytes), joined into spans of at most ``span_size``
+    Gaussians, and each span's side information weighed (the module's docstring), on ``workers``: the tiles
+    as the file holds them, in order, each span's first carrying its side information (TileCoding.side; the
+    others None). ``at_rate``: an earlier call's tiles at the rate (code_tiles')."""
     untuned = replace(settings, side=None, tuning=None)
-    plan, first, at_rate = code_tiles(source, untuned, tile_size, workers, None, progress)
+    plan, first, at_rate = code_tiles(source, untuned, tile_size, workers, byte_target, progress, at_rate)
+    targets = None if byte_target is None else retarget(at_rate.codings, byte_target)
     runs = plan_spans([c.given for c in first], span_size)  # what its task holds: the given Gaussians
     neighbours: list[tuple[int, ...]] = [() for _ in plan.rows]
     if settings.neighbours:
         neighbours = plan_neighbours(plan.rows, source.positions())
-    tiles = list(tile_jobs(source, replace(settings, side=None), at_rate))
+    tiles = list(tile_jobs(source, replace(settings, side=None), at_rate, targets))
 
     def jobs() -> Iterator[SpanJob]:
         for a, b in runs:
             drawn = span_drawn(neighbours, a, b, MAX_DRAWN_TILES)
             others = tuple(source.tile(plan.rows[j]) for j in drawn)
-            yield SpanJob(a, tuple(tiles[a:b]), tuple(first[a:b]), settings.side, drawn, others)
+            shares = None if targets is None else tuple(targets[a:b])
+            yield SpanJob(a, tuple(tiles[a:b]), tuple(first[a:b]), settings.side, drawn, others, shares)
 
     stage = "spans' side information"
     spans = list(run_tasks(code_span, jobs(), workers, _span_name, len(runs), progress, stage))
