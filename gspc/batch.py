@@ -19,7 +19,7 @@ from gspc.device import check_device
 from gspc.errors import InputError
 from gspc.io import read_scene
 from gspc.io.camera_files import load_cameras
-from gspc.limits import ENCODE_WORKER_BYTES
+from gspc.limits import encode_worker_bytes
 from gspc.options import EncodeOptions
 from gspc.paths import refuse_output_over_input
 from gspc.pipeline import Report, encode_rows, encode_scene, large_ply
@@ -186,7 +186,7 @@ def encode_batch(
         (untiled if rows is None else tiled).append((s, cameras, rows))
 
     one = replace(opts, workers=1, ray=None, ship_inputs=False)
-    with open_executor(opts.workers, opts.ray, ENCODE_WORKER_BYTES) as ex:
+    with open_executor(opts.workers, opts.ray, encode_worker_bytes(opts.span_size)) as ex:
         sent: list[BatchScene] = []
 
         def jobs() -> Iterator[SceneJob]:

@@ -343,3 +343,19 @@ class DecodeBudget:
 # and Gaussians.
 ENCODE_WORKER_BYTES = 2 << 30
 DECODE_WORKER_BYTES = 512 << 20
+# A span's task (spec 10.17) holds its tiles' original and coded Gaussians, their renders and one refinement
+# of them all; decoding a span, the refinement of its Gaussians: per Gaussian of the span, with a margin over
+# the largest processes of bench/tiles.md ("Side information shared by spans of tiles"; one block's decode in
+# "Side information per tile").
+SPAN_ENCODE_BYTES_PER_GAUSSIAN = 3 << 10
+SPAN_DECODE_BYTES_PER_GAUSSIAN = 2 << 10
+
+
+def encode_worker_bytes(span_size: int) -> int:
+    """What one encode worker may need with tiles joined in spans of ``span_size`` Gaussians (0: none)."""
+    return max(ENCODE_WORKER_BYTES, SPAN_ENCODE_BYTES_PER_GAUSSIAN * span_size)
+
+
+def decode_worker_bytes(span_gaussians: int) -> int:
+    """What one decode worker may need where the largest span it refines holds ``span_gaussians``."""
+    return max(DECODE_WORKER_BYTES, SPAN_DECODE_BYTES_PER_GAUSSIAN * span_gaussians)

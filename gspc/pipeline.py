@@ -34,7 +34,7 @@ from gspc.io import read_scene, scene_writer
 from gspc.io.camera_files import load_cameras
 from gspc.io.ply import PlyRows, write_ply, write_ply_parts
 from gspc.jit import compile_kernels, uncompiled_kernels
-from gspc.limits import DECODE_WORKER_BYTES, default_refine_iterations
+from gspc.limits import decode_worker_bytes, default_refine_iterations
 from gspc.options import DecodeOptions, EncodeOptions, check_region
 from gspc.paths import refuse_output_over_input
 from gspc.progress import Progress
@@ -335,7 +335,8 @@ def _decode_tiles_to(
     if not chosen:
         raise InputError(f"--region meets none of the file's {len(tiles.tiles)} tiles; nothing to write")
     n = sum(tiles.tiles[k].n for k in chosen)
-    executor = open_executor(opts.workers, opts.ray, DECODE_WORKER_BYTES)
+    spans = [sum(t.n for t in tiles.tiles[k : k + s.span]) for k, s in enumerate(tiles.tiles) if s.span > 1]
+    executor = open_executor(opts.workers, opts.ray, decode_worker_bytes(max(spans, default=0)))
     with executor as ex, stages.stage("tiles", announce=False):
         rep.bytes = reader.budget
         rep.num_gaussians_in = rep.num_gaussians_out = n

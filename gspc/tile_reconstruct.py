@@ -66,10 +66,6 @@ class TileReconstruction:
     tiles: tuple[tuple[int, GaussianScene], ...]
     outcome: TileOutcome
 
-    @property
-    def scene(self) -> GaussianScene:
-        return GaussianScene.concat([s for _, s in self.tiles])
-
 
 def reconstruct_tile(job: TileReconstructJob) -> TileReconstruction:
     """The tile's Gaussians (and its span's: spec 10.17): decoded, then restored and refined against its own

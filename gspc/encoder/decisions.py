@@ -51,7 +51,7 @@ from gspc.errors import CodecError, InputError
 from gspc.format.file import pack_file, pack_tiled_file, read_file
 from gspc.format.header import FileHeader, SceneSummary, SideInfoHeader
 from gspc.format.view_records import check_view_pixels
-from gspc.limits import ENCODE_WORKER_BYTES
+from gspc.limits import encode_worker_bytes
 from gspc.options import EncodeOptions
 from gspc.presets import quality_preset
 from gspc.reconstruct import check_decode_work, decode_work, refine_iterations
@@ -271,7 +271,7 @@ def decide_tiled(
     """A scene larger than a tile, as spatial tiles each coded alone, on ``executor`` (None: the options'
     workers or Ray; gspc/encoder/tiles.py); ``source`` reads its Gaussians by rows (gspc/io/ply.py PlyRows,
     SceneRows). Tiled files carry no side information: the decoder takes their attributes as they are."""
-    with executor_for(executor, opts.workers, opts.ray, ENCODE_WORKER_BYTES) as ex:
+    with executor_for(executor, opts.workers, opts.ray, encode_worker_bytes(opts.span_size)) as ex:
         return _decide_tiled_on(source, cameras, opts, stages, ex)
 
 
