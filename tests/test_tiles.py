@@ -470,3 +470,23 @@ def test_hostile_spans_are_refused(spanned):
     for index, needle in cases:
         with pytest.raises(CodecError, match=needle):
             read_file(_rewritten(out, index))
+
+
+def test_a_spans_check_sends_what_beats_its_rival_and_the_same_bytes_on_any_workers(tmp_path):
+    src = tmp_path / "in.ply"
+    write_ply(scene(), src)
+    checked = {**SIDED, "check_iterations": 5, "span_size": 2 * MIN_TILE_SIZE}
+    out = {}
+    for name, margin, workers in [("sent", -50.0, 1), ("sent2", -50.0, 2), ("declined", 50.0, 2)]:
+        out[name] = tmp_path / f"{name}.gspc"
+        opts = EncodeOptions(**checked, check_margin_db=margin, workers=workers)
+        rep = encode(src, out[name], opts=opts)
+        f = read_file(out[name].read_bytes())
+        sent = [k for k, side in enumerate(f.tile_sides) if side is not None]
+        if name == "declined":  # the spans' tiles as a file without side information holds them
+            assert not sent and "declined by the check" in rep.info["side info"], rep.info
+        else:
+            assert sent and all(f.tiles.tiles[k].span == 2 for k in sent), rep.info
+            reasons = [rep.decisions.tiles[k].side.reason for k in sent]
+            assert all(r.startswith("sent: at") and "(tuned)" in r for r in reasons), reasons
+    assert out["sent"].read_bytes() == out["sent2"].read_bytes()
