@@ -270,7 +270,8 @@ def decide_tiled(
 ) -> EncoderDecisions:
     """A scene larger than a tile, as spatial tiles each coded alone, on ``executor`` (None: the options'
     workers or Ray; gspc/encoder/tiles.py); ``source`` reads its Gaussians by rows (gspc/io/ply.py PlyRows,
-    SceneRows). Tiled files carry no side information: the decoder takes their attributes as they are."""
+    SceneRows). Each tile weighs side information of its own (spec 10.15), or each span of tiles
+    (``--span-size``, 10.17: gspc/encoder/spans.py)."""
     with executor_for(executor, opts.workers, opts.ray, encode_worker_bytes(opts.span_size)) as ex:
         return _decide_tiled_on(source, cameras, opts, stages, ex)
 
