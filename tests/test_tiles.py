@@ -13,6 +13,8 @@ from cli_runs import assert_one_line_error, run
 from scenes import random_scene, unbounded
 
 import gspc.format.container as container
+from gspc.codec.cells import span_cells
+from gspc.codec.tiles import decode_tile_section, file_tile_jobs
 from gspc.encoder.tiles import _octree_runs, plan_tiles
 from gspc.errors import CodecError, InputError
 from gspc.format.file import FileReader, read_file
@@ -439,7 +441,12 @@ def test_a_span_of_tiles_shares_its_side_information_and_refines_as_one(spanned,
     start = [0, *np.cumsum([t.n for t in tiles])]
     last = slice(int(start[-2]), int(start[-1]))
     assert not torch.equal(whole.sh_dc[last], plain.sh_dc[last])  # a member's values moved too
-    # Every value stays in its own tile's cell: refining in cells keeps the decoded positions' voxels.
+    # Every refined value stays inside its own tile's cell (spec 10.17), the span refined as one scene.
+    jobs = file_tile_jobs(f.tiles.tiles, f.tile_chunks)
+    cells = span_cells([(d.scene, j.section, d.precision) for j in jobs for d in [decode_tile_section(j)]])
+    for name, (lo, hi) in cells.items():
+        value = getattr(whole, name)
+        assert bool(((value >= lo - 1e-6) & (value <= hi + 1e-6)).all()), name
     two = tmp_path / "two.gspc"
     encode(src, two, opts=EncodeOptions(**SIDED, workers=2, span_size=4 * MIN_TILE_SIZE))
     assert two.read_bytes() == out.read_bytes()

@@ -35,14 +35,13 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Sequence
 from pathlib import Path
 
 import torch
 
 from gspc.cameras import Camera
 from gspc.codec import residuals
-from gspc.codec.cells import quantisation_cells
+from gspc.codec.cells import quantisation_cells, span_cells
 from gspc.codec.quantisers import Box
 from gspc.codec.tiles import TileDecodeJob, decode_tile_section
 from gspc.encoder.side import side_candidate, view_residuals
@@ -52,20 +51,12 @@ from gspc.io.camera_files import load_cameras
 from gspc.io.cameras_json import save_cameras_json
 from gspc.metrics import mean_psnr
 from gspc.presets import QUALITY
-from gspc.reconstruct import decoder_schedule, render_images, restored_targets, view_coverage
-from gspc.refine import Refinement
+from gspc.reconstruct import decoder_refinement, render_images, restored_targets
 from gspc.render.work import view_pairs
 from gspc.restore.restorer import load_restorer
-from gspc.scene import ATTRIBUTE_NAMES, GaussianScene
+from gspc.scene import GaussianScene
 
 BACKGROUND = (0.0, 0.0, 0.0)
-
-
-def joined_cells(cells: Sequence[dict[str, Box]]) -> dict[str, Box]:
-    """The tiles' cells as one scene's, in the tiles' order."""
-    return {
-        k: (torch.cat([c[k][0] for c in cells]), torch.cat([c[k][1] for c in cells])) for k in ATTRIBUTE_NAMES
-    }
 
 
 def refined(
@@ -76,10 +67,9 @@ def refined(
     drawn: GaussianScene | None,
     iterations: int,
 ) -> GaussianScene:
-    """The decoder's refinement (gspc/reconstruct.py decoder_refinement's schedule) of ``scene`` inside
-    ``cells``, ``drawn`` rendered beside it and never refined."""
-    schedule = decoder_schedule(iterations, 1.0, view_coverage(scene, cams))
-    run = Refinement(scene, cams, targets, schedule, torch.tensor(BACKGROUND), cells, 0, drawn=drawn)
+    """The decoder's refinement (gspc/reconstruct.py decoder_refinement) of ``scene`` inside ``cells``,
+    ``drawn`` rendered beside it and never refined."""
+    run = decoder_refinement(scene, None, cams, targets, iterations, BACKGROUND, drawn=drawn, cells=cells)
     run.run()
     return run.result().scene
 
@@ -150,7 +140,8 @@ def run_scene(args: argparse.Namespace, work: Path) -> list[str]:
         ]
     decoded = [decode_tile_section(j) for j in jobs]
     tiles = [d.scene for d in decoded]
-    cells = [quantisation_cells(d.scene, j.section, d.precision) for d, j in zip(decoded, jobs)]
+    parts = [(d.scene, j.section, d.precision) for d, j in zip(decoded, jobs)]
+    cells = [quantisation_cells(*part) for part in parts]
     whole = GaussianScene.concat(tiles)
 
     preset = QUALITY["low"]
@@ -177,7 +168,7 @@ def run_scene(args: argparse.Namespace, work: Path) -> list[str]:
     if "global" in variants:
         timed(
             "global: every tile at once, every view",
-            lambda: [refined(whole, side_cams, targets, joined_cells(cells), None, args.iterations)],
+            lambda: [refined(whole, side_cams, targets, span_cells(parts), None, args.iterations)],
         )
     if "frozen" in variants:
         first = timed(

@@ -156,31 +156,31 @@ def span_candidate(job: SpanJob) -> SpanCandidate:
     bg = opts.background
     reference_views = render_images(with_drawn(original, seen.drawn), seen.view_cams, bg, backend="torch")
 
-    def residuals(codings: tuple[TileCoding, ...]) -> SideCandidate:
-        shown = with_drawn(_joined(codings), seen.drawn)
-        coded_views = render_images(shown, seen.view_cams, bg, backend="torch")
+    def residuals(coded: GaussianScene) -> SideCandidate:
+        coded_views = render_images(with_drawn(coded, seen.drawn), seen.view_cams, bg, backend="torch")
         res = view_residuals(reference_views, coded_views)
         return side_candidates(opts, seen.view_cams, res, runs.check)[0]
 
     codings = job.codings
-    side = residuals(codings)
+    side = residuals(coded)
     if side.payload is not None and job.targets is not None:
         # In a byte target: the tiles coded again in what the side information leaves, its residuals made
         # again for that coding (as gspc/encoder/side_decision.py does for one scene).
         room = _shares(job.targets, len(side.payload) + CHUNK_ENTRY_BYTES)
         codings = tuple(code_tile(replace(t, byte_target=r, tuning=None)) for t, r in zip(job.tiles, room))
-        side = residuals(codings)
+        coded = _joined(codings)
+        side = residuals(coded)
     if side.payload is None:
         why = "none (no view's residual was worth sending)"
         return SpanCandidate(codings, None, why, runs.refine, _since(t0))
     # No more iterations than a decode of a file of at least these payloads runs (spec 10.8).
     least = sum(c.num_bytes for c in codings) + len(side.payload)
-    shown = with_drawn(_joined(codings), seen.drawn)
+    shown = with_drawn(coded, seen.drawn)
     runs = iteration_counts(opts, coded.num_gaussians, work_bound(shown, seen.view_cams, side.images, least))
     if runs.check > 0:
         return SpanCandidate(codings, side, "", runs.refine, _since(t0))
     why = "sent (unchecked, --check-iterations 0)"
-    done = _sent(job, codings, side, why, runs.refine, seen, t0)
+    done = _sent(job, codings, coded, side, why, runs.refine, seen, t0)
     return SpanCandidate(codings, side, why, runs.refine, _since(t0), done)
 
 
@@ -220,7 +220,7 @@ def check_span(task: SpanCheckJob) -> SpanCoding:
         f"bytes on its tiles' attributes (tuned) {rival_db:.2f} dB"
     )
     if after >= max(before, rival_db) + opts.check_margin_db:
-        return _sent(job, cand.codings, side, f"sent: {measured}", cand.iterations, seen, t0)
+        return _sent(job, cand.codings, coded, side, f"sent: {measured}", cand.iterations, seen, t0)
     at_fidelity = job.tiles[0].fidelity is not None
     kept = () if at_fidelity else task.rivals
     why = "left unspent" if at_fidelity else "spent on its tiles' attributes"
@@ -232,17 +232,17 @@ def check_span(task: SpanCheckJob) -> SpanCoding:
 def _sent(
     job: SpanJob,
     codings: tuple[TileCoding, ...],
+    coded: GaussianScene,
     side: SideCandidate,
     reason: str,
     iterations: int,
     seen: _Seen,
     t0: float,
 ) -> SpanCoding:
-    """The span's tiles as coded for refinement, its first naming the span and its drawn tiles, and the side
-    information with what its views ask of a decoder (with its neighbours as the original has them; the
-    file's check counts them decoded)."""
-    shown = with_drawn(_joined(codings), seen.drawn)
-    work = decode_work(shown, seen.view_cams, side.images, None)
+    """The span's tiles as coded for refinement (``coded``: their decoded Gaussians), its first naming the
+    span and its drawn tiles, and the side information with what its views ask of a decoder (with its
+    neighbours as the original has them; the file's check counts them decoded)."""
+    work = decode_work(with_drawn(coded, seen.drawn), seen.view_cams, side.images, None)
     sent = TileSide(side.payload, reason, iterations, work, side.views_with_residual)
     lead = replace(codings[0], tile=replace(codings[0].tile, drawn=job.drawn, span=len(codings)))
     return SpanCoding(job.first, (lead, *codings[1:]), sent, _since(t0))
@@ -284,7 +284,7 @@ def _decoded(coding: TileCoding) -> DecodedSection:
 
 
 def _source(t: TileJob) -> GaussianScene:
-    return t.source if t.rows is None else t.source.rows(t.rows)
+    return _source_of(t.source, t.rows)
 
 
 def _source_of(source, rows) -> GaussianScene:
